@@ -1,0 +1,278 @@
+"""One abstract base per backend kind, Nav2-style.
+
+Every backend has the same lifecycle:
+
+1. the factory returned by a ``amslam_<kind>_backends`` hook is called with no arguments;
+2. ``configure(params, context)`` receives the backend's own validated ``Params`` model and the
+   run's :class:`RunContext`; no hardware, network or heavy work happens before this;
+3. work methods are called by the runner;
+4. ``close()`` releases everything, and is safe to call twice.
+
+Each backend declares ``Params``: a pydantic model (``extra="forbid"``) of its parameters with
+defaults and descriptions. The mission's section for the backend is validated against it
+(``amslam validate``) and ``amslam dump-config KIND PLUGIN`` prints it.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from amslam.types import (
+    BoundingBox,
+    CameraModel,
+    Detection,
+    Frame,
+    KeyPose,
+    Landmark,
+    LoopClosureResult,
+    Odometry,
+    PlanRequest,
+    RobotSpec,
+    SlcCandidate,
+    TourItem,
+    VehicleStatus,
+    Viewpoint,
+    WorldSummary,
+)
+
+
+class BackendParams(BaseModel):
+    """Base of every backend's parameter model: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass
+class RunContext:
+    """What the runner hands every backend at configure time.
+
+    Attributes:
+        rng: the backend's own generator, spawned from the mission seed.
+        run_dir: the run folder (backends may write extra artefacts there).
+        emit: ``emit(event_name, **fields)`` appends to ``events.jsonl``.
+        camera: the platform's camera (None while the platform itself is configured).
+        world: ground truth of a simulated world (None on a real vehicle).
+        robot: size and motion limits of the vehicle.
+        area: the region to explore (world frame); frontiers outside it are ignored.
+        mission_dir: folder of the mission file, for resolving relative paths.
+        extras: anything a plugin-specific integration needs (kept small).
+    """
+
+    rng: np.random.Generator
+    run_dir: Path
+    emit: Callable[..., None] = lambda *a, **k: None
+    camera: CameraModel | None = None
+    world: WorldSummary | None = None
+    robot: RobotSpec = field(default_factory=RobotSpec)
+    area: BoundingBox | None = None
+    mission_dir: Path = field(default_factory=Path.cwd)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class Backend(abc.ABC):  # noqa: B024 — the lifecycle methods are optional
+    """Lifecycle shared by all backend kinds."""
+
+    Params: ClassVar[type[BackendParams]] = BackendParams
+
+    def configure(self, params: BackendParams, context: RunContext) -> None:  # noqa: B027
+        """Receive validated parameters and the run context."""
+
+    def close(self) -> None:  # noqa: B027
+        """Release resources. Safe to call twice."""
+
+
+class Platform(Backend):
+    """The vehicle: the built-in simulator or a real one.
+
+    Setpoints are in the odometry frame. The runner owns the clock: for a simulated platform
+    ``advance(dt)`` integrates the world by ``dt`` seconds of simulated time; for a real one it
+    waits until ``dt`` of wall-clock time has passed.
+    """
+
+    simulated: ClassVar[bool] = True
+
+    @property
+    @abc.abstractmethod
+    def camera(self) -> CameraModel:
+        """The depth camera (valid after configure)."""
+
+    @abc.abstractmethod
+    def start(self) -> None:
+        """Connect (real) or build the world (simulated). Called once before the first tick."""
+
+    @abc.abstractmethod
+    def time(self) -> float:
+        """Platform clock in seconds since start."""
+
+    @abc.abstractmethod
+    def advance(self, dt: float) -> None:
+        """Let ``dt`` seconds pass (see class docstring)."""
+
+    @abc.abstractmethod
+    def odometry(self) -> Odometry:
+        """The latest VIO estimate."""
+
+    @abc.abstractmethod
+    def capture(self) -> Frame | None:
+        """A new RGB-D frame if one is due at the current time, else None."""
+
+    @abc.abstractmethod
+    def set_setpoint(self, position_odom: np.ndarray, yaw: float) -> None:
+        """Fly towards a position (odometry frame) and heading."""
+
+    @abc.abstractmethod
+    def arm_and_takeoff(self, altitude: float) -> None:
+        """Arm and climb to ``altitude`` above the start; idempotent."""
+
+    @abc.abstractmethod
+    def land(self) -> None:
+        """Descend and disarm at the current place; idempotent."""
+
+    @abc.abstractmethod
+    def status(self) -> VehicleStatus:
+        """Armed / airborne / crashed."""
+
+    def ground_truth(self) -> np.ndarray | None:
+        """True ``T_world_body`` (simulator only)."""
+        return None
+
+    def world_summary(self) -> WorldSummary | None:
+        """Ground truth about the world for metrics (simulator only)."""
+        return None
+
+
+class Mapping(Backend):
+    """Volumetric occupancy mapping: a global world-frame map and a local odometry-frame map."""
+
+    @abc.abstractmethod
+    def integrate_global(self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> BoundingBox:
+        """Fuse a depth image into the global map; return the box it touched."""
+
+    @abc.abstractmethod
+    def integrate_local(self, depth: np.ndarray, K: np.ndarray, T_odom_cam: np.ndarray) -> BoundingBox:
+        """Fuse a depth image into the ego-centric local map; return the box it touched."""
+
+    @abc.abstractmethod
+    def states(self, points: np.ndarray, *, local: bool = False) -> np.ndarray:
+        """``VoxelState`` values (int8) of the voxels holding ``points`` (N×3)."""
+
+    @abc.abstractmethod
+    def viewpoints(self) -> list[Viewpoint]:
+        """Frontier viewpoints, updated incrementally since the last call."""
+
+    @abc.abstractmethod
+    def path_costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """S×T path lengths (m) through known free space of the global map; inf if unreachable."""
+
+    @abc.abstractmethod
+    def plan_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """Collision-free waypoints (K×3, world frame) from start to goal, or None."""
+
+    @abc.abstractmethod
+    def segment_free(self, a: np.ndarray, b: np.ndarray, *, local: bool = False) -> bool:
+        """Whether the straight segment, inflated by the robot radius, avoids occupied voxels."""
+
+    @abc.abstractmethod
+    def explored_volume(self) -> float:
+        """Known (free or occupied) volume of the global map in m³."""
+
+    def explored_volume_in(self, lo: np.ndarray, hi: np.ndarray) -> float:
+        """Known volume of the global map inside a box, in m³."""
+        raise NotImplementedError
+
+    def free_volume_in(self, lo: np.ndarray, hi: np.ndarray) -> float:
+        """Known free volume of the global map inside a box, in m³."""
+        raise NotImplementedError
+
+    @abc.abstractmethod
+    def occupied_points(self) -> np.ndarray:
+        """Centres of occupied global voxels (N×3)."""
+
+    @abc.abstractmethod
+    def voxel_size(self) -> float:
+        """Edge of a global voxel in metres."""
+
+    def save(self, path: Path) -> None:
+        """Write the whole map to a compressed file."""
+        raise NotImplementedError(f"{type(self).__name__} cannot save maps")
+
+    def load(self, path: Path) -> None:
+        """Load a map written by :meth:`save`."""
+        raise NotImplementedError(f"{type(self).__name__} cannot load maps")
+
+
+class Detector(Backend):
+    """Object detection: a frame in, 3-D detections (camera frame) out."""
+
+    rate_hz: float = 2.0
+
+    @abc.abstractmethod
+    def detect(self, frame: Frame) -> list[Detection]:
+        """Objects in the frame, lifted to the camera frame with depth."""
+
+
+class Slam(Backend):
+    """Pose-graph SLAM: world-frame estimates from VIO and object detections."""
+
+    @abc.abstractmethod
+    def add_odometry(self, odom: Odometry) -> bool:
+        """Feed a VIO pose; return True when a key pose was created."""
+
+    @abc.abstractmethod
+    def add_detections(self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]) -> None:
+        """Feed detections made at the VIO pose ``odom``."""
+
+    @abc.abstractmethod
+    def T_world_odom(self) -> np.ndarray:
+        """Current correction from the odometry frame to the world frame (drift compensation)."""
+
+    @abc.abstractmethod
+    def keyposes(self) -> list[KeyPose]:
+        """Optimised key poses, oldest first."""
+
+    @abc.abstractmethod
+    def landmarks(self) -> list[Landmark]:
+        """The semantic map."""
+
+    def uncertainty(self) -> tuple[float, float]:
+        """(mean pose covariance trace, mean landmark covariance trace)."""
+        return (0.0, 0.0)
+
+    def try_loop_closure(
+        self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]
+    ) -> LoopClosureResult:
+        """Attempt a semantic loop closure with what is in view now."""
+        return LoopClosureResult(False, f"{type(self).__name__} does not close loops")
+
+    def slc_candidates(self, sensing_range: float) -> list[SlcCandidate]:
+        """Loop-closure candidates (paper 1 §VI-C) with their information gain."""
+        return []
+
+    def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:
+        """Eq. (10): trace reduction from a virtual factor to each key pose."""
+        return np.zeros(len(keypose_ids))
+
+
+class Planner(Backend):
+    """Exploration planning: a tour over viewpoints (and loop-closure candidates)."""
+
+    @abc.abstractmethod
+    def plan(self, request: PlanRequest) -> list[TourItem]:
+        """An ordered tour; empty when nothing is worth visiting."""
+
+
+#: Backend kind name → its abstract base; the order is the order of configuration.
+BACKEND_KINDS: dict[str, type[Backend]] = {
+    "platform": Platform,
+    "mapping": Mapping,
+    "slam": Slam,
+    "detector": Detector,
+    "planner": Planner,
+}

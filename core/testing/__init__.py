@@ -1,0 +1,1 @@
+"""Contract test kits that plugin authors run with pytest against their own backends."""

@@ -1,0 +1,297 @@
+"""Plain data that crosses backend boundaries.
+
+Only numpy arrays, Python scalars and small frozen dataclasses live here: no backend's own
+objects (no ``gtsam.Pose3``, no Open3D tensor) ever appear in an interface signature.
+
+Frames and conventions (see docs/architecture.md):
+
+* **world** — the SLAM frame: global map, semantic map, planner, tour. ENU, z up.
+* **odom** — the VIO frame: local map, trajectory tracking, setpoints. ENU, z up.
+* **body** — FLU: x forward, y left, z up.
+* **camera** — optical: z forward, x right, y down.
+
+Poses are 4×4 homogeneous numpy arrays ``T_a_b`` mapping points in frame *b* into frame *a*.
+Yaw is in radians in (-π, π]. Units are SI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum, StrEnum
+
+import numpy as np
+
+#: Fixed rotation from the camera optical frame to the body frame (camera looks along body +x).
+R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+class VoxelState(int, Enum):
+    """Occupancy state of a voxel as reported by a mapping backend."""
+
+    UNKNOWN = -1
+    FREE = 0
+    OCCUPIED = 1
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A pinhole depth camera rigidly mounted on the body.
+
+    Attributes:
+        width: image width in pixels.
+        height: image height in pixels.
+        K: 3×3 intrinsic matrix.
+        T_body_cam: 4×4 pose of the camera optical frame in the body frame.
+        min_range: closest valid depth in metres.
+        max_range: farthest valid depth in metres.
+        rate_hz: frame rate the platform delivers.
+    """
+
+    width: int
+    height: int
+    K: np.ndarray
+    T_body_cam: np.ndarray
+    min_range: float = 0.3
+    max_range: float = 5.0
+    rate_hz: float = 10.0
+
+    @staticmethod
+    def from_fov(
+        width: int,
+        height: int,
+        hfov_deg: float,
+        vfov_deg: float,
+        *,
+        min_range: float = 0.3,
+        max_range: float = 5.0,
+        rate_hz: float = 10.0,
+        T_body_cam: np.ndarray | None = None,
+    ) -> CameraModel:
+        """Build a camera from its resolution and fields of view (degrees)."""
+        fx = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
+        fy = (height / 2.0) / np.tan(np.radians(vfov_deg) / 2.0)
+        K = np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+        if T_body_cam is None:
+            T_body_cam = np.eye(4)
+            T_body_cam[:3, :3] = R_BODY_CAM
+        return CameraModel(width, height, K, T_body_cam, min_range, max_range, rate_hz)
+
+    @property
+    def hfov(self) -> float:
+        """Horizontal field of view in radians."""
+        return 2.0 * float(np.arctan((self.width / 2.0) / self.K[0, 0]))
+
+    @property
+    def vfov(self) -> float:
+        """Vertical field of view in radians."""
+        return 2.0 * float(np.arctan((self.height / 2.0) / self.K[1, 1]))
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """A VIO estimate of the body pose in the odometry frame."""
+
+    stamp: float
+    T_odom_body: np.ndarray
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One RGB-D capture.
+
+    Attributes:
+        stamp: capture time in seconds (platform clock).
+        depth: H×W float32 depth along the optical axis in metres; 0 means no return.
+        K: 3×3 intrinsics of this image.
+        T_odom_cam: VIO pose of the camera at capture time.
+        rgb: H×W×3 uint8 image, if the platform renders one.
+        instance: H×W int32 instance ids (0 = background), simulator only.
+        class_id: H×W int32 class ids (0 = background), simulator only.
+        class_names: names of the class ids, index 0 unused.
+        T_world_cam_truth: ground-truth camera pose, simulator only.
+    """
+
+    stamp: float
+    depth: np.ndarray
+    K: np.ndarray
+    T_odom_cam: np.ndarray
+    rgb: np.ndarray | None = None
+    instance: np.ndarray | None = None
+    class_id: np.ndarray | None = None
+    class_names: tuple[str, ...] = ()
+    T_world_cam_truth: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One object seen in one frame, already lifted to 3-D.
+
+    Attributes:
+        class_name: semantic class, e.g. ``"chair"``.
+        confidence: classification confidence in [0, 1].
+        centroid_cam: robust centroid of the object's surface points in the camera frame.
+        points_cam: N×3 object points in the camera frame (for shape fitting), may be empty.
+    """
+
+    class_name: str
+    confidence: float
+    centroid_cam: np.ndarray
+    points_cam: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+@dataclass(frozen=True)
+class BoundingBox:
+    """Axis-aligned box, ``lo`` and ``hi`` corners in metres."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        return bool(np.any(self.hi < self.lo))
+
+    @staticmethod
+    def nothing() -> BoundingBox:
+        return BoundingBox(np.full(3, np.inf), np.full(3, -np.inf))
+
+
+@dataclass(frozen=True)
+class Viewpoint:
+    """A place to look from, covering one frontier cluster.
+
+    Attributes:
+        id: stable within one mapping backend while its cluster lives.
+        position: world-frame position of the body.
+        yaw: heading in radians.
+        gain: information gain — unknown volume (m³) expected to be seen.
+        cluster_centroid: centroid of the frontier cluster it covers.
+        cluster_size: number of frontier voxels in that cluster.
+    """
+
+    id: int
+    position: np.ndarray
+    yaw: float
+    gain: float
+    cluster_centroid: np.ndarray
+    cluster_size: int
+
+
+@dataclass(frozen=True)
+class KeyPose:
+    """An optimised key pose of the SLAM graph."""
+
+    id: int
+    stamp: float
+    T_world_body: np.ndarray
+    distance: float  # odometry distance travelled when the key pose was created
+
+
+@dataclass(frozen=True)
+class Landmark:
+    """An object landmark of the semantic map (world frame)."""
+
+    id: int
+    class_name: str
+    position: np.ndarray
+    covariance: np.ndarray
+    observations: int
+    first_keypose: int = -1
+    shape: dict | None = None  # model-specific parameters (cuboid, cylinder), see paper 2
+
+
+@dataclass(frozen=True)
+class LoopClosureResult:
+    """Outcome of one semantic loop-closure attempt."""
+
+    accepted: bool
+    reason: str
+    matched: int = 0
+    residual: float = float("nan")
+    yaw_correction: float = 0.0
+    translation_correction: float = 0.0
+
+
+@dataclass(frozen=True)
+class SlcCandidate:
+    """A place to revisit for a semantic loop closure (paper 1 §VI-C)."""
+
+    keypose_id: int
+    position: np.ndarray
+    yaw: float
+    landmark_ids: tuple[int, ...]
+    info_gain: float = 0.0
+
+
+class TourItemKind(StrEnum):
+    EXPLORE = "explore"
+    SLC = "slc"
+
+
+@dataclass(frozen=True)
+class TourItem:
+    """One stop of the refined tour (world frame)."""
+
+    kind: TourItemKind
+    position: np.ndarray
+    yaw: float
+    gain: float
+    ref: int  # viewpoint id for EXPLORE, key-pose id for SLC
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """Everything a planner needs, computed by the runner from the other backends.
+
+    Attributes:
+        start: world-frame position of the robot.
+        start_yaw: current yaw.
+        viewpoints: frontier viewpoints (index i ↔ row/column i+1 of ``costs``).
+        costs: (N+1)×(N+1) path costs in metres; index 0 is the robot; ``inf`` = unreachable.
+        slc_candidates: loop-closure candidates with their predicted information gain.
+        slc_costs: (C)×(N+1) path cost from each candidate to the robot and each viewpoint.
+        camera: the camera model, for field-of-view overlap.
+    """
+
+    start: np.ndarray
+    start_yaw: float
+    viewpoints: tuple[Viewpoint, ...]
+    costs: np.ndarray
+    camera: CameraModel
+    slc_candidates: tuple[SlcCandidate, ...] = ()
+    slc_costs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """The vehicle's size and motion limits, from the mission's ``robot`` section."""
+
+    radius: float = 0.25
+    max_speed: float = 1.0
+    max_acceleration: float = 1.5
+    max_yaw_rate: float = 1.0
+    altitude: float = 1.2  # take-off height above the start, metres
+
+
+@dataclass(frozen=True)
+class VehicleStatus:
+    """What the platform says about the vehicle."""
+
+    armed: bool
+    airborne: bool
+    crashed: bool = False
+    crash_reason: str = ""
+
+
+@dataclass(frozen=True)
+class WorldSummary:
+    """Ground truth about a simulated world, for metrics (None on a real vehicle)."""
+
+    name: str
+    bounds_lo: np.ndarray
+    bounds_hi: np.ndarray
+    reachable_free_volume: float
+    floor_heights: tuple[float, ...]
+    reachable_free_volume_per_floor: tuple[float, ...]
+    objects_by_class: dict[str, int]
+    object_positions: dict[str, np.ndarray] = field(default_factory=dict)
+    object_classes: dict[str, str] = field(default_factory=dict)

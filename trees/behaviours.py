@@ -1,0 +1,1 @@
+"""Stock behaviour-tree leaves (filled in by the tree builder module)."""
