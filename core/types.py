@@ -284,7 +284,11 @@ class VehicleStatus:
 
 @dataclass(frozen=True)
 class WorldSummary:
-    """Ground truth about a simulated world, for metrics (None on a real vehicle)."""
+    """Ground truth about a simulated world, for metrics (None on a real vehicle).
+
+    ``floor_heights`` are the z of each floor's slab (ascending); floor i spans
+    [floor_heights[i], floor_heights[i+1]) and the last floor up to ``bounds_hi[2]``.
+    """
 
     name: str
     bounds_lo: np.ndarray
@@ -295,3 +299,7 @@ class WorldSummary:
     objects_by_class: dict[str, int]
     object_positions: dict[str, np.ndarray] = field(default_factory=dict)
     object_classes: dict[str, str] = field(default_factory=dict)
+    #: centres of the reachable free cells (M×3) on a grid of ``reachable_cell`` metres: free
+    #: space connected to the start. Explored % = share of these a map knows (free or occupied).
+    reachable_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    reachable_cell: float = 0.25
