@@ -1,1 +1,348 @@
-"""Stock behaviour-tree leaves (filled in by the tree builder module)."""
+"""The stock behaviour-tree leaves of an exploration mission.
+
+Each leaf is thin: its constructor takes configuration only, ``setup(robot=...)`` receives the
+:class:`amslam.robot.Robot` facade, ``initialise`` starts work, ``update`` polls and returns quickly,
+``terminate`` cancels. Blackboard keys are registered with their access so each leaf's inputs and
+outputs are explicit:
+
+==================  ========================================================================
+key                 meaning
+==================  ========================================================================
+``/tour``           list[TourItem] — the refined tour of the latest plan (world frame)
+``/goal``           TourItem | None — the stop being flown to
+``/tour_time``      float — when ``/tour`` was planned
+``/exploration``    str — "exploring", or why exploration ended
+``/replan_failures`` int — consecutive planner failures
+``/unreachable``    int — consecutive unreachable goals
+``/slc``            dict — the latest loop-closure attempt
+==================  ========================================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import py_trees
+from py_trees.common import Access, Status
+
+import amslam
+from amslam.geometry import wrap_angle
+from amslam.types import TourItem, TourItemKind
+
+
+class RobotBehaviour(py_trees.behaviour.Behaviour):
+    """Base: receives the robot in ``setup`` and refuses to run without it."""
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.robot = None
+        self.bb = self.attach_blackboard_client(name=name)
+
+    def setup(self, **kwargs) -> None:
+        robot = kwargs.get("robot")
+        if robot is None:
+            raise KeyError(f"behaviour {self.name!r} needs setup(robot=...): the runner's Robot facade")
+        self.robot = robot
+
+
+class TakeOff(RobotBehaviour):
+    """Arm and climb to the mission altitude (idempotent)."""
+
+    def initialise(self) -> None:
+        self.robot.takeoff()
+        self.feedback_message = "climbing"
+
+    def update(self) -> Status:
+        z = self.robot.odometry().T_odom_body[2, 3]
+        target = self.robot.home_world[2] + self.robot.spec.altitude
+        if self.robot.airborne() and abs(z - target) < self.robot.exploration.goal_tolerance:
+            self.feedback_message = f"at {z:.2f} m"
+            return Status.SUCCESS
+        return Status.RUNNING
+
+
+class WithinLimits(RobotBehaviour):
+    """SUCCESS while mission time and distance remain; FAILURE (with the reason) when exhausted."""
+
+    def __init__(self, name: str = "WithinLimits"):
+        super().__init__(name)
+        self.bb.register_key("/exploration", access=Access.WRITE)
+
+    def update(self) -> Status:
+        reason = self.robot.limit_reached()
+        if reason:
+            self.feedback_message = reason
+            self.bb.set("/exploration", f"stopped: {reason}")
+            return Status.FAILURE
+        return Status.SUCCESS
+
+
+class Replan(RobotBehaviour):
+    """Ask the planner for a tour; FAILURE when nothing is left to explore or it keeps failing.
+
+    A planner exception is counted, not raised: after ``max_replan_failures`` consecutive failures
+    exploration gives up, so a broken planner cannot livelock the robot.
+    """
+
+    def __init__(self, name: str = "Replan"):
+        super().__init__(name)
+        for key in ("/tour", "/goal", "/tour_time", "/exploration", "/replan_failures"):
+            self.bb.register_key(key, access=Access.WRITE)
+
+    def setup(self, **kwargs) -> None:
+        super().setup(**kwargs)
+        self.bb.set("/replan_failures", 0)
+        self.bb.set("/exploration", "exploring")
+        self.bb.set("/tour", [])
+        self.bb.set("/goal", None)
+
+    def update(self) -> Status:
+        try:
+            tour = self.robot.plan()
+        except Exception as exc:  # recovery: count, report, hold position, retry on the next tick
+            failures = self.bb.get("/replan_failures") + 1
+            self.bb.set("/replan_failures", failures)
+            self.robot.emit("planner_error", error=f"{type(exc).__name__}: {exc}", failures=failures)
+            self.robot.hold()
+            if failures >= self.robot.exploration.max_replan_failures:
+                self.bb.set("/exploration", f"stopped: planner failed {failures} times ({exc})")
+                self.feedback_message = "planner keeps failing"
+                return Status.FAILURE
+            self.feedback_message = f"planner failed ({failures})"
+            return Status.RUNNING
+        self.bb.set("/replan_failures", 0)
+        reachable = [item for item in tour if np.all(np.isfinite(item.position))]
+        if not reachable:
+            self.bb.set("/exploration", "complete: no reachable frontier left")
+            self.bb.set("/tour", [])
+            self.bb.set("/goal", None)
+            self.feedback_message = "nothing left to explore"
+            return Status.FAILURE
+        self.bb.set("/tour", reachable)
+        self.bb.set("/goal", reachable[0])
+        self.bb.set("/tour_time", self.robot.time())
+        self.robot.emit(
+            "replan",
+            tour=[[item.kind.value, *np.round(item.position, 2).tolist()] for item in reachable],
+            viewpoints=len(self.robot.viewpoints),
+        )
+        self.robot.plugin_hook("amslam_replan", t=self.robot.time(), tour=reachable, reason="loop")
+        self.feedback_message = f"{len(reachable)} stops, next {reachable[0].kind.value}"
+        return Status.SUCCESS
+
+
+class IsGoalKind(RobotBehaviour):
+    """SUCCESS when the current goal is of the given kind (explore or SLC)."""
+
+    def __init__(self, name: str, kind: TourItemKind):
+        super().__init__(name)
+        self.kind = kind
+        self.bb.register_key("/goal", access=Access.READ)
+
+    def update(self) -> Status:
+        goal: TourItem | None = self.bb.get("/goal")
+        return Status.SUCCESS if goal is not None and goal.kind == self.kind else Status.FAILURE
+
+
+class GoTo(RobotBehaviour):
+    """Fly to the goal along a path through known free space, facing the direction of travel.
+
+    SUCCESS on arrival (heading turned to the goal's yaw), or early when an exploration goal's
+    frontier was seen on the way or the tour is older than the replan period; FAILURE when no
+    path exists or the local map shows the way blocked twice (the goal is marked unreachable).
+    """
+
+    def __init__(self, name: str, goal_key: str = "/goal", early_exit: bool = True):
+        super().__init__(name)
+        self.goal_key = goal_key
+        self.early_exit = early_exit
+        self.bb.register_key(goal_key, access=Access.READ)
+        self.bb.register_key("/tour_time", access=Access.READ)
+        self.bb.register_key("/unreachable", access=Access.WRITE)
+        self.path: np.ndarray | None = None
+        self.index = 0
+        self.blocked = 0
+
+    def setup(self, **kwargs) -> None:
+        super().setup(**kwargs)
+        self.bb.set("/unreachable", 0)
+
+    def initialise(self) -> None:
+        self.goal: TourItem = self.bb.get(self.goal_key)
+        self.path = self.robot.plan_path(self.goal.position)
+        self.index = 1 if self.path is not None and len(self.path) > 1 else 0
+        self.blocked = 0
+
+    def _fail(self, why: str) -> Status:
+        self.robot.mark_unreachable(self.goal.position)
+        count = self.bb.get("/unreachable") + 1
+        self.bb.set("/unreachable", count)
+        self.robot.emit("unreachable", goal=np.round(self.goal.position, 2).tolist(), why=why)
+        self.robot.hold()
+        self.feedback_message = why
+        return Status.FAILURE
+
+    def update(self) -> Status:
+        if self.path is None:
+            return self._fail("no path through known free space")
+        here = self.robot.position_world()
+        exploration = self.robot.exploration
+        if self.early_exit and self.goal.kind == TourItemKind.EXPLORE:
+            if not any(vp.id == self.goal.ref for vp in self.robot.candidate_viewpoints()):
+                self.feedback_message = "frontier seen on the way"
+                self.bb.set("/unreachable", 0)
+                return Status.SUCCESS
+            if self.robot.time() - self.bb.get("/tour_time") > exploration.replan_period:
+                self.feedback_message = "tour stale: replan"
+                self.bb.set("/unreachable", 0)
+                return Status.SUCCESS
+        while (
+            self.index < len(self.path) - 1
+            and np.linalg.norm(self.path[self.index] - here) < exploration.goal_tolerance
+        ):
+            self.index += 1
+        target = self.path[self.index]
+        to_target = target - here
+        last_leg = self.index == len(self.path) - 1
+        arrived = last_leg and np.linalg.norm(to_target) < exploration.goal_tolerance
+        if arrived:
+            err = abs(wrap_angle(self.goal.yaw - self.robot.yaw_world()))
+            self.robot.send_setpoint_world(target, self.goal.yaw)
+            if err < exploration.yaw_tolerance:
+                self.bb.set("/unreachable", 0)
+                self.feedback_message = "arrived"
+                return Status.SUCCESS
+            self.feedback_message = "turning to the viewpoint heading"
+            return Status.RUNNING
+        if not self.robot.segment_clear_local(here, target):
+            self.blocked += 1
+            if self.blocked > 2:
+                return self._fail("the local map shows the way blocked")
+            self.path = self.robot.plan_path(self.goal.position)
+            self.index = 1 if self.path is not None and len(self.path) > 1 else 0
+            self.feedback_message = "blocked: new path"
+            return Status.RUNNING if self.path is not None else self._fail("blocked, no other path")
+        horizontal = np.linalg.norm(to_target[:2])
+        heading = float(np.arctan2(to_target[1], to_target[0])) if horizontal > 0.3 else self.goal.yaw
+        yaw_err = abs(wrap_angle(heading - self.robot.yaw_world()))
+        # Turn before moving when the way ahead is outside the camera's view: never fly blind.
+        if yaw_err > self.robot.platform.camera.hfov / 3:
+            self.robot.send_setpoint_world(here, heading)
+            self.feedback_message = "turning towards the path"
+        else:
+            self.robot.send_setpoint_world(target, heading)
+            self.feedback_message = f"waypoint {self.index}/{len(self.path) - 1}"
+        return Status.RUNNING
+
+    def terminate(self, new_status: Status) -> None:
+        if new_status == Status.INVALID and self.robot is not None:
+            self.robot.hold()
+
+
+class Panorama(RobotBehaviour):
+    """Yaw a full circle in place in ``steps`` headings, collecting detections on the way."""
+
+    def __init__(self, name: str = "Panorama", steps: int = 8):
+        super().__init__(name)
+        self.steps = steps
+
+    def initialise(self) -> None:
+        self.center = self.robot.position_world().copy()
+        self.start_yaw = self.robot.yaw_world()
+        self.step = 1
+        self.robot.recent_detections.clear()
+
+    def update(self) -> Status:
+        target = wrap_angle(self.start_yaw + 2 * np.pi * self.step / self.steps)
+        self.robot.send_setpoint_world(self.center, target)
+        if abs(wrap_angle(target - self.robot.yaw_world())) < self.robot.exploration.yaw_tolerance:
+            self.step += 1
+            if self.step > self.steps:
+                self.feedback_message = "full circle"
+                return Status.SUCCESS
+        self.feedback_message = f"heading {self.step}/{self.steps}"
+        return Status.RUNNING
+
+
+class AttemptLoopClosure(RobotBehaviour):
+    """Ask SLAM for a semantic loop closure with what the panorama saw; always SUCCESS."""
+
+    def __init__(self, name: str = "AttemptSLC"):
+        super().__init__(name)
+        self.bb.register_key("/slc", access=Access.WRITE)
+
+    def update(self) -> Status:
+        result = self.robot.attempt_loop_closure()
+        self.bb.set("/slc", {"accepted": result.accepted, "reason": result.reason, "matched": result.matched})
+        self.robot.emit(
+            "loop_closure",
+            accepted=result.accepted,
+            reason=result.reason,
+            matched=result.matched,
+            residual=result.residual,
+            yaw_correction=result.yaw_correction,
+            translation_correction=result.translation_correction,
+            distance=self.robot.distance,
+        )
+        self.robot.plugin_hook("amslam_loop_closure", t=self.robot.time(), result=result)
+        self.feedback_message = ("accepted: " if result.accepted else "rejected: ") + result.reason
+        return Status.SUCCESS
+
+
+class ForgetGoal(RobotBehaviour):
+    """Recovery after an unreachable goal: SUCCESS (so the loop replans) until too many in a row."""
+
+    def __init__(self, name: str = "SkipUnreachable"):
+        super().__init__(name)
+        self.bb.register_key("/unreachable", access=Access.READ)
+        self.bb.register_key("/exploration", access=Access.WRITE)
+
+    def update(self) -> Status:
+        count = self.bb.get("/unreachable")
+        if count >= self.robot.exploration.max_unreachable:
+            self.bb.set("/exploration", f"stopped: {count} goals in a row unreachable")
+            self.feedback_message = "too many unreachable goals"
+            return Status.FAILURE
+        self.feedback_message = f"skipped ({count} in a row)"
+        return Status.SUCCESS
+
+
+class SetHome(RobotBehaviour):
+    """Write the return-home goal: the take-off point at the mission altitude."""
+
+    def __init__(self, name: str = "SetHomeGoal"):
+        super().__init__(name)
+        self.bb.register_key("/home", access=Access.WRITE)
+
+    def update(self) -> Status:
+        home = self.robot.home_world + np.array([0.0, 0.0, self.robot.spec.altitude])
+        self.bb.set("/home", TourItem(TourItemKind.EXPLORE, home, self.robot.yaw_world(), 0.0, -1))
+        return Status.SUCCESS
+
+
+class Land(RobotBehaviour):
+    """Descend and disarm where the robot is (idempotent)."""
+
+    def initialise(self) -> None:
+        self.robot.land()
+
+    def update(self) -> Status:
+        if self.robot.airborne():
+            self.feedback_message = "descending"
+            return Status.RUNNING
+        self.feedback_message = "landed"
+        return Status.SUCCESS
+
+
+@amslam.hookimpl
+def amslam_behaviours():
+    return {
+        "TakeOff": TakeOff,
+        "WithinLimits": WithinLimits,
+        "Replan": Replan,
+        "GoTo": GoTo,
+        "Panorama": Panorama,
+        "AttemptSLC": AttemptLoopClosure,
+        "SkipUnreachable": ForgetGoal,
+        "SetHomeGoal": SetHome,
+        "Land": Land,
+    }

@@ -1,0 +1,154 @@
+"""The ``amslam`` command line.
+
+    amslam run MISSION [--out DIR] [--set key.path=value ...]
+    amslam validate MISSION
+    amslam plugins
+    amslam dump-config KIND PLUGIN
+    amslam tree MISSION
+
+MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
+are printed as ``error: ...`` lines with exit status 2, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from amslam.errors import AmslamError, MissionError
+
+
+def _registry(disabled=()):
+    from amslam.registry import build_plugin_manager
+
+    return build_plugin_manager(disabled)
+
+
+def _load(args):
+    """Build the registry honouring the mission's ``plugins.disable``, then validate the mission."""
+    import yaml
+
+    from amslam.mission import load_mission, resolve_mission_path
+
+    disabled: list[str] = []
+    try:
+        raw = yaml.safe_load(resolve_mission_path(args.mission).read_text()) or {}
+        section = raw.get("plugins") if isinstance(raw, dict) else None
+        if isinstance(section, dict) and isinstance(section.get("disable"), list):
+            disabled = [str(x) for x in section["disable"]]
+    except yaml.YAMLError:
+        pass  # load_mission reports it with the line
+    registry = _registry(disabled)
+    return load_mission(args.mission, registry, getattr(args, "set", None) or []), registry
+
+
+def cmd_run(args) -> int:
+    from amslam.runner import Runner
+
+    mission, registry = _load(args)
+    print(f"flying mission {mission.name!r} ({mission.source})", flush=True)
+    result = Runner(mission, registry, Path(args.out), progress=not args.quiet).run()
+    m = result.metrics
+    print(f"verdict: {result.verdict}")
+    if "explored_percent" in m:
+        share, distance = m["explored_percent"], m.get("distance_m")
+        print(f"explored: {share} % of the reachable free volume, distance {distance} m")
+    print(f"run folder: {result.run_dir}")
+    print(f"report: {result.report}")
+    return 0 if result.verdict == "completed" else 1
+
+
+def cmd_validate(args) -> int:
+    mission, _ = _load(args)
+    plugins = ", ".join(f"{kind}={choice.plugin}" for kind, choice in mission.backends.items())
+    print(f"{mission.source}: valid ({plugins})")
+    return 0
+
+
+def cmd_plugins(args) -> int:
+    registry = _registry()
+    for kind, names in registry.backends.items():
+        print(f"{kind}:")
+        for name in sorted(names):
+            plugin = registry.providers[kind][name]
+            dist = registry.distributions.get(plugin, "registered in-process")
+            print(f"  {name:<12} plugin {plugin!r} from {dist}")
+        if not names:
+            print("  (none)")
+    print("behaviours:")
+    print("  " + ", ".join(sorted(registry.behaviours)))
+    return 0
+
+
+def cmd_dump_config(args) -> int:
+    import yaml
+
+    registry = _registry()
+    cls = registry.backend_class(args.kind, args.plugin)
+    print(f"# {args.kind} backend {args.plugin!r} ({cls.__module__}.{cls.__qualname__})")
+    doc = (cls.__doc__ or "").strip().splitlines()
+    if doc:
+        print(f"# {doc[0]}")
+    print(f"{args.kind}:")
+    print(f"  plugin: {args.plugin}")
+    defaults = cls.Params().model_dump(mode="json")
+    for name, info in cls.Params.model_fields.items():
+        if info.description:
+            print(f"  # {info.description}")
+        text = yaml.safe_dump({name: defaults[name]}, default_flow_style=True, sort_keys=False).strip()
+        print(f"  {text.strip('{}')}")
+    return 0
+
+
+def cmd_tree(args) -> int:
+    import py_trees
+
+    from amslam.trees.exploration import build_exploration_tree
+
+    mission, registry = _load(args)
+    root = build_exploration_tree(mission.model.exploration, registry.behaviours)
+    print(py_trees.display.unicode_tree(root))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="amslam", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="fly a mission and write a run folder")
+    run.add_argument("mission", help="mission file, or the name of a packaged mission (e.g. demo)")
+    run.add_argument("--out", default="runs", help="folder that receives the run folder (default: runs)")
+    run.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a mission value")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=cmd_run)
+    val = sub.add_parser("validate", help="check a mission without flying it")
+    val.add_argument("mission")
+    val.add_argument("--set", action="append", metavar="KEY.PATH=VALUE")
+    val.set_defaults(func=cmd_validate)
+    plg = sub.add_parser("plugins", help="list installed backends by kind and who provides them")
+    plg.set_defaults(func=cmd_plugins)
+    dump = sub.add_parser("dump-config", help="print a backend's parameters with defaults and docs")
+    dump.add_argument("kind", help="platform, mapping, slam, detector or planner")
+    dump.add_argument("plugin", help="backend name, as listed by `amslam plugins`")
+    dump.set_defaults(func=cmd_dump_config)
+    tree = sub.add_parser("tree", help="print the behaviour tree a mission would run")
+    tree.add_argument("mission")
+    tree.set_defaults(func=cmd_tree)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except MissionError as exc:
+        for problem in exc.problems:
+            print(f"error: {problem}", file=sys.stderr)
+        return 2
+    except AmslamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,309 @@
+"""Missions: YAML files validated into typed models.
+
+A mission names one backend per kind with ``plugin:`` and nests that backend's parameters beside
+it; the backend's own ``Params`` model validates them. Every problem is reported as one line
+``FILE:LINE: field.path: what was wrong (got VALUE); expected ...`` and all problems of a file are
+reported together.
+
+    name: demo
+    seed: 7
+    platform: {plugin: sim, world: {floors: 1}}
+    mapping: {plugin: open3d, global_voxel: 0.25}
+    planner: {plugin: greedy}
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib.resources
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from amslam.errors import MissionError, PluginError
+from amslam.interfaces import BACKEND_KINDS, BackendParams
+from amslam.registry import Registry
+from amslam.types import BoundingBox, RobotSpec
+
+#: The backend a section uses when the mission does not name one.
+DEFAULT_PLUGINS = {
+    "platform": "sim",
+    "mapping": "open3d",
+    "slam": "odometry",
+    "detector": "sim",
+    "planner": "greedy",
+}
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RobotSection(_Strict):
+    """Size and motion limits of the vehicle."""
+
+    radius: float = Field(0.25, gt=0, description="radius of the sphere enclosing the vehicle, m")
+    max_speed: float = Field(1.0, gt=0, description="horizontal and vertical speed limit, m/s")
+    max_acceleration: float = Field(1.5, gt=0, description="acceleration limit, m/s²")
+    max_yaw_rate: float = Field(1.0, gt=0, description="yaw rate limit, rad/s")
+    altitude: float = Field(1.2, gt=0, description="take-off height above the start, m")
+
+    def spec(self) -> RobotSpec:
+        return RobotSpec(**self.model_dump())
+
+
+class LimitsSection(_Strict):
+    """When the mission stops exploring and returns home."""
+
+    max_time: float = Field(1200.0, gt=0, description="mission time budget, s (simulated or wall clock)")
+    max_distance: float = Field(1000.0, gt=0, description="distance budget, m")
+
+
+class AreaSection(_Strict):
+    """The region to explore, world frame; defaults to the simulated world's bounds."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+
+    def box(self) -> BoundingBox:
+        import numpy as np
+
+        return BoundingBox(np.array(self.lo, float), np.array(self.hi, float))
+
+
+class ExplorationSection(_Strict):
+    """Parameters of the behaviour tree and the runner's scheduling."""
+
+    control_rate_hz: float = Field(10.0, gt=0, description="tick rate of the behaviour tree and setpoints")
+    replan_period: float = Field(6.0, gt=0, description="replan at least this often while flying, s")
+    goal_tolerance: float = Field(0.3, gt=0, description="distance at which a waypoint counts as reached, m")
+    yaw_tolerance: float = Field(0.15, gt=0, description="heading error counted as reached, rad")
+    look_around: bool = Field(
+        True, description="turn a full circle after take-off to see around the start before planning"
+    )
+    max_replan_failures: int = Field(
+        5, ge=1, description="consecutive planner failures before exploration gives up and returns home"
+    )
+    max_unreachable: int = Field(
+        8, ge=1, description="consecutive unreachable goals before exploration gives up and returns home"
+    )
+    min_viewpoint_gain: float = Field(
+        0.5, ge=0, description="viewpoints promising less unknown volume than this (m³) are ignored"
+    )
+    slc: bool = Field(False, description="actively seek semantic loop closures (paper 1 §VI-C, D)")
+    slc_sensing_range: float = Field(4.0, gt=0, description="range within which a landmark counts as seen, m")
+    panorama_steps: int = Field(8, ge=3, description="headings of the panorama at an SLC viewpoint")
+    trajectory_rate_hz: float = Field(10.0, gt=0, description="rate of the trajectory files")
+    uncertainty_period: float = Field(5.0, gt=0, description="period of covariance-trace samples, s")
+
+
+class PluginsSection(_Strict):
+    """Plugins to leave out of this run, by entry-point name."""
+
+    disable: list[str] = Field(default_factory=list)
+
+
+class MissionModel(_Strict):
+    """The top level of a mission file (backend sections are validated separately)."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", description="used in the run folder name")
+    description: str = ""
+    seed: int = 0
+    plugins: PluginsSection = PluginsSection()
+    robot: RobotSection = RobotSection()
+    limits: LimitsSection = LimitsSection()
+    area: AreaSection | None = None
+    exploration: ExplorationSection = ExplorationSection()
+    platform: dict[str, Any] = Field(default_factory=dict)
+    mapping: dict[str, Any] = Field(default_factory=dict)
+    slam: dict[str, Any] = Field(default_factory=dict)
+    detector: dict[str, Any] = Field(default_factory=dict)
+    planner: dict[str, Any] = Field(default_factory=dict)
+
+
+@dataclass
+class BackendChoice:
+    """One backend of the mission: its plugin name and validated parameters."""
+
+    kind: str
+    plugin: str
+    params: BackendParams
+
+
+@dataclass
+class Mission:
+    """A validated mission."""
+
+    model: MissionModel
+    backends: dict[str, BackendChoice]
+    source: Path
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @property
+    def directory(self) -> Path:
+        return self.source.parent
+
+    def resolved(self) -> dict[str, Any]:
+        """The whole mission with every default filled in, as written to the run folder."""
+        out = self.model.model_dump(mode="json", exclude=set(BACKEND_KINDS))
+        for kind, choice in self.backends.items():
+            out[kind] = {"plugin": choice.plugin, **choice.params.model_dump(mode="json")}
+        return out
+
+
+def packaged_missions() -> list[str]:
+    """Names of the missions shipped with amslam."""
+    files = importlib.resources.files("amslam.missions")
+    return sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".yaml"))
+
+
+def resolve_mission_path(spec: str | Path) -> Path:
+    """A file path, or the name of a packaged mission (``demo``)."""
+    path = Path(spec)
+    if path.exists():
+        return path
+    name = str(spec).removesuffix(".yaml")
+    if name in packaged_missions():
+        with importlib.resources.as_file(importlib.resources.files("amslam.missions") / f"{name}.yaml") as p:
+            return Path(p)
+    shipped = ", ".join(packaged_missions())
+    raise MissionError([f"{spec}: no such mission file, and no packaged mission of that name ({shipped})"])
+
+
+def apply_override(raw: dict[str, Any], assignment: str) -> None:
+    """Apply ``key.path=value`` (value parsed as YAML) to a raw mission dict."""
+    if "=" not in assignment:
+        raise MissionError([f"--set {assignment!r}: expected key.path=value"])
+    key, value = assignment.split("=", 1)
+    parts = key.strip().split(".")
+    node = raw
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            raise MissionError([f"--set {assignment!r}: {part!r} is not a section"])
+    node[parts[-1]] = yaml.safe_load(value)
+
+
+def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()) -> Mission:
+    """Read, override and validate a mission; raise MissionError listing every problem."""
+    path = resolve_mission_path(spec)
+    text = path.read_text()
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise MissionError([f"{where}: not valid YAML: {getattr(exc, 'problem', exc)}"]) from None
+    if not isinstance(raw, dict):
+        raise MissionError([f"{path}: a mission is a mapping of sections, got {type(raw).__name__}"])
+    raw = copy.deepcopy(raw)
+    for assignment in overrides:
+        apply_override(raw, assignment)
+    lines = _line_index(text)
+    problems: list[str] = []
+
+    def report(loc: tuple, message: str) -> None:
+        dotted = ".".join(str(p) for p in loc) or "(top level)"
+        line = _line_of(lines, loc)
+        problems.append(f"{path}:{line}: {dotted}: {message}" if line else f"{path}: {dotted}: {message}")
+
+    try:
+        model = MissionModel.model_validate(raw)
+    except ValidationError as exc:
+        for err in exc.errors():
+            report(err["loc"], _describe(err, MissionModel, err["loc"]))
+        model = None
+
+    backends: dict[str, BackendChoice] = {}
+    for kind in BACKEND_KINDS:
+        section = raw.get(kind) or {}
+        if not isinstance(section, dict):
+            continue  # already reported by MissionModel
+        section = dict(section)
+        plugin = section.pop("plugin", DEFAULT_PLUGINS[kind])
+        if not isinstance(plugin, str):
+            report((kind, "plugin"), f"expected a plugin name (text), got {plugin!r}")
+            continue
+        try:
+            cls = registry.backend_class(kind, plugin)
+        except PluginError as exc:
+            report((kind, "plugin"), str(exc))
+            continue
+        try:
+            params = cls.Params.model_validate(section)
+        except ValidationError as exc:
+            for err in exc.errors():
+                report((kind, *err["loc"]), _describe(err, cls.Params, err["loc"]))
+            continue
+        backends[kind] = BackendChoice(kind, plugin, params)
+    if problems:
+        raise MissionError(problems)
+    assert model is not None
+    return Mission(model=model, backends=backends, source=path.resolve(), raw=raw)
+
+
+def _describe(err: dict, model: type[BaseModel], loc: tuple) -> str:
+    """A pydantic error as a sentence saying what was wrong and what was expected."""
+    kind = err["type"]
+    got = err.get("input")
+    if kind == "extra_forbidden":
+        allowed = _fields_at(model, loc[:-1])
+        hint = f"; expected one of: {', '.join(allowed)}" if allowed else ""
+        return f"unknown key {loc[-1]!r}{hint}"
+    if kind == "missing":
+        return "required, but missing"
+    return f"{err['msg'].lower()} (got {got!r})"
+
+
+def _fields_at(model: type[BaseModel], loc: tuple) -> list[str]:
+    for part in loc:
+        info = model.model_fields.get(str(part)) if isinstance(part, str) else None
+        if info is None:
+            return []
+        ann = info.annotation
+        candidates = [ann, *getattr(ann, "__args__", ())]
+        sub = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
+        if sub is None:
+            return []
+        model = sub
+    return sorted(model.model_fields)
+
+
+def _line_index(text: str) -> dict[tuple, int]:
+    """Map each key path of a YAML document to its 1-based line, for error messages."""
+    try:
+        root = yaml.compose(text)
+    except yaml.YAMLError:
+        return {}
+    index: dict[tuple, int] = {}
+
+    def walk(node: yaml.Node, prefix: tuple) -> None:
+        if isinstance(node, yaml.MappingNode):
+            for key_node, value_node in node.value:
+                key = (*prefix, key_node.value)
+                index[key] = key_node.start_mark.line + 1
+                walk(value_node, key)
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                index[(*prefix, i)] = item.start_mark.line + 1
+                walk(item, (*prefix, i))
+
+    if root is not None:
+        walk(root, ())
+    return index
+
+
+def _line_of(index: dict[tuple, int], loc: tuple) -> int | None:
+    loc = tuple(str(p) if not isinstance(p, int) else p for p in loc)
+    while loc:
+        if loc in index:
+            return index[loc]
+        loc = loc[:-1]
+    return None

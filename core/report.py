@@ -1,0 +1,251 @@
+"""Metrics, the map, plots and ``report.md`` of a finished run."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from amslam.geometry import wrap_angle, yaw_of
+from amslam.types import VoxelState, WorldSummary
+
+if TYPE_CHECKING:
+    from amslam.runner import Runner
+
+
+def _floor_bands(world: WorldSummary) -> list[tuple[float, float]]:
+    heights = list(world.floor_heights) or [float(world.bounds_lo[2])]
+    tops = [*heights[1:], float(world.bounds_hi[2])]
+    return list(zip(heights, tops, strict=True))
+
+
+def explored_share(mapping, world: WorldSummary) -> tuple[float, list[float]]:
+    """Share of the world's reachable free cells the global map knows, overall and per floor."""
+    points = np.asarray(world.reachable_points, float).reshape(-1, 3)
+    if len(points) == 0:
+        return float("nan"), []
+    known = mapping.states(points) != VoxelState.UNKNOWN
+    per_floor = []
+    for lo, hi in _floor_bands(world):
+        inside = (points[:, 2] >= lo) & (points[:, 2] < hi)
+        per_floor.append(float(known[inside].mean()) if inside.any() else float("nan"))
+    return float(known.mean()), per_floor
+
+
+def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
+    """Everything ``metrics.json`` holds."""
+    backends = runner.backends
+    metrics: dict[str, Any] = {
+        "verdict": verdict,
+        "mission": runner.mission.name,
+        "seed": runner.mission.model.seed,
+        "plugins": {kind: choice.plugin for kind, choice in runner.mission.backends.items()},
+    }
+    platform = backends.get("platform")
+    if platform is None:
+        return metrics
+    metrics["sim_duration_s"] = round(platform.time(), 3)
+    robot = getattr(runner, "robot", None)
+    metrics["distance_m"] = round(robot.distance, 3) if robot else 0.0
+    truth = getattr(runner, "truth", [])
+    if len(truth) > 1:
+        p = np.array([T[:3, 3] for _, T in truth])
+        metrics["distance_truth_m"] = round(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()), 3)
+    mapping = backends.get("mapping")
+    world = platform.world_summary()
+    if mapping is not None:
+        metrics["explored_volume_m3"] = round(mapping.explored_volume(), 3)
+        if world is not None:
+            share, per_floor = explored_share(mapping, world)
+            metrics["reachable_free_volume_m3"] = round(world.reachable_free_volume, 3)
+            metrics["explored_percent"] = round(100 * share, 2)
+            metrics["explored_percent_per_floor"] = [round(100 * s, 2) for s in per_floor]
+    slam = backends.get("slam")
+    T_truth = platform.ground_truth()
+    if slam is not None and T_truth is not None:
+        T_vio = platform.odometry().T_odom_body
+        T_slam = slam.T_world_odom() @ T_vio
+        metrics["final_error"] = {
+            "vio_position_m": round(float(np.linalg.norm(T_vio[:3, 3] - T_truth[:3, 3])), 4),
+            "vio_yaw_rad": round(abs(wrap_angle(yaw_of(T_vio) - yaw_of(T_truth))), 5),
+            "slam_position_m": round(float(np.linalg.norm(T_slam[:3, 3] - T_truth[:3, 3])), 4),
+            "slam_yaw_rad": round(abs(wrap_angle(yaw_of(T_slam) - yaw_of(T_truth))), 5),
+        }
+    if slam is not None:
+        landmarks = slam.landmarks()
+        by_class: dict[str, int] = {}
+        for lm in landmarks:
+            by_class[lm.class_name] = by_class.get(lm.class_name, 0) + 1
+        metrics["landmarks"] = {"count": len(landmarks), "by_class": by_class}
+        if world is not None:
+            metrics["landmarks"]["objects_in_world"] = dict(world.objects_by_class)
+        metrics["keyposes"] = len(slam.keyposes())
+        series = runner.samples["uncertainty"]
+        if series:
+            metrics["uncertainty"] = {
+                "final_mean_pose_trace": series[-1][2],
+                "final_mean_landmark_trace": series[-1][3],
+                "series": [[round(t, 2), round(d, 2), p, q] for t, d, p, q in series],
+            }
+    if robot is not None:
+        results = robot.slc_results
+        metrics["slc"] = {
+            "attempts": len(results),
+            "accepted": sum(r.accepted for r in results),
+        }
+    return metrics
+
+
+def write_outputs(runner: Runner, metrics: dict[str, Any]) -> None:
+    """metrics.json, map.ply, landmarks.json, slam.tum (optimised), plots and report.md."""
+    rundir = runner.rundir
+    rundir.write_json("metrics.json", metrics)  # first, so a later failure still leaves it
+    backends = runner.backends
+    mapping, slam, platform = backends.get("mapping"), backends.get("slam"), backends.get("platform")
+    if mapping is not None:
+        rundir.write_ply("map.ply", mapping.occupied_points())
+    if slam is not None:
+        rundir.write_json(
+            "landmarks.json",
+            [
+                {
+                    "id": lm.id,
+                    "class": lm.class_name,
+                    "position": lm.position,
+                    "covariance": lm.covariance,
+                    "observations": lm.observations,
+                    **({"shape": lm.shape} if lm.shape else {}),
+                }
+                for lm in slam.landmarks()
+            ],
+        )
+        kps = slam.keyposes()
+        if kps and type(slam).__name__ != "OdometrySlam":
+            rundir.rewrite_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
+    plots = []
+    world = platform.world_summary() if platform is not None else None
+    if mapping is not None:
+        plots.append(plot_top_view(runner, world))
+    if metrics.get("uncertainty", {}).get("series"):
+        plots.append(plot_uncertainty(runner, metrics))
+    write_report(runner, metrics, [p for p in plots if p])
+
+
+def plot_top_view(runner: Runner, world: WorldSummary | None) -> str | None:
+    """``top_view.png``: occupied voxels per floor, trajectories and landmarks, seen from above."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    occupied = runner.backends["mapping"].occupied_points()
+    bands = _floor_bands(world) if world is not None else [(-math.inf, math.inf)]
+    fig, axes = plt.subplots(1, len(bands), figsize=(7 * len(bands), 6), squeeze=False)
+    truth = np.array([T[:3, 3] for _, T in getattr(runner, "truth", [])]).reshape(-1, 3)
+    vio = np.array([T[:3, 3] for _, T in getattr(runner, "vio", [])]).reshape(-1, 3)
+    slam = runner.backends.get("slam")
+    landmarks = slam.landmarks() if slam is not None else []
+    for ax, (lo, hi) in zip(axes[0], bands, strict=True):
+        # Slice above the floor slab and below the ceiling, where walls and furniture are.
+        band = (occupied[:, 2] > lo + 0.3) & (occupied[:, 2] < min(hi, lo + 2.2))
+        ax.scatter(occupied[band, 0], occupied[band, 1], s=1.5, c="0.35", marker="s", label="occupied voxels")
+        for traj, colour, label in ((truth, "tab:green", "ground truth"), (vio, "tab:red", "VIO")):
+            sel = (traj[:, 2] >= lo) & (traj[:, 2] < hi)
+            if sel.any():
+                ax.plot(traj[sel, 0], traj[sel, 1], ".", ms=1.0, color=colour, label=label)
+        lms = [lm for lm in landmarks if lo <= lm.position[2] < hi]
+        if lms:
+            pos = np.array([lm.position for lm in lms])
+            ax.scatter(pos[:, 0], pos[:, 1], s=25, c="tab:blue", marker="x", label="landmarks")
+        title = "" if math.isinf(lo) else f"floor z ∈ [{lo:.1f}, {hi:.1f}) m"
+        ax.set_title(title)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.legend(loc="upper right", fontsize=7, markerscale=4)
+    fig.suptitle(f"{runner.mission.name}: map and trajectory (top view)")
+    fig.tight_layout()
+    path = runner.rundir.path / "top_view.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
+
+
+def plot_uncertainty(runner: Runner, metrics: dict[str, Any]) -> str | None:
+    """``uncertainty.png``: mean pose and landmark covariance traces against time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = np.array(metrics["uncertainty"]["series"], dtype=float)
+    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    axes[0].plot(series[:, 0], series[:, 2], color="tab:purple")
+    axes[0].set_ylabel("mean pose tr(Σ)")
+    axes[1].plot(series[:, 0], series[:, 3], color="tab:orange")
+    axes[1].set_ylabel("mean landmark tr(Σ)")
+    axes[1].set_xlabel("time (s)")
+    fig.suptitle(f"{runner.mission.name}: uncertainty over time")
+    fig.tight_layout()
+    path = runner.rundir.path / "uncertainty.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path.name
+
+
+def write_report(runner: Runner, metrics: dict[str, Any], plots: list[str]) -> None:
+    """``report.md`` tying the run's files together."""
+    m = metrics
+    lines = [
+        f"# Run report: {m.get('mission')}",
+        "",
+        f"**Verdict: {m['verdict']}**",
+        "",
+        "| figure | value |",
+        "|---|---|",
+    ]
+
+    def row(label: str, value: Any) -> None:
+        if value is not None:
+            lines.append(f"| {label} | {value} |")
+
+    row("seed", m.get("seed"))
+    row("backends", ", ".join(f"{k}={v}" for k, v in m.get("plugins", {}).items()))
+    row("duration (s)", m.get("sim_duration_s"))
+    row("distance travelled (m)", m.get("distance_m"))
+    row("explored volume (m³)", m.get("explored_volume_m3"))
+    row("reachable free volume (m³)", m.get("reachable_free_volume_m3"))
+    row("explored (% of reachable free volume)", m.get("explored_percent"))
+    if m.get("explored_percent_per_floor"):
+        row("explored per floor (%)", ", ".join(str(v) for v in m["explored_percent_per_floor"]))
+    err = m.get("final_error")
+    if err:
+        row("final position error VIO / SLAM (m)", f"{err['vio_position_m']} / {err['slam_position_m']}")
+        row("final yaw error VIO / SLAM (rad)", f"{err['vio_yaw_rad']} / {err['slam_yaw_rad']}")
+    lm = m.get("landmarks")
+    if lm:
+        row("landmarks (by class)", f"{lm['count']} {lm['by_class']}")
+        if "objects_in_world" in lm:
+            row("objects in the world", lm["objects_in_world"])
+    if m.get("slc"):
+        row(
+            "semantic loop closures (accepted / attempts)", f"{m['slc']['accepted']} / {m['slc']['attempts']}"
+        )
+    lines += ["", "## Plots", ""]
+    lines += [f"![{p}]({p})" for p in plots]
+    lines += [
+        "",
+        "## Files",
+        "",
+        "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in",
+        "- [metrics.json](metrics.json) — the figures above, machine-readable",
+        "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order",
+        "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick",
+        "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
+        "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
+        "- [landmarks.json](landmarks.json) — the semantic map",
+        "- [map.ply](map.ply) — occupied voxels of the global map",
+        "",
+    ]
+    (runner.rundir.path / "report.md").write_text("\n".join(lines))

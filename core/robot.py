@@ -1,0 +1,164 @@
+"""The robot as the behaviour tree sees it: a thin facade over the configured backends.
+
+Behaviours receive one :class:`Robot` in ``setup(robot=...)`` and call it; it owns no algorithm.
+It converts between frames (drift compensation, paper 1 §VI-E): goals live in the world (SLAM)
+frame, setpoints in the odometry (VIO) frame, and ``T_world_odom`` from the SLAM backend maps one
+into the other at the moment a setpoint is sent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amslam.geometry import invert, transform_points, yaw_of
+from amslam.interfaces import Detector, Mapping, Planner, Platform, Slam
+from amslam.mission import ExplorationSection, LimitsSection
+from amslam.types import (
+    Detection,
+    LoopClosureResult,
+    Odometry,
+    PlanRequest,
+    RobotSpec,
+    TourItem,
+    Viewpoint,
+)
+
+
+@dataclass
+class Robot:
+    """Backends plus the little state the tree needs to query them."""
+
+    platform: Platform
+    mapping: Mapping
+    slam: Slam
+    detector: Detector
+    planner: Planner
+    spec: RobotSpec
+    limits: LimitsSection
+    exploration: ExplorationSection
+    emit: Callable[..., None]  # emit(event, **fields) → events.jsonl
+    hooks: Callable[..., None] = lambda name, **kwargs: None  # observer hooks, errors contained
+    distance: float = 0.0
+    home_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    viewpoints: list[Viewpoint] = field(default_factory=list)
+    unreachable: list[np.ndarray] = field(default_factory=list)
+    recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
+    slc_results: list[LoopClosureResult] = field(default_factory=list)
+
+    def plugin_hook(self, name: str, **kwargs) -> None:
+        """Call an observer hook of every plugin (see :mod:`amslam.hookspecs`)."""
+        self.hooks(name, **kwargs)
+
+    # -- state ---------------------------------------------------------------------------------
+
+    def time(self) -> float:
+        return self.platform.time()
+
+    def odometry(self) -> Odometry:
+        return self.platform.odometry()
+
+    def pose_world(self) -> np.ndarray:
+        """Best estimate of ``T_world_body``: the SLAM correction applied to the VIO pose."""
+        return self.slam.T_world_odom() @ self.platform.odometry().T_odom_body
+
+    def position_world(self) -> np.ndarray:
+        return self.pose_world()[:3, 3]
+
+    def yaw_world(self) -> float:
+        return yaw_of(self.pose_world())
+
+    def airborne(self) -> bool:
+        return self.platform.status().airborne
+
+    def limit_reached(self) -> str | None:
+        """Which mission limit is exhausted, if any."""
+        if self.time() >= self.limits.max_time:
+            return f"time limit {self.limits.max_time:.0f} s"
+        if self.distance >= self.limits.max_distance:
+            return f"distance limit {self.limits.max_distance:.0f} m"
+        return None
+
+    # -- motion --------------------------------------------------------------------------------
+
+    def send_setpoint_world(self, position: np.ndarray, yaw: float) -> None:
+        """Fly towards a world-frame goal, mapped into the odometry frame now (drift compensation)."""
+        T_odom_world = invert(self.slam.T_world_odom())
+        p_odom = transform_points(T_odom_world, np.asarray(position, float)[None])[0]
+        yaw_odom = yaw + float(np.arctan2(T_odom_world[1, 0], T_odom_world[0, 0]))
+        self.platform.set_setpoint(p_odom, yaw_odom)
+
+    def hold(self) -> None:
+        """Keep the current VIO position and heading."""
+        T = self.platform.odometry().T_odom_body
+        self.platform.set_setpoint(T[:3, 3].copy(), yaw_of(T))
+
+    def takeoff(self) -> None:
+        self.platform.arm_and_takeoff(self.spec.altitude)
+
+    def land(self) -> None:
+        self.platform.land()
+
+    def plan_path(self, goal_world: np.ndarray) -> np.ndarray | None:
+        """Waypoints from here to the goal through known free space, or None."""
+        return self.mapping.plan_path(self.position_world(), np.asarray(goal_world, float))
+
+    def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool:
+        """Check a world-frame segment against the fresh local (odometry-frame) map."""
+        T_odom_world = invert(self.slam.T_world_odom())
+        a, b = transform_points(T_odom_world, np.stack([a_world, b_world]))
+        return self.mapping.segment_free(a, b, local=True)
+
+    # -- planning ------------------------------------------------------------------------------
+
+    def mark_unreachable(self, position: np.ndarray) -> None:
+        self.unreachable.append(np.asarray(position, float))
+
+    def candidate_viewpoints(self) -> list[Viewpoint]:
+        """Viewpoints worth visiting: enough gain, not known to be unreachable."""
+        out = []
+        for vp in self.viewpoints:
+            if vp.gain < self.exploration.min_viewpoint_gain:
+                continue
+            if any(np.linalg.norm(vp.position - u) < 0.75 for u in self.unreachable):
+                continue
+            out.append(vp)
+        return out
+
+    def plan(self) -> list[TourItem]:
+        """Ask the planner for a tour over the current viewpoints (and SLC candidates)."""
+        vps = self.candidate_viewpoints()
+        if not vps:
+            return []
+        start = self.position_world()
+        nodes = np.vstack([start[None], np.array([v.position for v in vps])])
+        costs = self.mapping.path_costs(nodes, nodes)
+        slc_candidates: tuple = ()
+        slc_costs = np.zeros((0, len(nodes)))
+        if self.exploration.slc:
+            cands = self.slam.slc_candidates(self.exploration.slc_sensing_range)
+            if cands:
+                slc_candidates = tuple(cands)
+                slc_costs = self.mapping.path_costs(np.array([c.position for c in cands]), nodes)
+        request = PlanRequest(
+            start=start,
+            start_yaw=self.yaw_world(),
+            viewpoints=tuple(vps),
+            costs=costs,
+            camera=self.platform.camera,
+            slc_candidates=slc_candidates,
+            slc_costs=slc_costs,
+        )
+        return self.planner.plan(request)
+
+    # -- semantic loop closure -----------------------------------------------------------------
+
+    def attempt_loop_closure(self) -> LoopClosureResult:
+        """Try an SLC with what the detector saw most recently (e.g. during a panorama)."""
+        odom = self.platform.odometry()
+        detections = [d for _, dets in self.recent_detections for d in dets]
+        result = self.slam.try_loop_closure(odom, self.platform.camera.T_body_cam, detections)
+        self.slc_results.append(result)
+        return result
