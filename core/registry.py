@@ -45,8 +45,11 @@ class Registry:
         return factory if isinstance(factory, type) else type(factory())
 
 
-def build_plugin_manager(disabled: Iterable[str] = ()) -> Registry:
+def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[object] = ()) -> Registry:
     """Add the hookspecs, load every ``amslam`` entry point (minus ``disabled``), collect backends.
+
+    ``extra_plugins`` are registered in-process after the entry points (for tests and for
+    applications that embed amslam); everything else comes through the entry-point group.
 
     Raises:
         PluginError: a plugin failed to import, or two plugins provide the same backend name.
@@ -71,6 +74,8 @@ def build_plugin_manager(disabled: Iterable[str] = ()) -> Registry:
         pm.register(plugin, name=ep.name)
         if ep.dist is not None:
             registry.distributions[ep.name] = f"{ep.dist.name} {ep.dist.version}"
+    for plugin in extra_plugins:
+        pm.register(plugin)
     pm.check_pending()
     for kind in BACKEND_KINDS:
         registry.backends[kind], registry.providers[kind] = _collect(pm, f"amslam_{kind}_backends")

@@ -1,0 +1,85 @@
+"""Mission files: validation errors name the file, line, field path and expectation."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from amslam.errors import MissionError
+from amslam.mission import load_mission, packaged_missions
+
+
+def write(tmp_path, text: str):
+    path = tmp_path / "mission.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_packaged_demo_validates(registry):
+    assert "demo" in packaged_missions()
+    mission = load_mission("demo", registry)
+    assert mission.name == "demo"
+    assert set(mission.backends) == {"platform", "mapping", "slam", "detector", "planner"}
+
+
+def test_three_problems_reported_together_with_locations(tmp_path, registry):
+    path = write(
+        tmp_path,
+        """\
+        name: broken
+        seed: 3
+        robot:
+          radius: fat
+        exploration:
+          replan_perod: 4
+        planner:
+          plugin: nosuchplanner
+        """,
+    )
+    with pytest.raises(MissionError) as info:
+        load_mission(path, registry)
+    problems = info.value.problems
+    assert len(problems) == 3, problems
+    typo, wrong_type, unknown = sorted(problems, key=lambda p: ("replan" not in p, "radius" not in p))
+    assert f"{path}:6: exploration.replan_perod: unknown key 'replan_perod'" in typo
+    assert "replan_period" in typo  # the expected keys are listed
+    assert f"{path}:4: robot.radius:" in wrong_type and "'fat'" in wrong_type
+    assert f"{path}:8: planner.plugin: no planner backend named 'nosuchplanner'; installed:" in unknown
+    assert "greedy" in unknown
+
+
+def test_backend_parameters_validated_by_the_backend(tmp_path, registry):
+    path = write(
+        tmp_path,
+        """\
+        name: p
+        planner:
+          plugin: greedy
+          no_such_param: 1
+        """,
+    )
+    with pytest.raises(MissionError) as info:
+        load_mission(path, registry)
+    assert "planner.no_such_param: unknown key" in info.value.problems[0]
+
+
+def test_overrides_apply_before_validation(tmp_path, registry):
+    path = write(tmp_path, "name: o\nseed: 1\n")
+    mission = load_mission(path, registry, ["seed=42", "exploration.slc=true"])
+    assert mission.model.seed == 42 and mission.model.exploration.slc is True
+    with pytest.raises(MissionError, match="expected key.path=value"):
+        load_mission(path, registry, ["seed"])
+
+
+def test_invalid_yaml_names_the_line(tmp_path, registry):
+    path = write(tmp_path, "name: x\nrobot: [1, 2\n")
+    with pytest.raises(MissionError, match=r"mission.yaml:\d+: not valid YAML"):
+        load_mission(path, registry)
+
+
+def test_resolved_mission_fills_every_default(registry):
+    resolved = load_mission("demo", registry).resolved()
+    assert resolved["robot"]["radius"] > 0
+    assert resolved["planner"]["plugin"]
+    assert "replan_period" in resolved["exploration"]

@@ -1,0 +1,106 @@
+"""The exploration tree's shape and the recovery guards of its leaves."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import py_trees
+import pytest
+from py_trees.common import Status
+
+from amslam.mission import ExplorationSection
+from amslam.trees.behaviours import ForgetGoal, Replan
+from amslam.trees.exploration import build_exploration_tree
+from amslam.types import TourItem, TourItemKind
+
+
+def names(root) -> set[str]:
+    return {node.name for node in root.iterate()}
+
+
+def test_tree_has_the_named_behaviours(registry):
+    root = build_exploration_tree(ExplorationSection(slc=True), registry.behaviours)
+    assert {"TakeOff", "Replan", "Explore", "InsertSLC", "Panorama", "AttemptSLC", "Land"} <= names(root)
+    without = build_exploration_tree(ExplorationSection(slc=False), registry.behaviours)
+    assert "InsertSLC" not in names(without)
+
+
+class FakeRobot(SimpleNamespace):
+    def __init__(self, plans):
+        super().__init__(
+            exploration=ExplorationSection(max_replan_failures=3, max_unreachable=2),
+            events=[],
+            holds=0,
+            plans=list(plans),
+            viewpoints=[],
+        )
+
+    def plan(self):
+        outcome = self.plans.pop(0)
+        if isinstance(outcome, Exception):
+            raise outcome
+        return outcome
+
+    def emit(self, name, **fields):
+        self.events.append(name)
+
+    def plugin_hook(self, name, **kwargs):
+        pass
+
+    def hold(self):
+        self.holds += 1
+
+    def time(self):
+        return 0.0
+
+
+@pytest.fixture(autouse=True)
+def clean_blackboard():
+    py_trees.blackboard.Blackboard.clear()
+    yield
+    py_trees.blackboard.Blackboard.clear()
+
+
+def tick(behaviour) -> Status:
+    behaviour.tick_once()
+    return behaviour.status
+
+
+def test_replan_counts_failures_then_gives_up():
+    robot = FakeRobot([RuntimeError("boom")] * 3)
+    replan = Replan()
+    replan.setup(robot=robot)
+    assert tick(replan) == Status.RUNNING
+    assert tick(replan) == Status.RUNNING
+    assert tick(replan) == Status.FAILURE
+    assert robot.events.count("planner_error") == 3 and robot.holds == 3
+    assert "planner failed 3 times" in py_trees.blackboard.Blackboard.storage["/exploration"]
+
+
+def test_replan_recovers_after_a_failure_and_ends_when_nothing_is_left():
+    item = TourItem(TourItemKind.EXPLORE, np.array([1.0, 2.0, 1.0]), 0.0, 5.0, 7)
+    robot = FakeRobot([RuntimeError("once"), [item], []])
+    replan = Replan()
+    replan.setup(robot=robot)
+    assert tick(replan) == Status.RUNNING
+    assert tick(replan) == Status.SUCCESS
+    storage = py_trees.blackboard.Blackboard.storage
+    assert storage["/goal"] is item and storage["/replan_failures"] == 0
+    assert tick(replan) == Status.FAILURE
+    assert storage["/exploration"].startswith("complete")
+
+
+def test_behaviour_refuses_setup_without_robot():
+    with pytest.raises(KeyError, match="needs setup\\(robot=...\\)"):
+        Replan().setup()
+
+
+def test_skip_unreachable_gives_up_after_the_limit():
+    robot = FakeRobot([])
+    skip = ForgetGoal()
+    skip.setup(robot=robot)
+    py_trees.blackboard.Blackboard.set("/unreachable", 1)
+    assert tick(skip) == Status.SUCCESS
+    py_trees.blackboard.Blackboard.set("/unreachable", 2)
+    assert tick(skip) == Status.FAILURE
