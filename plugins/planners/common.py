@@ -12,7 +12,7 @@ Tours are *open*: they start at the robot (node 0, never moved) and end at the l
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse.csgraph import shortest_path
@@ -33,17 +33,20 @@ class PlanningGraph:
         columns: column of each kept viewpoint in ``request.costs`` (node ``i + 1`` ↔ ``columns[i]``).
         costs: (M+1)×(M+1) metric-closed travel costs in metres, node 0 = robot.
         gains: M rewards (information gain in m³) of the kept viewpoints.
+        slc_costs: C×(M+1) metric-closed costs from each loop-closure candidate to the robot
+            (column 0) and to the kept viewpoints; C = 0 unless built with ``with_slc=True``.
     """
 
     viewpoints: tuple[Viewpoint, ...]
     columns: np.ndarray
     costs: np.ndarray
     gains: np.ndarray
+    slc_costs: np.ndarray = field(default_factory=lambda: np.zeros((0, 1)))
 
     @property
     def size(self) -> int:
         """Number of viewpoints (graph nodes without the robot)."""
-        return len(self.viewpoints)
+        return len(self.gains)
 
 
 def validate_request(request: PlanRequest) -> None:
@@ -81,23 +84,35 @@ def metric_closure(costs: np.ndarray) -> np.ndarray:
     return closed
 
 
-def planning_graph(request: PlanRequest, min_gain: float = 0.0) -> PlanningGraph:
+def planning_graph(request: PlanRequest, min_gain: float = 0.0, *, with_slc: bool = False) -> PlanningGraph:
     """Keep the viewpoints with ``gain > min_gain`` reachable from the robot; close their costs.
+
+    With ``with_slc`` the loop-closure candidates join the closure (candidate-to-candidate costs are
+    unknown and only found through other nodes) and their costs are returned in ``slc_costs``.
 
     Raises:
         PlanningError: malformed request (see :func:`validate_request`).
     """
     validate_request(request)
-    costs = np.asarray(request.costs, dtype=float)
-    gains = np.array([vp.gain for vp in request.viewpoints], dtype=float)
-    closed = metric_closure(costs) if len(costs) > 1 else np.zeros((1, 1))
-    keep = np.flatnonzero(np.isfinite(closed[0, 1:]) & (gains > min_gain) & np.isfinite(gains))
-    nodes = np.concatenate([[0], keep + 1])
+    n = len(request.viewpoints)
+    c = len(request.slc_candidates) if with_slc else 0
+    full = np.full((n + 1 + c, n + 1 + c), np.inf)
+    full[: n + 1, : n + 1] = np.asarray(request.costs, dtype=float)
+    if c:
+        slc = np.asarray(request.slc_costs, dtype=float)
+        full[n + 1 :, : n + 1] = slc
+        full[: n + 1, n + 1 :] = slc.T
+    np.fill_diagonal(full, 0.0)
+    closed = metric_closure(full) if len(full) > 1 else np.zeros((1, 1))
+    gains = np.array([vp.gain for vp in request.viewpoints], dtype=float).reshape(-1)
+    keep = np.flatnonzero(np.isfinite(closed[0, 1 : n + 1]) & (gains > min_gain) & np.isfinite(gains))
+    nodes = np.concatenate([[0], keep + 1]).astype(int)
     return PlanningGraph(
         viewpoints=tuple(request.viewpoints[i] for i in keep),
         columns=keep + 1,
         costs=closed[np.ix_(nodes, nodes)],
         gains=gains[keep],
+        slc_costs=closed[np.ix_(np.arange(n + 1, n + 1 + c), nodes)],
     )
 
 

@@ -1,0 +1,320 @@
+"""The ``cop`` planner: correlated orienteering over frontier viewpoints, refined with SLC stops.
+
+Paper 1 §VI-B and §VI-D.
+
+**COP.** Vertices are the reachable viewpoints with reward ``r_v`` = information gain (m³); edge
+costs are path lengths; the correlation ``w(u, v)`` is the overlap of the two viewpoints' fields of
+view (:mod:`.correlation`). The budget is ``budget_factor`` × the summed cost from the robot to its
+``budget_k`` nearest viewpoints. The greedy constructive heuristic of Agarwal & Akella (paper 1
+ref. [30]) starts from an empty tour and repeatedly takes the unselected vertex of highest
+
+    value(v) = r_v + Σ_{u ∉ S, u ≠ v} r_u w(v, u) − Σ_{u ∈ S} r_u w(u, v),
+
+inserts it into the open tour from the robot at its cheapest place and improves the tour with
+2-opt; a vertex whose insertion would break the budget is dropped (or, with
+``stop_at_first_violation``, ends the construction, the paper's literal wording). Moving ``v`` into
+``S`` flips the sign of its term in every other vertex's value, so values are updated in ``O(|V|)``
+per step instead of recomputed.
+
+**Algorithm 1 (uncertainty-reduction planning).** The COP tour is walked in order. For each next
+exploration viewpoint ``VP``: its remaining gain ``r_VP · max(0, 1 − Σ_{u ∈ refined} w(u, VP))``
+(constraint (8) of the paper) and its utility ``IG / cost`` from the previous stop; among the
+loop-closure candidates not yet used whose travel fits the remaining budget, the best scaled IG
+``slc_scale · IG``; if that beats the viewpoint's utility the candidate is inserted first, then the
+viewpoint if the budget still allows; otherwise the viewpoint alone if it fits, else the refined
+tour ends. At most one SLC goes between consecutive exploration viewpoints, and a candidate is
+used at most once per tour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import Field
+
+from amslam.interfaces import BackendParams, Planner, RunContext
+from amslam.plugins.planners.common import (
+    PlanningGraph,
+    budget_from_nearest,
+    cheapest_insertion,
+    explore_item,
+    or_opt,
+    planning_graph,
+    tour_cost,
+    two_opt,
+)
+from amslam.plugins.planners.correlation import fov_correlation
+from amslam.types import PlanRequest, SlcCandidate, TourItem, TourItemKind
+
+_EPS = 1e-9
+
+
+class CopParams(BackendParams):
+    """Parameters of the ``cop`` planner."""
+
+    budget_factor: float = Field(
+        2.0, ge=1.0, description="budget = factor × summed cost to the budget_k nearest viewpoints"
+    )
+    budget_k: int = Field(3, ge=1, description="how many nearest viewpoints set the budget")
+    min_budget: float = Field(0.0, ge=0.0, description="lower bound of the travel budget in metres")
+    min_gain: float = Field(0.0, ge=0.0, description="viewpoints with gain (m³) at or below this are ignored")
+    stop_at_first_violation: bool = Field(
+        False,
+        description="end construction at the first vertex that breaks the budget (else skip it and go on)",
+    )
+    fov_samples: int = Field(256, ge=8, le=8192, description="points sampled per frustum for the correlation")
+    fov_range: float | None = Field(
+        None,
+        gt=0.0,
+        description="far range (m) of the frustum used for correlation; default camera max_range",
+    )
+    slc: bool = Field(True, description="refine the tour with loop-closure stops (Algorithm 1)")
+    slc_scale: float = Field(
+        10.0,
+        ge=0.0,
+        description="Scale(IG): exploration utility (m³/m) worth one unit of covariance-trace reduction",
+    )
+    slc_min_gain: float = Field(
+        0.0, ge=0.0, description="loop-closure candidates with IG at or below this are ignored"
+    )
+    slc_budget_factor: float = Field(
+        1.0, ge=1.0, description="budget of the refined tour relative to the COP budget"
+    )
+    utility_epsilon: float = Field(
+        0.5, gt=0.0, description="metres added to a viewpoint's cost in its utility IG/(cost+eps)"
+    )
+
+
+@dataclass
+class CopSummary:
+    """What the last :meth:`CopPlanner.plan` did (for events, benchmarks and debugging)."""
+
+    viewpoints: int = 0
+    selected: int = 0
+    budget: float = 0.0
+    cop_cost: float = 0.0
+    cop_reward: float = 0.0
+    refined_cost: float = 0.0
+    slc_inserted: list[int] = field(default_factory=list)
+
+
+def cop_reward(gains: np.ndarray, w: np.ndarray, selected: np.ndarray) -> float:
+    """Objective (7) of paper 1: ``Σ r_v (x_v + ω_v (1 − x_v))`` with ``ω_v = min(1, Σ_u w(u,v) x_u)``."""
+    x = np.zeros(len(gains), dtype=bool)
+    x[np.asarray(selected, dtype=int)] = True
+    off = w - np.diag(np.diag(w))
+    omega = np.minimum(1.0, off[x].sum(axis=0)) if x.any() else np.zeros(len(gains))
+    return float(np.sum(gains * np.where(x, 1.0, omega)))
+
+
+def cop_tour(
+    costs: np.ndarray,
+    gains: np.ndarray,
+    w: np.ndarray,
+    budget: float,
+    *,
+    stop_at_first_violation: bool = False,
+) -> list[int]:
+    """Greedy constructive COP heuristic (see module docstring).
+
+    Args:
+        costs: (M+1)×(M+1) metric travel costs, node 0 = robot.
+        gains: M rewards; vertex ``i`` is node ``i + 1``.
+        w: M×M symmetric correlation, ones on the diagonal.
+        budget: maximum length of the open tour from the robot.
+        stop_at_first_violation: end at the first best vertex that does not fit.
+
+    Returns:
+        The open tour as node indices (1..M), robot excluded.
+    """
+    m = len(gains)
+    off = w - np.diag(np.diag(w))
+    value = gains + off @ gains  # nothing selected yet: every other vertex is in V \\ S
+    open_ = np.ones(m, dtype=bool)
+    tour: list[int] = []
+    length = 0.0
+    while open_.any():
+        v = int(np.flatnonzero(open_)[np.argmax(value[open_])])
+        open_[v] = False
+        pos, delta = cheapest_insertion(costs, tour, v + 1)
+        candidate = [*tour[:pos], v + 1, *tour[pos:]]
+        new_length = length + delta
+        if new_length > budget + _EPS:
+            # Insertion alone breaks the budget; a better order of the same stops may not.
+            candidate = two_opt(costs, candidate)
+            new_length = tour_cost(costs, candidate)
+        if new_length > budget + _EPS:
+            if stop_at_first_violation:
+                break
+            continue
+        tour = two_opt(costs, candidate)
+        length = tour_cost(costs, tour)
+        value -= 2.0 * gains[v] * off[:, v]  # v leaves V \\ S and joins S
+    if len(tour) > 2:
+        tour = two_opt(costs, or_opt(costs, tour))
+    return tour
+
+
+def refine_with_slc(
+    graph: PlanningGraph,
+    tour: list[int],
+    w: np.ndarray,
+    candidates: tuple[SlcCandidate, ...],
+    budget: float,
+    params: CopParams,
+) -> list[tuple[str, int]]:
+    """Algorithm 1 of paper 1: insert loop-closure stops along the COP tour.
+
+    Args:
+        graph: the planning graph; ``graph.slc_costs`` holds the candidates' costs.
+        tour: the COP tour (nodes 1..M).
+        w: M×M viewpoint correlation.
+        candidates: loop-closure candidates, row ``j`` of ``graph.slc_costs``.
+        budget: maximum length of the refined open tour.
+        params: planner parameters (scale, thresholds).
+
+    Returns:
+        The refined tour as ``("vp", node)`` and ``("slc", j)`` stops.
+    """
+    ig = np.array([c.info_gain for c in candidates], dtype=float)
+    usable = (ig > params.slc_min_gain) & np.isfinite(ig)
+    refined: list[tuple[str, int]] = []
+    in_path = np.zeros(graph.size, dtype=bool)
+    used = 0.0
+
+    def cost_from(stop: tuple[str, int], node: int) -> float:
+        kind, i = stop
+        return float(graph.slc_costs[i, node] if kind == "slc" else graph.costs[i, node])
+
+    prev: tuple[str, int] = ("vp", 0)  # the robot
+    for node in tour:
+        v = node - 1
+        remaining = graph.gains[v] * max(0.0, 1.0 - float(w[in_path, v].sum()))
+        vp_cost = cost_from(prev, node)
+        utility = remaining / (vp_cost + params.utility_epsilon)
+        best = -1
+        if prev[0] == "vp" and usable.any():
+            to_slc = graph.slc_costs[:, prev[1]]
+            fits = usable & (used + to_slc <= budget + _EPS)
+            if fits.any():
+                best = int(np.flatnonzero(fits)[np.argmax(ig[fits])])
+        if best >= 0 and params.slc_scale * ig[best] > utility:
+            refined.append(("slc", best))
+            usable[best] = False
+            used += float(graph.slc_costs[best, prev[1]])
+            prev = ("slc", best)
+            on = float(graph.slc_costs[best, node])
+            if used + on <= budget + _EPS:
+                refined.append(("vp", node))
+                in_path[v] = True
+                used += on
+                prev = ("vp", node)
+        elif used + vp_cost <= budget + _EPS:
+            refined.append(("vp", node))
+            in_path[v] = True
+            used += vp_cost
+            prev = ("vp", node)
+        else:
+            break
+    return refined
+
+
+class CopPlanner(Planner):
+    """COP exploration tour over frontier viewpoints, refined with loop-closure stops."""
+
+    Params = CopParams
+
+    def __init__(self) -> None:
+        self.params = CopParams()
+        self.summary = CopSummary()
+        self._emit = None
+
+    def configure(self, params: CopParams, context: RunContext) -> None:
+        """Keep the validated parameters."""
+        self.params = params
+        self._emit = context.emit
+
+    def plan(self, request: PlanRequest) -> list[TourItem]:
+        """COP tour, then Algorithm 1 when ``slc`` is on and candidates were given.
+
+        Raises:
+            PlanningError: the request's matrices do not match its viewpoints and candidates.
+        """
+        p = self.params
+        with_slc = p.slc and len(request.slc_candidates) > 0
+        graph = planning_graph(request, p.min_gain, with_slc=with_slc)
+        self.summary = CopSummary(viewpoints=graph.size)
+        if graph.size == 0:
+            self._report()
+            return []
+        w = fov_correlation(
+            np.array([vp.position for vp in graph.viewpoints]),
+            np.array([vp.yaw for vp in graph.viewpoints]),
+            request.camera,
+            samples=p.fov_samples,
+            far=p.fov_range,
+        )
+        budget = budget_from_nearest(graph.costs[0, 1:], p.budget_k, p.budget_factor, p.min_budget)
+        tour = cop_tour(
+            graph.costs, graph.gains, w, budget, stop_at_first_violation=p.stop_at_first_violation
+        )
+        s = self.summary
+        s.selected, s.budget = len(tour), budget
+        s.cop_cost = tour_cost(graph.costs, tour)
+        s.cop_reward = cop_reward(graph.gains, w, np.array(tour, dtype=int) - 1)
+        if with_slc:
+            stops = refine_with_slc(
+                graph, tour, w, request.slc_candidates, budget * p.slc_budget_factor, self.params
+            )
+        else:
+            stops = [("vp", node) for node in tour]
+        items = [self._item(graph, request.slc_candidates, stop) for stop in stops]
+        s.refined_cost = _refined_cost(graph, stops)
+        s.slc_inserted = [request.slc_candidates[j].keypose_id for kind, j in stops if kind == "slc"]
+        self._report()
+        return items
+
+    @staticmethod
+    def _item(graph: PlanningGraph, candidates: tuple[SlcCandidate, ...], stop: tuple[str, int]) -> TourItem:
+        kind, i = stop
+        if kind == "vp":
+            return explore_item(graph.viewpoints[i - 1])
+        c = candidates[i]
+        return TourItem(
+            kind=TourItemKind.SLC,
+            position=np.asarray(c.position, dtype=float),
+            yaw=float(c.yaw),
+            gain=float(c.info_gain),
+            ref=int(c.keypose_id),
+        )
+
+    def _report(self) -> None:
+        if self._emit is None:
+            return
+        s = self.summary
+        self._emit(
+            "planner_tour",
+            planner="cop",
+            viewpoints=s.viewpoints,
+            selected=s.selected,
+            budget=round(s.budget, 3),
+            cop_cost=round(s.cop_cost, 3),
+            cop_reward=round(s.cop_reward, 3),
+            refined_cost=round(s.refined_cost, 3),
+            slc_inserted=list(s.slc_inserted),
+        )
+
+
+def _refined_cost(graph: PlanningGraph, stops: list[tuple[str, int]]) -> float:
+    """Length of the refined open tour from the robot (two SLC stops are never adjacent)."""
+    total, prev = 0.0, ("vp", 0)
+    for stop in stops:
+        if prev[0] == "vp" and stop[0] == "vp":
+            total += float(graph.costs[prev[1], stop[1]])
+        elif stop[0] == "slc":
+            total += float(graph.slc_costs[stop[1], prev[1]])
+        else:
+            total += float(graph.slc_costs[prev[1], stop[1]])
+        prev = stop
+    return total
