@@ -1,0 +1,339 @@
+"""The simulator platform: a kinematic multicopter with a depth camera and drifting VIO."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from amslam.errors import PlatformError
+from amslam.interfaces import BackendParams, Platform, RunContext
+from amslam.plugins.sim.camera import CameraParams, Renderer
+from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
+from amslam.plugins.sim.vio import VioParams, VioState, wrap_angle
+from amslam.plugins.sim.world import World, WorldSpec
+from amslam.types import CameraModel, Frame, Odometry, RobotSpec, VehicleStatus, WorldSummary
+
+
+class SimPlatform(Platform):
+    """The built-in simulator (platform plugin ``sim``).
+
+    The world is built in :meth:`start` (or on the first call that needs it). Setpoints are in
+    the odometry frame: the vehicle drives its *VIO estimate* to them, so the true motion carries
+    the drift, exactly as on a real vehicle. The odometry frame equals the world frame at the
+    start pose.
+    """
+
+    simulated = True
+
+    class Params(BackendParams):
+        """Parameters of the simulator platform."""
+
+        world: ProceduralWorldParams = Field(default_factory=ProceduralWorldParams)
+        start: tuple[float, float] | None = Field(
+            None, description="start (x, y) on the ground floor; default: the world's own start"
+        )
+        start_yaw: float | None = Field(None, description="start heading in radians; default: the world's")
+        camera: CameraParams = Field(default_factory=CameraParams)
+        vio: VioParams = Field(default_factory=VioParams)
+        physics_hz: float = Field(50.0, ge=10.0, description="integration rate of the vehicle")
+        position_gain: float = Field(
+            1.5, gt=0.0, description="P gain (1/s) of the position loop near the goal"
+        )
+        yaw_gain: float = Field(2.0, gt=0.0, description="P gain (1/s) of the yaw loop")
+        landing_speed: float = Field(0.4, gt=0.0, description="descent speed when landing, m/s")
+        landed_clearance: float = Field(
+            0.05, ge=0.0, description="gap between the collision sphere and the ground when landed"
+        )
+        reachable_cell: float = Field(0.25, gt=0.0, description="grid of the reachable-free-space summary")
+
+    def __init__(self) -> None:
+        self.params: SimPlatform.Params | None = None
+        self._camera: CameraModel | None = None
+        self._world: World | None = None
+        self._closed = False
+
+    # ---------------------------------------------------------------------------------------
+    # lifecycle
+    # ---------------------------------------------------------------------------------------
+    def configure(self, params: BackendParams, context: RunContext) -> None:
+        assert isinstance(params, SimPlatform.Params), type(params)
+        self.params = params
+        self.context = context
+        self.robot: RobotSpec = context.robot
+        self._camera = params.camera.model()
+        self._renderer = Renderer(self._camera, params.camera)
+        # Separate streams: the world, the VIO, the camera and the detector noise must not
+        # shift one another when one of them is reconfigured.
+        seeds = context.rng.integers(0, 2**63 - 1, size=3)
+        self._world_seed = int(seeds[0]) + params.world.seed_offset
+        self._vio_rng = np.random.default_rng(int(seeds[1]))
+        self._cam_rng = np.random.default_rng(int(seeds[2]))
+
+    def close(self) -> None:
+        self._world = None
+        self._closed = True
+
+    @property
+    def camera(self) -> CameraModel:
+        if self._camera is None:
+            raise PlatformError("the sim platform is not configured yet")
+        return self._camera
+
+    @property
+    def world(self) -> World:
+        """The simulated world (built on first use)."""
+        if self._world is None:
+            self._build()
+        assert self._world is not None
+        return self._world
+
+    def start(self) -> None:
+        """Build the world and put the vehicle, landed, at the start."""
+        _ = self.world
+
+    def _build(self) -> None:
+        if self.params is None:
+            raise PlatformError("the sim platform must be configured before it is started")
+        p = self.params
+        spec = self._make_world_spec(p)
+        self._world = World(spec)
+        xy = np.asarray(p.start, float) if p.start is not None else spec.start_xy
+        self._ground_z = spec.start_floor_z
+        if p.start is not None:
+            g = self._world.ground_below(np.array([xy[0], xy[1], spec.bounds_hi[2] - 1e-3 - 0.5]))
+            if np.isfinite(g):
+                self._ground_z = g
+        yaw = float(p.start_yaw if p.start_yaw is not None else spec.start_yaw)
+        self._landed_height = self.robot.radius + p.landed_clearance
+        pos = np.array([xy[0], xy[1], self._ground_z + self._landed_height])
+        self._start = pos.copy()
+        # true state
+        self._p = pos.copy()
+        self._yaw = wrap_angle(yaw)
+        self._vel = np.zeros(3)  # commanded velocity in the odometry frame
+        self._vio = VioState(position=pos.copy(), yaw=self._yaw)
+        self._t = 0.0
+        self._armed = False
+        self._airborne = False
+        self._landing = False
+        self._crashed = False
+        self._crash_reason = ""
+        self._sp: np.ndarray = pos.copy()
+        self._sp_yaw = self._yaw
+        self._odom = Odometry(0.0, self._T_odom_body())
+        self._next_odom = 1.0 / p.vio.rate_hz
+        self._next_frame = 0.0
+        self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._check_due_frame()
+        self._frames_rendered = 0
+        d, _, what = self._world.closest(self._hover_point())
+        if d <= self.robot.radius:
+            raise PlatformError(
+                f"start {np.round(self._hover_point(), 2).tolist()} is {d:.2f} m from {what}, "
+                f"closer than the robot radius {self.robot.radius} m"
+            )
+
+    def use_world(self, spec: WorldSpec) -> None:
+        """Fly in a world built by the caller (tests, scripts) instead of the one in the params.
+
+        Call after :meth:`configure` and before :meth:`start`.
+        """
+        if self._world is not None:
+            raise PlatformError("use_world() must be called before the world is built")
+        self._custom_spec = spec
+
+    def _make_world_spec(self, p: SimPlatform.Params) -> WorldSpec:
+        if getattr(self, "_custom_spec", None) is not None:
+            return self._custom_spec
+        return generate_building(p.world, np.random.default_rng(self._world_seed))
+
+    def _hover_point(self) -> np.ndarray:
+        return np.array([self._start[0], self._start[1], self._ground_z + self.robot.altitude])
+
+    # ---------------------------------------------------------------------------------------
+    # clock and dynamics
+    # ---------------------------------------------------------------------------------------
+    def time(self) -> float:
+        _ = self.world
+        return self._t
+
+    def advance(self, dt: float) -> None:
+        """Integrate ``dt`` seconds of simulated time in sub-steps of at most 1/physics_hz."""
+        if dt <= 0:
+            return
+        w = self.world
+        assert self.params is not None
+        n = max(1, int(np.ceil(dt * self.params.physics_hz - 1e-9)))
+        h = dt / n
+        for _ in range(n):
+            self._step(h, w)
+            self._t += h
+            if self._t >= self._next_odom - 1e-9:
+                self._odom = Odometry(self._t, self._T_odom_body())
+                while self._next_odom <= self._t + 1e-9:
+                    self._next_odom += 1.0 / self.params.vio.rate_hz
+            self._check_due_frame()
+
+    def _check_due_frame(self) -> None:
+        if self._t >= self._next_frame - 1e-9:
+            # a queue of one: a frame not collected before the next one is due is dropped
+            self._pending = (self._t, self._T_world_body(), self._T_odom_body())
+            period = 1.0 / self.camera.rate_hz
+            while self._next_frame <= self._t + 1e-9:
+                self._next_frame += period
+
+    def _step(self, h: float, w: World) -> None:
+        if self._crashed or not self._armed:
+            self._vel[:] = 0.0
+            return
+        p, r = self.params, self.robot
+        assert p is not None
+        # --- position loop on the VIO estimate: fastest approach that can still brake in time
+        target = self._sp
+        err = target - self._vio.position
+        dist = float(np.linalg.norm(err))
+        vmax = p.landing_speed if self._landing else r.max_speed
+        if dist > 1e-9:
+            speed = min(vmax, np.sqrt(2.0 * r.max_acceleration * dist), p.position_gain * dist)
+            v_des = err / dist * speed
+        else:
+            v_des = np.zeros(3)
+        dv = v_des - self._vel
+        dvn = float(np.linalg.norm(dv))
+        if dvn > r.max_acceleration * h:
+            dv *= r.max_acceleration * h / dvn
+        self._vel = self._vel + dv
+        sp = float(np.linalg.norm(self._vel))
+        if sp > vmax:
+            self._vel *= vmax / sp
+        # --- yaw loop
+        yaw_err = wrap_angle(self._sp_yaw - self._vio.yaw)
+        dyaw = float(np.clip(p.yaw_gain * yaw_err, -r.max_yaw_rate, r.max_yaw_rate)) * h
+        # --- the true motion is the commanded odometry-frame motion rotated back by the yaw error
+        c, s = np.cos(-self._vio.yaw_error), np.sin(-self._vio.yaw_error)
+        v = self._vel * h
+        dp_true = np.array([c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]])
+        self._p = self._p + dp_true
+        self._yaw = wrap_angle(self._yaw + dyaw)
+        self._vio.step(dp_true, dyaw, self._yaw, p.vio, self._vio_rng)
+
+        if self._landing:
+            ground = w.ground_below(self._p)
+            if self._p[2] - ground <= self._landed_height + 0.02:
+                self._armed = self._airborne = self._landing = False
+                self._vel[:] = 0.0
+                self.context.emit("sim_landed", t=self._t, position=self._p.round(3).tolist())
+                return
+        # --- collision: the robot's sphere touching any geometry
+        if w.distance(self._p)[0] < r.radius:
+            d, q, what = w.closest(self._p)
+            self._crashed = True
+            self._vel[:] = 0.0
+            pos = ", ".join(f"{x:.2f}" for x in self._p)
+            self._crash_reason = (
+                f"collision at ({pos}) with {what}: clearance {d:.3f} m < robot radius {r.radius} m"
+            )
+            self.context.emit("sim_crash", t=self._t, position=self._p.round(3).tolist(), hit=what)
+
+    # ---------------------------------------------------------------------------------------
+    # poses
+    # ---------------------------------------------------------------------------------------
+    def _T_world_body(self) -> np.ndarray:
+        return _pose(self._p, self._yaw)
+
+    def _T_odom_body(self) -> np.ndarray:
+        return _pose(self._vio.position, self._vio.yaw)
+
+    def ground_truth(self) -> np.ndarray:
+        _ = self.world
+        return self._T_world_body()
+
+    def odometry(self) -> Odometry:
+        _ = self.world
+        return self._odom
+
+    def distance_travelled(self) -> float:
+        """True distance flown so far (m)."""
+        return self._vio.distance
+
+    # ---------------------------------------------------------------------------------------
+    # commands
+    # ---------------------------------------------------------------------------------------
+    def set_setpoint(self, position_odom: np.ndarray, yaw: float) -> None:
+        _ = self.world
+        if self._landing:
+            return  # landing overrides setpoints, as on a real autopilot
+        self._sp = np.asarray(position_odom, dtype=float).reshape(3).copy()
+        self._sp_yaw = wrap_angle(float(yaw))
+
+    def arm_and_takeoff(self, altitude: float) -> None:
+        """Arm and climb to ``altitude`` above the ground at the start (odometry frame z)."""
+        _ = self.world
+        if self._crashed:
+            raise PlatformError(f"cannot take off after a crash: {self._crash_reason}")
+        if self._airborne and not self._landing:
+            return
+        self._armed = self._airborne = True
+        self._landing = False
+        self._sp = np.array([self._vio.position[0], self._vio.position[1], self._ground_z + altitude])
+        self._sp_yaw = self._vio.yaw
+        self.context.emit("sim_takeoff", t=self._t, altitude=altitude)
+
+    def land(self) -> None:
+        """Descend at the current place until the vehicle rests on what is below it, then disarm."""
+        _ = self.world
+        if not self._airborne or self._landing:
+            return
+        self._landing = True
+        ground = self.world.ground_below(self._p)
+        drop = self._p[2] - (ground + self._landed_height) + 0.05  # aim slightly below touchdown
+        self._sp = self._vio.position - np.array([0.0, 0.0, drop])
+        self._sp_yaw = self._vio.yaw
+
+    def status(self) -> VehicleStatus:
+        _ = self.world
+        return VehicleStatus(self._armed, self._airborne, self._crashed, self._crash_reason)
+
+    # ---------------------------------------------------------------------------------------
+    # sensing
+    # ---------------------------------------------------------------------------------------
+    def capture(self) -> Frame | None:
+        """Render the frame that fell due most recently, if it has not been collected yet."""
+        _ = self.world
+        if self._pending is None:
+            return None
+        stamp, T_wb, T_ob = self._pending
+        self._pending = None
+        cam = self.camera
+        T_wc = T_wb @ cam.T_body_cam
+        r = self._renderer.render(self.world, T_wc, self._cam_rng)
+        self._frames_rendered += 1
+        return Frame(
+            stamp=stamp,
+            depth=r.depth,
+            K=cam.K.copy(),
+            T_odom_cam=T_ob @ cam.T_body_cam,
+            rgb=r.rgb,
+            instance=r.instance,
+            class_id=r.class_id,
+            class_names=self.world.class_names,
+            T_world_cam_truth=T_wc,
+        )
+
+    def world_summary(self) -> WorldSummary:
+        assert self.params is not None
+        return self.world.summary(self._hover_point(), cell=self.params.reachable_cell)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters for profiling and reports."""
+        return {"frames_rendered": self._frames_rendered, "sim_time": self._t, "distance": self._vio.distance}
+
+
+def _pose(p: np.ndarray, yaw: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = p
+    return T

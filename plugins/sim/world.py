@@ -1,0 +1,353 @@
+"""A simulated world: labelled triangle meshes in one Open3D ``RaycastingScene``.
+
+Every triangle carries an instance id (0 = building structure) and an albedo colour. Object
+instances (chairs, tables, ...) have their own geometry in the scene; mesh worlds may label the
+triangles of one big mesh per triangle. Both cases go through the same lookup: the scene reports
+``(geometry_id, primitive_id)`` for a hit, ``offsets[geometry_id] + primitive_id`` indexes the
+concatenated per-triangle arrays.
+
+Open3D is imported lazily so that loading the plugin (``amslam plugins``) stays fast.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from amslam.types import WorldSummary
+
+#: Open3D's ``RaycastingScene.INVALID_ID`` (uint32 max): no geometry was hit.
+INVALID_ID = np.uint32(0xFFFFFFFF)
+
+#: Albedo of the classes the procedural generator uses (RGB in [0, 1]).
+CLASS_COLOURS: dict[str, tuple[float, float, float]] = {
+    "chair": (0.78, 0.22, 0.18),
+    "table": (0.55, 0.36, 0.18),
+    "shelf": (0.22, 0.38, 0.68),
+    "sofa": (0.28, 0.58, 0.30),
+    "wall": (0.82, 0.80, 0.76),
+    "floor": (0.52, 0.47, 0.42),
+    "ceiling": (0.93, 0.93, 0.92),
+}
+
+#: Classes with fixed ids, so the same class has the same id in every procedural world.
+BASE_CLASSES: tuple[str, ...] = ("background", "chair", "table", "shelf", "sofa")
+
+
+def class_colour(name: str) -> np.ndarray:
+    """Albedo of a class: a fixed colour for known classes, a stable hashed colour otherwise."""
+    if name in CLASS_COLOURS:
+        return np.array(CLASS_COLOURS[name])
+    digest = hashlib.sha1(name.encode()).digest()
+    return 0.25 + 0.6 * np.frombuffer(digest[:3], dtype=np.uint8) / 255.0
+
+
+@dataclass
+class MeshPart:
+    """One geometry of the scene.
+
+    Attributes:
+        name: what a collision report calls it, e.g. ``"walls (floor 0)"`` or ``"chair_3"``.
+        vertices: N×3 vertex positions (world frame, metres).
+        triangles: M×3 vertex indices.
+        instance: per-triangle instance ids (M,), 0 = structure.
+        albedo: per-triangle RGB albedo (M×3) in [0, 1].
+    """
+
+    name: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+    instance: np.ndarray
+    albedo: np.ndarray
+
+    @staticmethod
+    def uniform(
+        name: str, vertices: np.ndarray, triangles: np.ndarray, instance: int, albedo: np.ndarray
+    ) -> MeshPart:
+        """A part whose triangles share one instance id and one colour."""
+        m = len(triangles)
+        return MeshPart(
+            name,
+            np.asarray(vertices, dtype=np.float64),
+            np.asarray(triangles, dtype=np.int64),
+            np.full(m, instance, dtype=np.int32),
+            np.tile(np.asarray(albedo, dtype=np.float32), (m, 1)),
+        )
+
+
+@dataclass(frozen=True)
+class WorldObject:
+    """Ground truth of one object instance."""
+
+    name: str
+    class_name: str
+    instance_id: int
+    centroid: np.ndarray  # centre of the axis-aligned bounds
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+@dataclass
+class WorldSpec:
+    """Everything a world generator or loader produces, before the scene is built."""
+
+    name: str
+    parts: list[MeshPart]
+    objects: list[WorldObject]
+    floor_heights: tuple[float, ...]
+    bounds_lo: np.ndarray
+    bounds_hi: np.ndarray
+    start_xy: np.ndarray  # start position on the ground (x, y)
+    start_floor_z: float  # z of the ground under the start
+    start_yaw: float = 0.0
+    extra_classes: tuple[str, ...] = field(default_factory=tuple)
+
+
+class World:
+    """The ray-castable world built from a :class:`WorldSpec`."""
+
+    def __init__(self, spec: WorldSpec):
+        import open3d as o3d
+
+        self.spec = spec
+        self.name = spec.name
+        self.objects = list(spec.objects)
+        classes = list(BASE_CLASSES)
+        for c in sorted({o.class_name for o in self.objects} | set(spec.extra_classes)):
+            if c not in classes:
+                classes.append(c)
+        self.class_names: tuple[str, ...] = tuple(classes)
+        class_index = {c: i for i, c in enumerate(self.class_names)}
+        n_inst = 1 + max((o.instance_id for o in self.objects), default=0)
+        #: instance id → class id (0 for structure)
+        self.instance_class = np.zeros(n_inst, dtype=np.int32)
+        self.instance_names = ["structure"] * n_inst
+        for o in self.objects:
+            self.instance_class[o.instance_id] = class_index[o.class_name]
+            self.instance_names[o.instance_id] = o.name
+
+        self.scene = o3d.t.geometry.RaycastingScene()
+        offsets, inst, albedo, names = [], [], [], []
+        total = 0
+        for part in spec.parts:
+            if len(part.triangles) == 0:
+                continue
+            # Open3D wants float32 vertices and uint32 triangle indices.
+            gid = self.scene.add_triangles(
+                o3d.core.Tensor(np.ascontiguousarray(part.vertices, dtype=np.float32)),
+                o3d.core.Tensor(np.ascontiguousarray(part.triangles, dtype=np.uint32)),
+            )
+            assert gid == len(offsets), "RaycastingScene geometry ids are expected to be sequential"
+            offsets.append(total)
+            total += len(part.triangles)
+            inst.append(part.instance)
+            albedo.append(part.albedo)
+            names.append(part.name)
+        self._offsets = np.array(offsets + [total], dtype=np.int64)
+        self.tri_instance = np.concatenate(inst).astype(np.int32)
+        self.tri_albedo = np.concatenate(albedo).astype(np.float32)
+        self.part_names = names
+        self.n_triangles = total
+        self._summary: WorldSummary | None = None
+        self._summary_key: tuple | None = None
+
+    # ---------------------------------------------------------------------------------------
+    # queries
+    # ---------------------------------------------------------------------------------------
+    def triangle_index(self, geometry_ids: np.ndarray, primitive_ids: np.ndarray) -> np.ndarray:
+        """Global triangle index of hits; -1 where nothing was hit (INVALID_ID)."""
+        gid = np.asarray(geometry_ids, dtype=np.uint32)
+        hit = gid != INVALID_ID
+        out = np.full(gid.shape, -1, dtype=np.int64)
+        out[hit] = self._offsets[gid[hit].astype(np.int64)] + np.asarray(primitive_ids)[hit].astype(np.int64)
+        return out
+
+    def cast_rays(self, rays: np.ndarray) -> dict[str, np.ndarray]:
+        """Cast ``(..., 6)`` rays (origin, direction); returns numpy arrays of Open3D's answer."""
+        import open3d as o3d
+
+        ans = self.scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32)), nthreads=0)
+        return {k: v.numpy() for k, v in ans.items()}
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Unsigned distance (m) from each point (N×3) to the nearest surface."""
+        import open3d as o3d
+
+        pts = np.ascontiguousarray(np.atleast_2d(points), dtype=np.float32)
+        return self.scene.compute_distance(o3d.core.Tensor(pts), nthreads=0).numpy().astype(np.float64)
+
+    def closest(self, point: np.ndarray) -> tuple[float, np.ndarray, str]:
+        """Distance, closest surface point and a description of what it belongs to."""
+        import open3d as o3d
+
+        p = np.ascontiguousarray(np.reshape(point, (1, 3)), dtype=np.float32)
+        ans = self.scene.compute_closest_points(o3d.core.Tensor(p), nthreads=1)
+        q = ans["points"].numpy()[0].astype(np.float64)
+        tri = self.triangle_index(ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy())[0]
+        gid = int(ans["geometry_ids"].numpy()[0])
+        inst = int(self.tri_instance[tri]) if tri >= 0 else 0
+        if inst > 0:
+            what = f"{self.instance_names[inst]} ({self.class_names[self.instance_class[inst]]})"
+        else:
+            what = self.part_names[gid] if 0 <= gid < len(self.part_names) else "structure"
+        return float(np.linalg.norm(q - p[0])), q, what
+
+    def ground_below(self, position: np.ndarray) -> float:
+        """z of the first surface straight below ``position`` (−inf if none)."""
+        ray = np.array([[*position, 0.0, 0.0, -1.0]])
+        t = float(self.cast_rays(ray)["t_hit"][0])
+        return float(position[2] - t) if np.isfinite(t) else -np.inf
+
+    def floor_index(self, z: np.ndarray | float) -> np.ndarray:
+        """Index of the floor holding height ``z`` (clipped to the valid range)."""
+        fh = np.asarray(self.spec.floor_heights)
+        return np.clip(np.searchsorted(fh, z, side="right") - 1, 0, len(fh) - 1)
+
+    # ---------------------------------------------------------------------------------------
+    # ground truth summary
+    # ---------------------------------------------------------------------------------------
+    def summary(self, start: np.ndarray, cell: float = 0.25, margin: float | None = None) -> WorldSummary:
+        """Ground truth for metrics, computed once and cached.
+
+        Reachable free space: centres of grid cells (edge ``cell``) inside the building bounds
+        that are farther than ``margin`` (default half a cell) from any geometry, 6-connected to
+        the cell holding ``start``. ``scipy.ndimage.label`` does the flood fill.
+        """
+        margin = cell / 2.0 if margin is None else margin
+        key = (tuple(np.round(start, 6)), cell, margin)
+        if self._summary is not None and self._summary_key == key:
+            return self._summary
+        lo, hi = self.spec.bounds_lo, self.spec.bounds_hi
+        shape = np.maximum(np.floor((hi - lo) / cell).astype(int), 1)
+        axes = [lo[i] + (np.arange(shape[i]) + 0.5) * cell for i in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        free = (self.distance(grid) > margin).reshape(shape)
+        labels, _ = ndimage.label(free)  # default structure = 6-connectivity
+        idx = np.clip(np.floor((np.asarray(start) - lo) / cell).astype(int), 0, shape - 1)
+        start_label = labels[tuple(idx)]
+        if start_label == 0:  # start cell touches geometry: take the nearest free cell
+            free_idx = np.argwhere(free)
+            if len(free_idx):
+                nearest = free_idx[np.argmin(np.linalg.norm(free_idx - idx, axis=1))]
+                start_label = labels[tuple(nearest)]
+        reachable = (labels == start_label) if start_label > 0 else np.zeros(shape, dtype=bool)
+        points = grid[reachable.reshape(-1)]
+        vol = cell**3
+        floors = self.floor_index(points[:, 2]) if len(points) else np.zeros(0, dtype=int)
+        per_floor = tuple(
+            float(np.count_nonzero(floors == i) * vol) for i in range(len(self.spec.floor_heights))
+        )
+        by_class: dict[str, int] = {}
+        for o in self.objects:
+            by_class[o.class_name] = by_class.get(o.class_name, 0) + 1
+        self._summary = WorldSummary(
+            name=self.name,
+            bounds_lo=np.array(lo, dtype=float),
+            bounds_hi=np.array(hi, dtype=float),
+            reachable_free_volume=float(len(points) * vol),
+            floor_heights=tuple(float(z) for z in self.spec.floor_heights),
+            reachable_free_volume_per_floor=per_floor,
+            objects_by_class=by_class,
+            object_positions={o.name: o.centroid.copy() for o in self.objects},
+            object_classes={o.name: o.class_name for o in self.objects},
+            reachable_points=points,
+            reachable_cell=cell,
+        )
+        self._summary_key = key
+        return self._summary
+
+
+# -------------------------------------------------------------------------------------------
+# mesh helpers
+# -------------------------------------------------------------------------------------------
+_BOX_TRIANGLES = np.array(
+    [
+        [0, 2, 1], [0, 3, 2],  # bottom (z = lo)
+        [4, 5, 6], [4, 6, 7],  # top
+        [0, 1, 5], [0, 5, 4],  # y = lo
+        [2, 3, 7], [2, 7, 6],  # y = hi
+        [1, 2, 6], [1, 6, 5],  # x = hi
+        [3, 0, 4], [3, 4, 7],  # x = lo
+    ],
+    dtype=np.int64,
+)  # fmt: skip
+
+
+def box_mesh(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and outward-facing triangles of an axis-aligned box."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    v = np.array(
+        [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+         [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]],
+        dtype=np.float64,
+    )  # fmt: skip
+    return v, _BOX_TRIANGLES.copy()
+
+
+def merge_meshes(meshes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate (vertices, triangles) pairs into one mesh."""
+    verts, tris, n = [], [], 0
+    for v, t in meshes:
+        verts.append(v)
+        tris.append(t + n)
+        n += len(v)
+    if not verts:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return np.concatenate(verts), np.concatenate(tris)
+
+
+def boxes_mesh(boxes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """One mesh made of several axis-aligned boxes ``(lo, hi)``."""
+    return merge_meshes([box_mesh(np.asarray(lo, float), np.asarray(hi, float)) for lo, hi in boxes])
+
+
+def rot_z(yaw: float) -> np.ndarray:
+    """3×3 rotation about z."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def box_room(
+    size: tuple[float, float, float],
+    objects: list[tuple[str, str, np.ndarray, np.ndarray]] = (),
+    *,
+    wall: float = 0.2,
+    start_xy: tuple[float, float] | None = None,
+    start_yaw: float = 0.0,
+) -> WorldSpec:
+    """A closed box room ``[0, sx] × [0, sy] × [0, sz]`` (walls outside it) with box objects.
+
+    ``objects`` lists ``(name, class, lo, hi)``. Handy for tests and as a minimal world.
+    """
+    sx, sy, sz = size
+    w = wall
+    shell = boxes_mesh(
+        [
+            (np.array([-w, -w, -w]), np.array([sx + w, sy + w, 0.0])),  # floor
+            (np.array([-w, -w, sz]), np.array([sx + w, sy + w, sz + w])),  # ceiling
+            (np.array([-w, -w, 0.0]), np.array([0.0, sy + w, sz])),
+            (np.array([sx, -w, 0.0]), np.array([sx + w, sy + w, sz])),
+            (np.array([-w, -w, 0.0]), np.array([sx + w, 0.0, sz])),
+            (np.array([-w, sy, 0.0]), np.array([sx + w, sy + w, sz])),
+        ]
+    )
+    parts = [MeshPart.uniform("walls", *shell, 0, class_colour("wall"))]
+    objs = []
+    for i, (name, cls, lo, hi) in enumerate(objects, start=1):
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        parts.append(MeshPart.uniform(name, *box_mesh(lo, hi), i, class_colour(cls)))
+        objs.append(WorldObject(name, cls, i, (lo + hi) / 2, lo, hi))
+    return WorldSpec(
+        name="box_room",
+        parts=parts,
+        objects=objs,
+        floor_heights=(0.0,),
+        bounds_lo=np.array([-w, -w, -w]),
+        bounds_hi=np.array([sx + w, sy + w, sz + w]),
+        start_xy=np.array(start_xy if start_xy is not None else (sx / 2, sy / 2)),
+        start_floor_z=0.0,
+        start_yaw=start_yaw,
+    )
