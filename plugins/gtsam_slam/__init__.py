@@ -1,0 +1,16 @@
+"""``gtsam`` SLAM backend: semantic factor graph on iSAM2, semantic loop closure, information gain.
+
+See :mod:`.backend` (the graph), :mod:`.slc` (eqs. 2–6 registration), :mod:`.information`
+(eq. 10 by low-rank updates) and docs/slam.md.
+"""
+
+import amslam
+from amslam.plugins.gtsam_slam.backend import GtsamSlam
+
+
+@amslam.hookimpl
+def amslam_slam_backends():
+    return {"gtsam": GtsamSlam}
+
+
+__all__ = ["GtsamSlam"]

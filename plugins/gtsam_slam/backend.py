@@ -1,0 +1,659 @@
+"""``gtsam`` SLAM backend: a semantic factor graph solved by iSAM2 (paper 1, §V-B, §V-C, §VI-C).
+
+Variables are key poses ``X(i)`` (``gtsam.Pose3``, world ← body) and object landmarks ``L(j)``
+(centroids, ``Point3``). Factors:
+
+* a prior on ``X(0)`` (the world frame is the odometry frame at start);
+* VIO odometry ``x_i^vio ⊖ x_{i-1}^vio`` between consecutive key poses, noise scaled with the
+  distance travelled and the yaw turned, roll and pitch tight (the IMU observes them);
+* ``BearingRangeFactor3D`` from a key pose to each detected object centroid (detections arrive in
+  the camera frame and are moved to the body with ``T_body_cam``), with a robust kernel;
+* semantic loop-closure constraints: range-bearing factors from the panorama's key poses to the
+  old landmarks found by :mod:`.slc`, and a zero-offset ``BetweenFactorPoint3`` fusing each
+  duplicate landmark (created while drifting) with its old twin.
+
+Key poses are created every ``keypose_distance`` metres or ``keypose_yaw`` radians, and whenever
+objects are detected away from the last key pose. Data association is nearest neighbour per class
+with a metric gate, one-to-one per frame (Hungarian). A new object is *tentative* until it has
+been seen ``min_observations`` times; only then does it enter the graph with all its buffered
+measurements, so a single false positive never reaches the optimiser.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+from pydantic import Field
+from scipy.optimize import linear_sum_assignment
+
+from amslam.geometry import invert, wrap_angle, yaw_of
+from amslam.interfaces import BackendParams, RunContext, Slam
+from amslam.plugins.gtsam_slam import slc
+from amslam.plugins.gtsam_slam.information import LinearizedGraph, virtual_factor
+from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
+
+__all__ = ["GtsamSlam"]
+
+
+@dataclass
+class _KeyPoseRec:
+    id: int
+    stamp: float
+    T_odom_body: np.ndarray  # VIO pose when created
+    distance: float
+
+
+@dataclass
+class _Observation:
+    keypose: int
+    stamp: float
+    class_name: str
+    p_body: np.ndarray  # centroid in the key pose's body frame
+    p_odom: np.ndarray  # centroid in the odometry frame (VIO), for panoramas
+    landmark: int  # id of the landmark the front end associated it with
+
+
+@dataclass
+class _LandmarkRec:
+    id: int
+    class_name: str
+    first_keypose: int
+    first_distance: float
+    sum_world: np.ndarray
+    observations: list[_Observation] = field(default_factory=list)
+    in_graph: bool = False
+    alias_of: int | None = None  # merged into this landmark by a loop closure
+    last_keypose: int = 0
+
+    @property
+    def count(self) -> int:
+        return len(self.observations)
+
+
+class GtsamSlam(Slam):
+    """Semantic SLAM on GTSAM iSAM2 with semantic loop closure and eq. (10) information gain."""
+
+    class Params(BackendParams):
+        keypose_distance: float = Field(0.5, gt=0, description="a key pose every this many metres")
+        keypose_yaw: float = Field(0.35, gt=0, description="or every this much yaw change, rad")
+        detection_keypose_distance: float = Field(
+            0.1, ge=0, description="detections farther than this from the last key pose get their own, m"
+        )
+        detection_keypose_yaw: float = Field(
+            0.1, ge=0, description="detections turned more than this from the last key pose get their own"
+        )
+        odom_sigma_translation_per_m: float = Field(0.02, gt=0, description="VIO translation std per metre")
+        odom_sigma_translation_min: float = Field(0.005, gt=0, description="VIO translation std floor, m")
+        odom_sigma_yaw_per_m: float = Field(0.005, ge=0, description="VIO yaw std per metre, rad/m")
+        odom_sigma_yaw_per_rad: float = Field(0.01, ge=0, description="VIO yaw std per radian turned")
+        odom_sigma_yaw_min: float = Field(0.002, gt=0, description="VIO yaw std floor, rad")
+        odom_sigma_roll_pitch: float = Field(0.002, gt=0, description="roll/pitch std (IMU), rad")
+        prior_sigma_translation: float = Field(0.01, gt=0, description="prior on the first pose, m")
+        prior_sigma_rotation: float = Field(0.005, gt=0, description="prior on the first pose, rad")
+        bearing_sigma: float = Field(0.05, gt=0, description="bearing std of an object centroid, rad")
+        range_sigma: float = Field(0.05, gt=0, description="range std at zero range, m")
+        range_sigma_per_m: float = Field(0.03, ge=0, description="range std growth per metre")
+        robust: Literal["huber", "cauchy", "none"] = Field("huber", description="robust kernel")
+        robust_k: float = Field(1.345, gt=0, description="robust kernel width (whitened units)")
+        association_gate: float = Field(0.8, gt=0, description="nearest-neighbour gate, m")
+        min_observations: int = Field(3, ge=1, description="observations before a landmark is trusted")
+        tentative_timeout: int = Field(40, ge=1, description="key poses a tentative landmark may go unseen")
+        min_confidence: float = Field(0.3, ge=0, le=1, description="ignore weaker detections")
+        max_range: float = Field(8.0, gt=0, description="ignore detections farther than this, m")
+        factorization: Literal["QR", "CHOLESKY"] = Field(
+            "QR", description="iSAM2 factorisation (gtsam 4.3 Cholesky fails at loop closures)"
+        )
+        relinearize_threshold: float = Field(0.01, gt=0, description="iSAM2 relinearisation threshold")
+        # semantic loop closure
+        slc_solver: Literal["scalable", "exhaustive"] = Field("scalable", description="SLC registration")
+        slc_tolerance: float = Field(0.3, gt=0, description="accepted RMS residual per landmark, m")
+        slc_inlier_gate: float = Field(0.5, gt=0, description="largest matched-pair error, m")
+        slc_min_matches: int = Field(3, ge=3, description="fewest matched landmarks")
+        slc_ambiguity_ratio: float = Field(0.75, gt=0, le=1, description="runner-up share that rejects")
+        slc_min_age: float = Field(
+            8.0, ge=0, description="map landmarks first seen within this travel (m) are not loop targets"
+        )
+        slc_window: float = Field(30.0, gt=0, description="panorama: detections of the last N seconds")
+        slc_panorama_radius: float = Field(1.0, gt=0, description="panorama: within this of the robot, m")
+        slc_merge_radius: float = Field(0.4, gt=0, description="same-class panorama detections merge, m")
+        slc_max_drift_ratio: float = Field(
+            0.1, gt=0, description="reject corrections beyond this share of the distance travelled"
+        )
+        slc_max_drift_floor: float = Field(1.0, ge=0, description="plus this many metres")
+        slc_merge_sigma: float = Field(0.05, gt=0, description="std of the duplicate-landmark fusion, m")
+        # active SLC
+        dbscan_eps: float = Field(2.5, gt=0, description="DBSCAN neighbourhood of landmark clusters, m")
+        cluster_min_landmarks: int = Field(3, ge=1, description="fewest landmarks of an SLC cluster")
+        floor_height: float = Field(3.0, gt=0, description="height of a floor for per-floor clustering, m")
+        ig_variables: Literal["poses", "all"] = Field(
+            "all", description="variables whose covariance trace eq. (10) measures"
+        )
+
+    def __init__(self) -> None:
+        self.params: GtsamSlam.Params = GtsamSlam.Params()
+        self._context: RunContext | None = None
+        self._isam: gtsam.ISAM2 | None = None
+        self._graph = gtsam.NonlinearFactorGraph()  # the whole history (for IG and marginals)
+        self._new_graph = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._estimate = gtsam.Values()
+        self._kps: list[_KeyPoseRec] = []
+        self._lms: dict[int, _LandmarkRec] = {}
+        self._obs: list[_Observation] = []
+        self._last_odom: Odometry | None = None
+        self._distance = 0.0
+        self._version = 0
+        self._cache: dict[str, tuple[int, object]] = {}
+
+    # ---------------------------------------------------------------- lifecycle
+
+    def configure(self, params: Params, context: RunContext) -> None:
+        """Set parameters and start an empty graph."""
+        self.params = params
+        self._context = context
+        isam_params = gtsam.ISAM2Params()
+        isam_params.setFactorization(params.factorization)
+        isam_params.setRelinearizeThreshold(params.relinearize_threshold)
+        isam_params.relinearizeSkip = 1
+        self._isam = gtsam.ISAM2(isam_params)
+
+    def close(self) -> None:
+        """Drop the solver; safe to call twice."""
+        self._isam = None
+
+    # ---------------------------------------------------------------- noise models
+
+    def _odometry_noise(self, distance: float, dyaw: float) -> gtsam.noiseModel.Base:
+        p = self.params
+        st = max(p.odom_sigma_translation_min, p.odom_sigma_translation_per_m * distance)
+        sy = p.odom_sigma_yaw_per_m * distance + p.odom_sigma_yaw_per_rad * abs(dyaw)
+        sy = max(p.odom_sigma_yaw_min, sy)
+        sr = p.odom_sigma_roll_pitch
+        return gtsam.noiseModel.Diagonal.Sigmas(np.array([sr, sr, sy, st, st, st]))
+
+    def _measurement_noise(self, rng: float, robust: bool = True) -> gtsam.noiseModel.Base:
+        p = self.params
+        base = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([p.bearing_sigma, p.bearing_sigma, p.range_sigma + p.range_sigma_per_m * rng])
+        )
+        if not robust or p.robust == "none":
+            return base
+        kernel = (
+            gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k)
+            if p.robust == "huber"
+            else gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k)
+        )
+        return gtsam.noiseModel.Robust.Create(kernel, base)
+
+    # ---------------------------------------------------------------- graph plumbing
+
+    def _add_factor(self, factor: gtsam.NonlinearFactor) -> None:
+        self._new_graph.add(factor)
+        self._graph.add(factor)
+
+    def _flush(self, extra_iterations: int = 0) -> None:
+        """One iSAM2 update with the new factors and values (a fresh graph each time)."""
+        if self._new_graph.size() == 0 and self._new_values.size() == 0:
+            return
+        assert self._isam is not None, "configure() first"
+        self._isam.update(self._new_graph, self._new_values)
+        for _ in range(extra_iterations):
+            self._isam.update()
+        self._new_graph = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._estimate = self._isam.calculateEstimate()
+        self._version += 1
+
+    def _pose(self, i: int) -> np.ndarray:
+        if self._new_values.exists(X(i)):
+            return self._new_values.atPose3(X(i)).matrix()
+        return self._estimate.atPose3(X(i)).matrix()
+
+    def _point(self, j: int) -> np.ndarray:
+        if self._new_values.exists(L(j)):
+            return np.asarray(self._new_values.atPoint3(L(j)))
+        return np.asarray(self._estimate.atPoint3(L(j)))
+
+    def _cached(self, name: str, compute):  # noqa: ANN001, ANN202 — tiny private memo
+        hit = self._cache.get(name)
+        if hit is not None and hit[0] == self._version:
+            return hit[1]
+        value = compute()
+        self._cache[name] = (self._version, value)
+        return value
+
+    # ---------------------------------------------------------------- key poses
+
+    def _track(self, odom: Odometry) -> None:
+        if self._last_odom is not None and odom.stamp >= self._last_odom.stamp:
+            step = odom.T_odom_body[:3, 3] - self._last_odom.T_odom_body[:3, 3]
+            self._distance += float(np.linalg.norm(step))
+        self._last_odom = odom
+
+    def _new_keypose(self, odom: Odometry) -> int:
+        i = len(self._kps)
+        T = odom.T_odom_body
+        if i == 0:
+            p = self.params
+            sig = np.array([p.prior_sigma_rotation] * 3 + [p.prior_sigma_translation] * 3)
+            prior = gtsam.noiseModel.Diagonal.Sigmas(sig)
+            self._add_factor(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(T), prior))
+            self._new_values.insert(X(0), gtsam.Pose3(T))
+        else:
+            prev = self._kps[-1]
+            rel = invert(prev.T_odom_body) @ T
+            d = float(np.linalg.norm(rel[:3, 3]))
+            dyaw = wrap_angle(yaw_of(T) - yaw_of(prev.T_odom_body))
+            self._add_factor(
+                gtsam.BetweenFactorPose3(X(i - 1), X(i), gtsam.Pose3(rel), self._odometry_noise(d, dyaw))
+            )
+            self._new_values.insert(X(i), gtsam.Pose3(self._pose(i - 1) @ rel))
+        self._kps.append(_KeyPoseRec(i, odom.stamp, T.copy(), self._distance))
+        return i
+
+    def _due(self, T: np.ndarray, dist: float, dyaw: float) -> bool:
+        ref = self._kps[-1].T_odom_body
+        return (
+            float(np.linalg.norm(T[:3, 3] - ref[:3, 3])) >= dist
+            or abs(wrap_angle(yaw_of(T) - yaw_of(ref))) >= dyaw
+        )
+
+    def add_odometry(self, odom: Odometry) -> bool:
+        """Track VIO; create a key pose every ``keypose_distance`` m or ``keypose_yaw`` rad."""
+        self._track(odom)
+        p = self.params
+        if self._kps and not self._due(odom.T_odom_body, p.keypose_distance, p.keypose_yaw):
+            return False
+        self._new_keypose(odom)
+        self._expire_tentative()
+        self._flush()
+        return True
+
+    # ---------------------------------------------------------------- detections
+
+    def add_detections(self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]) -> None:
+        """Associate detections (camera frame, made at VIO pose ``odom``) and add their factors."""
+        p = self.params
+        dets = [d for d in detections if d.confidence >= p.min_confidence]
+        pts_cam = [np.asarray(d.centroid_cam, float) for d in dets]
+        keep = [i for i, c in enumerate(pts_cam) if 1e-3 < np.linalg.norm(c) <= p.max_range]
+        dets = [dets[i] for i in keep]
+        if not dets:
+            return
+        if self._last_odom is None or odom.stamp > self._last_odom.stamp:
+            self._track(odom)
+        due = not self._kps or self._due(
+            odom.T_odom_body, p.detection_keypose_distance, p.detection_keypose_yaw
+        )
+        kp = self._new_keypose(odom) if due else len(self._kps) - 1
+        T_odom_kp = self._kps[kp].T_odom_body
+        # Re-express the detections in the key pose's body frame with the (locally exact) VIO motion.
+        T_kp_cam = invert(T_odom_kp) @ odom.T_odom_body @ T_body_cam
+        p_body = np.array([T_kp_cam[:3, :3] @ pts_cam[i] + T_kp_cam[:3, 3] for i in keep])
+        T_world_kp = self._pose(kp)
+        p_world = p_body @ T_world_kp[:3, :3].T + T_world_kp[:3, 3]
+        p_odom = p_body @ T_odom_kp[:3, :3].T + T_odom_kp[:3, 3]
+        assoc = self._associate([d.class_name for d in dets], p_world)
+        for d, pb, pw, po, lm_id in zip(dets, p_body, p_world, p_odom, assoc, strict=True):
+            if lm_id < 0:
+                lm_id = self._new_landmark_id()
+                self._lms[lm_id] = _LandmarkRec(lm_id, d.class_name, kp, self._kps[kp].distance, np.zeros(3))
+            lm = self._lms[lm_id]
+            ob = _Observation(kp, odom.stamp, d.class_name, pb, po, lm_id)
+            self._obs.append(ob)
+            self._observe(lm, ob, pw)
+        self._expire_tentative()
+        self._flush()
+
+    def _new_landmark_id(self) -> int:
+        return max(self._lms, default=-1) + 1
+
+    def _landmark_position(self, lm: _LandmarkRec) -> np.ndarray:
+        return self._point(lm.id) if lm.in_graph else lm.sum_world / max(lm.count, 1)
+
+    def _associate(self, classes: list[str], p_world: np.ndarray) -> list[int]:
+        """Nearest neighbour per class within the gate, one-to-one (Hungarian)."""
+        live = [lm for lm in self._lms.values() if lm.alias_of is None]
+        out = [-1] * len(classes)
+        if not live:
+            return out
+        pos = np.array([self._landmark_position(lm) for lm in live])
+        cls = np.array([lm.class_name for lm in live])
+        d = np.linalg.norm(p_world[:, None, :] - pos[None, :, :], axis=2)
+        bad = (np.array(classes)[:, None] != cls[None, :]) | (d > self.params.association_gate)
+        if bad.all():
+            return out
+        cost = np.where(bad, 1e9, d)
+        r, c = linear_sum_assignment(cost)
+        for i, j in zip(r, c, strict=True):
+            if not bad[i, j]:
+                out[i] = live[j].id
+        return out
+
+    def _bearing_range(
+        self, kp: int, lm_id: int, p_body: np.ndarray, robust: bool = True
+    ) -> gtsam.NonlinearFactor:
+        rng = float(np.linalg.norm(p_body))
+        return gtsam.BearingRangeFactor3D(
+            X(kp), L(lm_id), gtsam.Unit3(p_body), rng, self._measurement_noise(rng, robust)
+        )
+
+    def _observe(self, lm: _LandmarkRec, ob: _Observation, p_world: np.ndarray) -> None:
+        lm.observations.append(ob)
+        lm.sum_world = lm.sum_world + p_world
+        lm.last_keypose = ob.keypose
+        if lm.in_graph:
+            self._add_factor(self._bearing_range(ob.keypose, lm.id, ob.p_body))
+        elif lm.count >= self.params.min_observations:
+            lm.in_graph = True
+            self._new_values.insert(L(lm.id), lm.sum_world / lm.count)
+            for o in lm.observations:
+                self._add_factor(self._bearing_range(o.keypose, lm.id, o.p_body))
+
+    def _expire_tentative(self) -> None:
+        if not self._kps:
+            return
+        now = len(self._kps) - 1
+        timeout = self.params.tentative_timeout
+        for lm in self._lms.values():
+            if not lm.in_graph and lm.alias_of is None and now - lm.last_keypose > timeout:
+                lm.alias_of = -1  # dropped: never re-associated, never reported
+
+    # ---------------------------------------------------------------- outputs
+
+    def T_world_odom(self) -> np.ndarray:
+        """SLAM-minus-VIO correction at the latest key pose (drift compensation, §VI-E)."""
+        if not self._kps:
+            return np.eye(4)
+        kp = self._kps[-1]
+        return self._pose(kp.id) @ invert(kp.T_odom_body)
+
+    def current_pose(self) -> np.ndarray:
+        """World-frame body pose now: the correction applied to the latest VIO pose."""
+        if self._last_odom is None:
+            return np.eye(4)
+        return self.T_world_odom() @ self._last_odom.T_odom_body
+
+    def keyposes(self) -> list[KeyPose]:
+        """Optimised key poses, oldest first."""
+        return [KeyPose(k.id, k.stamp, self._pose(k.id), k.distance) for k in self._kps]
+
+    def _graph_landmarks(self) -> list[_LandmarkRec]:
+        return [lm for lm in self._lms.values() if lm.in_graph and lm.alias_of is None]
+
+    def _linearized(self) -> LinearizedGraph | None:
+        if not self._kps or self._new_graph.size() > 0:
+            self._flush()
+        if not self._kps:
+            return None
+        return self._cached("linearized", lambda: LinearizedGraph.build(self._graph, self._estimate))
+
+    def _marginals(self) -> dict[int, np.ndarray]:
+        """Marginal covariances of every variable, computed once per graph version."""
+
+        def compute() -> dict[int, np.ndarray]:
+            lg = self._linearized()
+            if lg is None:
+                return {}
+            # Diagonal blocks of H⁻¹, a batch of columns at a time (one factorisation, many solves).
+            out: dict[int, np.ndarray] = {}
+            keys = lg.keys
+            for s in range(0, len(keys), 64):
+                chunk = keys[s : s + 64]
+                cols = lg.columns(chunk)
+                c0 = 0
+                for k in chunk:
+                    d = lg.dims[k]
+                    i = lg.index([k])
+                    out[k] = cols[i, c0 : c0 + d]
+                    c0 += d
+            return out
+
+        return self._cached("marginals", compute)
+
+    def landmarks(self) -> list[Landmark]:
+        """Landmarks in the graph with class, position, marginal covariance and observation count."""
+        cov = self._marginals()
+        out = []
+        for lm in self._graph_landmarks():
+            n = lm.count + sum(o.count for o in self._lms.values() if o.alias_of == lm.id)
+            out.append(
+                Landmark(
+                    lm.id,
+                    lm.class_name,
+                    self._point(lm.id),
+                    cov.get(L(lm.id), np.full((3, 3), np.nan)),
+                    n,
+                    lm.first_keypose,
+                )
+            )
+        return out
+
+    def uncertainty(self) -> tuple[float, float]:
+        """(mean trace of the 6×6 pose marginals, mean trace of the landmark marginals)."""
+        cov = self._marginals()
+        if not cov:
+            return (0.0, 0.0)
+        poses = [np.trace(cov[X(k.id)]) for k in self._kps if X(k.id) in cov]
+        lms = [np.trace(cov[L(lm.id)]) for lm in self._graph_landmarks() if L(lm.id) in cov]
+        return (float(np.mean(poses)) if poses else 0.0, float(np.mean(lms)) if lms else 0.0)
+
+    # ---------------------------------------------------------------- information gain (eq. 10)
+
+    def _ig_keys(self) -> list[int] | None:
+        if self.params.ig_variables == "all":
+            return None
+        return [X(k.id) for k in self._kps]
+
+    def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:
+        """Eq. (10) for a virtual odometry factor from the current pose to each key pose.
+
+        The factor's noise is the odometry model over ``travel_distances[i]`` metres. Each
+        candidate is evaluated alone against the current graph; the estimate never changes.
+        """
+        lg = self._linearized()
+        if lg is None or not keypose_ids:
+            return np.zeros(len(keypose_ids))
+        cur = self._kps[-1].id
+        jac = []
+        for k, dist in zip(keypose_ids, travel_distances, strict=True):
+            dyaw = wrap_angle(yaw_of(self._pose(k)) - yaw_of(self._pose(cur)))
+            _, J = virtual_factor(X(cur), X(k), self._estimate, self._odometry_noise(float(dist), dyaw))
+            jac.append(J)
+        return lg.information_gain(X(cur), [X(k) for k in keypose_ids], jac, self._ig_keys())
+
+    def virtual_factor(self, keypose_id: int, travel_distance: float) -> gtsam.BetweenFactorPose3:
+        """The virtual factor :meth:`information_gain` evaluates (for brute-force checks)."""
+        cur = self._kps[-1].id
+        dyaw = wrap_angle(yaw_of(self._pose(keypose_id)) - yaw_of(self._pose(cur)))
+        noise = self._odometry_noise(travel_distance, dyaw)
+        f, _ = virtual_factor(X(cur), X(keypose_id), self._estimate, noise)
+        return f
+
+    def graph(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """The whole factor graph and the current estimate (copies)."""
+        self._flush()
+        return gtsam.NonlinearFactorGraph(self._graph), gtsam.Values(self._estimate)
+
+    # ---------------------------------------------------------------- active SLC candidates (§VI-C)
+
+    def slc_candidates(self, sensing_range: float) -> list[SlcCandidate]:
+        """DBSCAN clusters of landmarks per floor → oldest key pose seeing the cluster → IG.
+
+        A cluster needs ``cluster_min_landmarks`` landmarks (three fix position and yaw). Its
+        viewpoint is the oldest key pose from which any landmark of the cluster lies within
+        ``sensing_range``; the candidate's information gain uses the straight-line distance from
+        the current pose as the travel distance (the planner refines with path costs).
+        """
+        from sklearn.cluster import DBSCAN
+
+        lms = self._graph_landmarks()
+        if len(lms) < self.params.cluster_min_landmarks or not self._kps:
+            return []
+        pos = np.array([self._point(lm.id) for lm in lms])
+        floors = np.floor(pos[:, 2] / self.params.floor_height).astype(int)
+        kp_pos = np.array([self._pose(k.id)[:3, 3] for k in self._kps])
+        cur = self._kps[-1].id
+        out: list[tuple[int, np.ndarray, float, tuple[int, ...]]] = []
+        for f in np.unique(floors):
+            sel = np.flatnonzero(floors == f)
+            if len(sel) < self.params.cluster_min_landmarks:
+                continue
+            labels = DBSCAN(eps=self.params.dbscan_eps, min_samples=1).fit(pos[sel]).labels_
+            for lab in np.unique(labels):
+                members = sel[labels == lab]
+                if len(members) < self.params.cluster_min_landmarks:
+                    continue
+                d = np.linalg.norm(kp_pos[:, None, :] - pos[members][None], axis=2)
+                seen = np.flatnonzero((d <= sensing_range).any(axis=1))
+                if len(seen) == 0 or seen[0] == cur:
+                    continue
+                i = int(seen[0])
+                T = self._pose(i)
+                out.append((i, T[:3, 3].copy(), yaw_of(T), tuple(int(lms[j].id) for j in members)))
+        if not out:
+            return []
+        here = self._pose(cur)[:3, 3]
+        ig = self.information_gain([o[0] for o in out], [float(np.linalg.norm(o[1] - here)) for o in out])
+        return [SlcCandidate(i, p, y, ids, float(g)) for (i, p, y, ids), g in zip(out, ig, strict=True)]
+
+    # ---------------------------------------------------------------- semantic loop closure (§V-C)
+
+    def _panorama(self, odom: Odometry) -> tuple[list[list[_Observation]], np.ndarray, list[str]]:
+        """Objects seen in the current panorama, merged per class, in the yaw-free local frame."""
+        p = self.params
+        T = odom.T_odom_body
+        recent = [
+            o
+            for o in self._obs
+            if odom.stamp - o.stamp <= p.slc_window
+            and np.linalg.norm(self._kps[o.keypose].T_odom_body[:3, 3] - T[:3, 3]) <= p.slc_panorama_radius
+        ]
+        groups: list[list[_Observation]] = []
+        centres: list[np.ndarray] = []
+        for o in recent:
+            best, bd = -1, p.slc_merge_radius
+            for g, (grp, c) in enumerate(zip(groups, centres, strict=True)):
+                dd = float(np.linalg.norm(c - o.p_odom))
+                if grp[0].class_name == o.class_name and dd <= bd:
+                    best, bd = g, dd
+            if best < 0:
+                groups.append([o])
+                centres.append(o.p_odom.copy())
+            else:
+                groups[best].append(o)
+                centres[best] = np.mean([q.p_odom for q in groups[best]], axis=0)
+        psi = yaw_of(T)
+        c, s = math.cos(psi), math.sin(psi)
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        local = (np.array(centres).reshape(-1, 3) - T[:3, 3]) @ Rz  # Rzᵀ (p − t), row-wise
+        return groups, local, [g[0].class_name for g in groups]
+
+    def try_loop_closure(
+        self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]
+    ) -> LoopClosureResult:
+        """Register the panorama's objects against old map landmarks (eqs. 2–6) and close the loop.
+
+        ``detections`` (seen now) are added first; the objects are all detections of the last
+        ``slc_window`` seconds taken within ``slc_panorama_radius`` of the robot, so a panorama
+        made of several ``add_detections`` calls is registered at once.
+        """
+        p = self.params
+        if detections:
+            self.add_detections(odom, T_body_cam, detections)
+        if not self._kps:
+            return LoopClosureResult(False, "no key poses yet")
+        groups, B, cb = self._panorama(odom)
+        if len(groups) < p.slc_min_matches:
+            return LoopClosureResult(False, f"only {len(groups)} objects in view")
+        now = self._distance
+        old = [lm for lm in self._graph_landmarks() if lm.first_distance <= now - p.slc_min_age]
+        if len(old) < p.slc_min_matches:
+            return LoopClosureResult(False, f"only {len(old)} old landmarks in the map")
+        A = np.array([self._point(lm.id) for lm in old])
+        ca = [lm.class_name for lm in old]
+        sp = slc.SlcParams(
+            tolerance=p.slc_tolerance,
+            inlier_gate=p.slc_inlier_gate,
+            min_matches=p.slc_min_matches,
+            ambiguity_ratio=p.slc_ambiguity_ratio,
+        )
+        rng = self._context.rng if self._context is not None else None
+        sol = (
+            slc.solve_scalable(A, B, ca, cb, sp, rng=rng)
+            if p.slc_solver == "scalable"
+            else slc.solve_exhaustive(A, B, ca, cb, sp)
+        )
+        if not sol.accepted:
+            return self._report(LoopClosureResult(False, sol.reason, sol.matched, sol.rms))
+        # The robot's world pose implied by the registration vs the current SLAM estimate.
+        T = odom.T_odom_body
+        Rz_vio = slc.yaw_matrix(yaw_of(T))
+        T_world_body = np.eye(4)
+        T_world_body[:3, :3] = slc.yaw_matrix(sol.yaw) @ Rz_vio.T @ T[:3, :3]
+        T_world_body[:3, 3] = sol.translation
+        before = self.T_world_odom() @ T
+        dyaw = wrap_angle(yaw_of(T_world_body) - yaw_of(before))
+        dt = float(np.linalg.norm(T_world_body[:3, 3] - before[:3, 3]))
+        oldest = min(old[int(a)].first_distance for a, _ in sol.pairs)
+        limit = p.slc_max_drift_floor + p.slc_max_drift_ratio * (now - oldest)
+        if dt > limit:
+            return self._report(
+                LoopClosureResult(False, f"correction {dt:.2f} m exceeds {limit:.2f} m", sol.matched, sol.rms)
+            )
+        self._close_loop(sol, old, groups, T_world_body)
+        return self._report(LoopClosureResult(True, sol.reason, sol.matched, sol.rms, dyaw, dt))
+
+    def _close_loop(
+        self,
+        sol: slc.SlcSolution,
+        old: list[_LandmarkRec],
+        groups: list[list[_Observation]],
+        T_world_body: np.ndarray,
+    ) -> None:
+        """Add the loop-closure constraints and let iSAM2 propagate the correction."""
+        p = self.params
+        for a, b in sol.pairs:
+            target = old[int(a)]
+            for o in groups[int(b)]:
+                # The panorama's own measurement, now tied to the old landmark (verified: no kernel).
+                self._add_factor(self._bearing_range(o.keypose, target.id, o.p_body, robust=False))
+            for dup_id in {o.landmark for o in groups[int(b)]} - {target.id}:
+                dup = self._lms[dup_id]
+                while dup.alias_of is not None and dup.alias_of >= 0 and dup.alias_of != target.id:
+                    dup = self._lms[dup.alias_of]
+                if dup.id == target.id or dup.alias_of == target.id:
+                    continue
+                if dup.in_graph:
+                    noise = gtsam.noiseModel.Isotropic.Sigma(3, p.slc_merge_sigma)
+                    self._add_factor(gtsam.BetweenFactorPoint3(L(target.id), L(dup.id), np.zeros(3), noise))
+                else:
+                    for o in dup.observations:
+                        if o.keypose not in {q.keypose for q in groups[int(b)]}:
+                            self._add_factor(self._bearing_range(o.keypose, target.id, o.p_body))
+                target.observations.extend(dup.observations)
+                dup.observations = []
+                dup.alias_of = target.id
+            for o in self._obs:
+                if o.landmark in {q.landmark for q in groups[int(b)]}:
+                    o.landmark = target.id
+        # Large corrections need a few relinearisation rounds to settle.
+        self._flush(extra_iterations=5)
+
+    def _report(self, result: LoopClosureResult) -> LoopClosureResult:
+        if self._context is not None:
+            self._context.emit(
+                "slam_loop_closure",
+                accepted=result.accepted,
+                reason=result.reason,
+                matched=result.matched,
+                residual=result.residual,
+                yaw_correction=result.yaw_correction,
+                translation_correction=result.translation_correction,
+            )
+        return result

@@ -1,0 +1,568 @@
+"""Semantic loop closure: register observed object centroids against the map (paper 1, §V-C).
+
+Given map centroids ``A`` (world frame, n×3) and currently observed centroids ``B`` (m×3, in a
+*yaw-free* local frame: the body frame rotated by roll and pitch only, which the VIO measures
+accurately), find subsets, an association, a yaw ψ and a translation t with
+``p_B = R(ψ)ᵀ (p_A − t)`` (eq. 1), i.e. ``p_A = R(ψ) p_B + t``.
+
+Everything here is pure numpy/scipy:
+
+* :func:`align_yaw` — the closed form of eqs. (3)–(6) for a given association, and the residual
+  of eq. (2);
+* :func:`solve_exhaustive` — the paper's search over variations of A and B in decreasing order of
+  cardinality (exponential; small sets and a reference);
+* :func:`solve_scalable` — 2-point hypotheses drawn from pairs with matching distance invariants,
+  scored against a KD-tree, then refined by one-to-one association and the same closed form.
+
+Both solvers accept a solution with the same rule (:class:`SlcParams`): at least ``min_matches``
+pairs, every matched pair within ``inlier_gate`` after alignment, RMS residual ``sqrt(R)`` at most
+``tolerance``; the best solution has the most pairs, then the smallest residual. A second
+solution with a clearly different transform and nearly as many pairs makes the match
+*ambiguous* (e.g. a regular grid of chairs) and it is rejected rather than guessed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "SlcParams",
+    "SlcSolution",
+    "align_yaw",
+    "yaw_matrix",
+    "solve_exhaustive",
+    "solve_scalable",
+]
+
+
+@dataclass(frozen=True)
+class SlcParams:
+    """Acceptance rule and search settings shared by both solvers.
+
+    Attributes:
+        tolerance: largest accepted RMS residual per landmark, ``sqrt(R)`` of eq. (2), metres.
+        inlier_gate: largest distance of any matched pair after alignment, metres.
+        min_matches: fewest matched landmarks (three fix position and yaw, paper 1 §VI-C).
+        ambiguity_ratio: a second solution whose transform differs by more than
+            ``distinct_yaw`` / ``distinct_translation`` and matches at least this fraction of the
+            best one's pairs makes the result ambiguous.
+        distinct_yaw: yaw difference (rad) above which two solutions are different.
+        distinct_translation: translation difference (m) above which two solutions are different.
+        min_pair_distance: horizontal distance below which a pair of points does not define a
+            yaw hypothesis (scalable solver).
+        pair_tolerance: largest difference of the pair invariants (horizontal distance, height
+            difference) for two pairs to form a hypothesis (scalable solver); inlier pairs need
+            not all pass it, only a few do.
+        preview: B points every hypothesis is first scored on; only the best ``4 × preview``
+            hypotheses of a batch are scored on all of B (preemptive scoring).
+        max_samples: point pairs of B drawn by the scalable solver before it gives up; when B has
+            fewer pairs than this, all of them are used (deterministic).
+        confidence: the scalable solver stops sampling once a solution with this probability of
+            having been found exists (adaptive RANSAC stopping rule).
+    """
+
+    tolerance: float = 0.3
+    inlier_gate: float = 0.5
+    min_matches: int = 3
+    ambiguity_ratio: float = 0.75
+    distinct_yaw: float = 0.2
+    distinct_translation: float = 0.6
+    min_pair_distance: float = 0.5
+    pair_tolerance: float = 0.35
+    preview: int = 12
+    max_samples: int = 300
+    confidence: float = 0.999
+
+
+@dataclass(frozen=True)
+class SlcSolution:
+    """Outcome of a registration.
+
+    Attributes:
+        accepted: whether the solution passed the acceptance rule and is not ambiguous.
+        reason: a short human-readable verdict.
+        pairs: k×2 int array of matched indices ``(index into A, index into B)``.
+        yaw: ψ of eq. (6), radians in (-π, π].
+        translation: t of eq. (3).
+        residual: R of eq. (2) (mean squared distance, m²); ``sqrt`` of it is the RMS.
+        runner_up: pairs of the best different solution, when one was found.
+    """
+
+    accepted: bool
+    reason: str
+    pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=int))
+    yaw: float = 0.0
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    residual: float = float("inf")
+    runner_up: int = 0
+
+    @property
+    def matched(self) -> int:
+        return int(len(self.pairs))
+
+    @property
+    def rms(self) -> float:
+        return float(math.sqrt(self.residual)) if np.isfinite(self.residual) else float("inf")
+
+    def transform(self, points_b: np.ndarray) -> np.ndarray:
+        """Map points of B's frame into A's frame: ``R(ψ) p + t``."""
+        return np.asarray(points_b) @ yaw_matrix(self.yaw).T + self.translation
+
+
+def yaw_matrix(psi: float) -> np.ndarray:
+    """``R(ψ) = exp([ψ e3]×)``."""
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _wrap(a: np.ndarray | float) -> np.ndarray | float:
+    """Wrap angles into (-π, π]."""
+    return (
+        -((-np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi)
+        if np.ndim(a)
+        else float(-((-a + math.pi) % (2.0 * math.pi) - math.pi))
+    )
+
+
+def align_yaw(pa: np.ndarray, pb: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """Closed-form yaw + translation aligning matched sequences (eqs. 2–6).
+
+    Args:
+        pa: k×3 points of A (world), ``pa[i]`` matched with ``pb[i]``.
+        pb: k×3 points of B (yaw-free local frame).
+
+    Returns:
+        ``(ψ*, t*, R)``: yaw of eq. (6), translation of eq. (3) and the residual of eq. (2).
+    """
+    psi, t, res = _align_batch(np.asarray(pa, float)[None], np.asarray(pb, float)[None])
+    return float(psi[0]), t[0], float(res[0])
+
+
+def _align_batch(pa: np.ndarray, pb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vectorised :func:`align_yaw` over a leading batch axis (N×k×3 each)."""
+    k = pa.shape[1]
+    ma = pa.mean(axis=1)
+    mb = pb.mean(axis=1)
+    da = pa - ma[:, None]
+    db = pb - mb[:, None]
+    # M = Σ Δp_B Δp_Aᵀ; only the entries eqs. (4)–(6) use are formed.
+    m11 = np.einsum("nk,nk->n", db[..., 0], da[..., 0])
+    m22 = np.einsum("nk,nk->n", db[..., 1], da[..., 1])
+    m12 = np.einsum("nk,nk->n", db[..., 0], da[..., 1])
+    m21 = np.einsum("nk,nk->n", db[..., 1], da[..., 0])
+    m33 = np.einsum("nk,nk->n", db[..., 2], da[..., 2])
+    a = m11 + m22
+    b = m12 - m21
+    psi = np.arctan2(b, a)  # eq. (6)
+    best_trace = np.hypot(a, b) + m33  # eq. (5)
+    # Σ‖Δa − RΔb‖² = Σ‖Δa‖² + Σ‖Δb‖² − 2 tr(R M): eq. (2) at the optimum, without forming R.
+    sq = np.einsum("nki,nki->n", da, da) + np.einsum("nki,nki->n", db, db)
+    residual = np.maximum(sq - 2.0 * best_trace, 0.0) / k
+    c, s = np.cos(psi), np.sin(psi)
+    rmb = np.stack([c * mb[:, 0] - s * mb[:, 1], s * mb[:, 0] + c * mb[:, 1], mb[:, 2]], axis=1)
+    t = ma - rmb  # eq. (3)
+    return psi, t, residual
+
+
+def _pair_errors(pa: np.ndarray, pb: np.ndarray, psi: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Distances ‖p_A − (R(ψ) p_B + t)‖ for batches (N×k×3, N, N×3) → N×k."""
+    c, s = np.cos(psi)[:, None], np.sin(psi)[:, None]
+    x = c * pb[..., 0] - s * pb[..., 1] + t[:, None, 0]
+    y = s * pb[..., 0] + c * pb[..., 1] + t[:, None, 1]
+    z = pb[..., 2] + t[:, None, 2]
+    return np.sqrt((pa[..., 0] - x) ** 2 + (pa[..., 1] - y) ** 2 + (pa[..., 2] - z) ** 2)
+
+
+@dataclass
+class _Candidate:
+    pairs: np.ndarray
+    psi: float
+    t: np.ndarray
+    residual: float
+
+    @property
+    def k(self) -> int:
+        return len(self.pairs)
+
+    def differs(self, other: _Candidate, params: SlcParams) -> bool:
+        return (
+            abs(_wrap(self.psi - other.psi)) > params.distinct_yaw
+            or float(np.linalg.norm(self.t - other.t)) > params.distinct_translation
+        )
+
+
+def _decide(best: _Candidate | None, runner: _Candidate | None, params: SlcParams) -> SlcSolution:
+    """The shared acceptance rule."""
+    if best is None:
+        return SlcSolution(False, f"no consistent set of {params.min_matches} or more landmarks")
+    sol = dict(pairs=best.pairs, yaw=float(_wrap(best.psi)), translation=best.t, residual=best.residual)
+    if runner is not None and runner.k >= params.ambiguity_ratio * best.k:
+        return SlcSolution(
+            False,
+            f"ambiguous: another alignment matches {runner.k} of {best.k} landmarks",
+            runner_up=runner.k,
+            **sol,
+        )
+    return SlcSolution(
+        True, f"matched {best.k} landmarks, rms {math.sqrt(best.residual):.3f} m", runner_up=0, **sol
+    )
+
+
+def _labels(labels: np.ndarray | list | None, n: int) -> np.ndarray:
+    if labels is None:
+        return np.zeros(n, dtype=np.int64)
+    return np.asarray(labels)
+
+
+def _encode_classes(ca: np.ndarray, cb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map labels of any hashable kind to shared small integers."""
+    names = {c: i for i, c in enumerate(dict.fromkeys([*ca.tolist(), *cb.tolist()]))}
+    return (
+        np.array([names[c] for c in ca.tolist()], dtype=np.int64),
+        np.array([names[c] for c in cb.tolist()], dtype=np.int64),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# (a) exhaustive search — the paper's reference
+# --------------------------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=64)
+def _variations(n: int, k: int) -> np.ndarray:
+    """All ordered k-subsets of range(n) as a P(n,k)×k array (cached: reused across calls)."""
+    if k == 0:
+        return np.zeros((1, 0), dtype=np.int64)
+    return np.array(list(itertools.permutations(range(n), k)), dtype=np.int64).reshape(-1, k)
+
+
+def solve_exhaustive(
+    A: np.ndarray,
+    B: np.ndarray,
+    labels_a: np.ndarray | list | None = None,
+    labels_b: np.ndarray | list | None = None,
+    params: SlcParams | None = None,
+    *,
+    chunk: int = 200_000,
+) -> SlcSolution:
+    """The paper's exhaustive search (§V-C): variations of A × combinations of B, largest first.
+
+    For k = min(n, m) down to ``min_matches``, every k-subset of B is paired with every
+    class-consistent ordered k-subset of A; each association is scored by the closed form of
+    eqs. (3)–(6). The first level holding a valid association ends the search (after the level is
+    finished, to detect a runner-up). Running time is O(min(m,n)! 2^max(m,n)): small sets only.
+
+    Args:
+        A: n×3 map centroids (world).
+        B: m×3 observed centroids (yaw-free local frame).
+        labels_a: class of each A point (None: one class).
+        labels_b: class of each B point.
+        params: acceptance rule.
+        chunk: associations evaluated per vectorised batch (memory bound).
+    """
+    p = params or SlcParams()
+    A = np.asarray(A, float).reshape(-1, 3)
+    B = np.asarray(B, float).reshape(-1, 3)
+    ca, cb = _encode_classes(_labels(labels_a, len(A)), _labels(labels_b, len(B)))
+    n, m = len(A), len(B)
+    best: _Candidate | None = None
+    runner: _Candidate | None = None
+    lowest = max(p.min_matches, 1)
+    for k in range(min(n, m), lowest - 1, -1):
+        var = _variations(n, k)
+        var_cls = ca[var]
+        level: list[_Candidate] = []
+        for comb in itertools.combinations(range(m), k):
+            comb = np.array(comb)
+            ok = np.all(var_cls == cb[comb][None], axis=1)
+            cand = var[ok]
+            if len(cand) == 0:
+                continue
+            pb_one = B[comb]
+            for s in range(0, len(cand), chunk):
+                sel = cand[s : s + chunk]
+                pa = A[sel]
+                pb = np.broadcast_to(pb_one, pa.shape)
+                psi, t, res = _align_batch(pa, pb)
+                valid = res <= p.tolerance**2
+                if not valid.any():
+                    continue
+                idx = np.flatnonzero(valid)
+                err = _pair_errors(pa[idx], pb[idx], psi[idx], t[idx])
+                idx = idx[np.all(err <= p.inlier_gate, axis=1)]
+                for i in idx:
+                    pairs = np.stack([sel[i], comb], axis=1)
+                    level.append(_Candidate(pairs, float(psi[i]), t[i], float(res[i])))
+        if level:
+            level.sort(key=lambda c: c.residual)
+            best = level[0]
+            runner = next((c for c in level[1:] if c.differs(best, p)), None)
+            if runner is None:
+                # A smaller, different solution counts too (e.g. a shifted grid losing a row).
+                runner = _best_different_below(A, B, ca, cb, best, k, p, chunk)
+            break
+    return _decide(best, runner, p)
+
+
+def _best_different_below(
+    A: np.ndarray,
+    B: np.ndarray,
+    ca: np.ndarray,
+    cb: np.ndarray,
+    best: _Candidate,
+    k_best: int,
+    p: SlcParams,
+    chunk: int,
+) -> _Candidate | None:
+    """Largest valid solution below level ``k_best`` whose transform differs from ``best``."""
+    n, m = len(A), len(B)
+    k_min = max(p.min_matches, math.ceil(p.ambiguity_ratio * k_best))
+    for k in range(k_best - 1, k_min - 1, -1):
+        var = _variations(n, k)
+        var_cls = ca[var]
+        found: list[_Candidate] = []
+        for comb in itertools.combinations(range(m), k):
+            comb = np.array(comb)
+            cand = var[np.all(var_cls == cb[comb][None], axis=1)]
+            for s in range(0, len(cand), chunk):
+                sel = cand[s : s + chunk]
+                pa = A[sel]
+                pb = np.broadcast_to(B[comb], pa.shape)
+                psi, t, res = _align_batch(pa, pb)
+                idx = np.flatnonzero(res <= p.tolerance**2)
+                if len(idx) == 0:
+                    continue
+                err = _pair_errors(pa[idx], pb[idx], psi[idx], t[idx])
+                for i in idx[np.all(err <= p.inlier_gate, axis=1)]:
+                    c = _Candidate(np.stack([sel[i], comb], axis=1), float(psi[i]), t[i], float(res[i]))
+                    if c.differs(best, p):
+                        found.append(c)
+        if found:
+            return min(found, key=lambda c: c.residual)
+    return None
+
+
+# --------------------------------------------------------------------------------------------
+# (b) scalable solver — invariant-guided 2-point hypotheses, KD-tree scoring, closed-form refit
+# --------------------------------------------------------------------------------------------
+
+
+class _Scorer:
+    """Class-aware nearest-neighbour queries against A.
+
+    The class index is a 4th coordinate scaled far beyond any distance, so one KD-tree answers
+    class-restricted nearest-neighbour queries for all classes at once.
+    """
+
+    SEP = 1.0e4
+
+    def __init__(self, A: np.ndarray, ca: np.ndarray):
+        self.A = A
+        self.ca = ca
+        self.tree = cKDTree(np.column_stack([A, ca * self.SEP]))
+
+    def count(self, B: np.ndarray, cb: np.ndarray, psi: np.ndarray, t: np.ndarray, gate: float) -> np.ndarray:
+        """Inliers (B points with an A point of their class within ``gate``) per hypothesis."""
+        c, s = np.cos(psi)[:, None], np.sin(psi)[:, None]
+        x = c * B[None, :, 0] - s * B[None, :, 1] + t[:, None, 0]
+        y = s * B[None, :, 0] + c * B[None, :, 1] + t[:, None, 1]
+        z = np.broadcast_to(B[None, :, 2], x.shape) + t[:, None, 2]
+        w = np.broadcast_to(cb[None, :] * self.SEP, x.shape)
+        q = np.stack([x, y, z, w], axis=-1).reshape(-1, 4)
+        d, _ = self.tree.query(q, k=1, distance_upper_bound=gate)
+        return np.isfinite(d).reshape(x.shape).sum(axis=1)
+
+
+def _associate(
+    A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, psi: float, t: np.ndarray, gate: float
+) -> np.ndarray:
+    """One-to-one class-consistent association within ``gate`` (Hungarian on squared distances)."""
+    pb = B @ yaw_matrix(psi).T + t
+    d = np.linalg.norm(A[:, None, :] - pb[None, :, :], axis=2)
+    bad = (ca[:, None] != cb[None, :]) | (d > gate)
+    rows = np.flatnonzero(~bad.all(axis=1))
+    cols = np.flatnonzero(~bad.all(axis=0))
+    if len(rows) == 0 or len(cols) == 0:
+        return np.zeros((0, 2), dtype=int)
+    sub = np.where(bad[np.ix_(rows, cols)], 1.0e6, d[np.ix_(rows, cols)] ** 2)
+    r, c = linear_sum_assignment(sub)
+    keep = sub[r, c] < 1.0e6
+    return np.stack([rows[r[keep]], cols[c[keep]]], axis=1)
+
+
+def _refine(
+    A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, psi: float, t: np.ndarray, p: SlcParams
+) -> _Candidate | None:
+    """Alternate association and closed-form alignment until the association is stable.
+
+    Pairs beyond the gate after a refit are dropped (worst first) so that the returned candidate
+    satisfies the acceptance rule, or None.
+    """
+    pairs = np.zeros((0, 2), dtype=int)
+    for _ in range(10):
+        new = _associate(A, ca, B, cb, psi, t, p.inlier_gate)
+        if len(new) < p.min_matches:
+            return None
+        same = len(new) == len(pairs) and np.array_equal(new[np.lexsort(new.T)], pairs[np.lexsort(pairs.T)])
+        pairs = new
+        psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
+        if same:
+            break
+    while True:
+        err = np.linalg.norm(A[pairs[:, 0]] - (B[pairs[:, 1]] @ yaw_matrix(psi).T + t), axis=1)
+        if res <= p.tolerance**2 and np.all(err <= p.inlier_gate):
+            return _Candidate(pairs, psi, t, res)
+        pairs = np.delete(pairs, int(np.argmax(err)), axis=0)
+        if len(pairs) < p.min_matches:
+            return None
+        psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
+
+
+def solve_scalable(
+    A: np.ndarray,
+    B: np.ndarray,
+    labels_a: np.ndarray | list | None = None,
+    labels_b: np.ndarray | list | None = None,
+    params: SlcParams | None = None,
+    *,
+    rng: np.random.Generator | None = None,
+) -> SlcSolution:
+    """Invariant-guided 2-point RANSAC with the closed form of eqs. (3)–(6).
+
+    Two points fix yaw and translation. Under a yaw-only rotation a pair's horizontal distance and
+    signed height difference are invariant, so a pair of B can only correspond to pairs of A with
+    matching invariants (and classes): those are found by binary search in the sorted invariants
+    of A's ordered pairs. Every such hypothesis is scored by counting B points that land within
+    the gate of an A point of their class (one KD-tree query for all hypotheses of a batch). The
+    best hypotheses are refined by one-to-one association + closed form until stable; a runner-up
+    with a different transform is kept to detect ambiguity. Sampling stops by the usual adaptive
+    rule once the best inlier ratio makes a miss unlikely (``params.confidence``).
+
+    Args:
+        A: n×3 map centroids (world).
+        B: m×3 observed centroids (yaw-free local frame).
+        labels_a: class of each A point (None: one class).
+        labels_b: class of each B point.
+        params: acceptance rule and search settings.
+        rng: generator for sampling B pairs (only used when B has more than ``max_samples`` pairs).
+    """
+    p = params or SlcParams()
+    A = np.asarray(A, float).reshape(-1, 3)
+    B = np.asarray(B, float).reshape(-1, 3)
+    ca, cb = _encode_classes(_labels(labels_a, len(A)), _labels(labels_b, len(B)))
+    n, m = len(A), len(B)
+    if min(n, m) < max(p.min_matches, 2):
+        return _decide(None, None, p)
+    rng = rng or np.random.default_rng(0)
+
+    # Ordered pairs of A with their invariants, sorted by horizontal distance.
+    ia, ka = np.nonzero(~np.eye(n, dtype=bool))
+    va = A[ka] - A[ia]
+    ha = np.hypot(va[:, 0], va[:, 1])
+    keep = ha >= p.min_pair_distance
+    ia, ka, va, ha = ia[keep], ka[keep], va[keep], ha[keep]
+    order = np.argsort(ha)
+    ia, ka, va, ha = ia[order], ka[order], va[order], ha[order]
+    ang_a = np.arctan2(va[:, 1], va[:, 0])
+
+    # Unordered pairs of B.
+    jb, lb = np.triu_indices(m, 1)
+    vb = B[lb] - B[jb]
+    hb = np.hypot(vb[:, 0], vb[:, 1])
+    keep = hb >= p.min_pair_distance
+    jb, lb, vb, hb = jb[keep], lb[keep], vb[keep], hb[keep]
+    if len(jb) == 0 or len(ia) == 0:
+        return _decide(None, None, p)
+    sample_order = rng.permutation(len(jb)) if len(jb) > p.max_samples else np.arange(len(jb))
+    sample_order = sample_order[: p.max_samples]
+
+    scorer = _Scorer(A, ca)
+    eps = p.pair_tolerance
+    preview = rng.permutation(m)[: max(p.preview, p.min_matches)] if m > p.preview else np.arange(m)
+    hyps_psi: list[np.ndarray] = []
+    hyps_t: list[np.ndarray] = []
+    hyps_n: list[np.ndarray] = []
+    best_count = 0
+    needed = len(sample_order)
+    batch = 16
+    done = 0
+    while done < min(needed, len(sample_order)):
+        sel = sample_order[done : done + batch]
+        done += len(sel)
+        lo = np.searchsorted(ha, hb[sel] - eps, side="left")
+        hi = np.searchsorted(ha, hb[sel] + eps, side="right")
+        cnt = hi - lo
+        if cnt.sum() == 0:
+            continue
+        which = np.repeat(np.arange(len(sel)), cnt)
+        idx_a = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)
+        bsel = sel[which]
+        ok = (
+            (np.abs(va[idx_a, 2] - vb[bsel, 2]) <= eps)
+            & (ca[ia[idx_a]] == cb[jb[bsel]])
+            & (ca[ka[idx_a]] == cb[lb[bsel]])
+        )
+        idx_a, bsel = idx_a[ok], bsel[ok]
+        if len(idx_a) == 0:
+            continue
+        psi = ang_a[idx_a] - np.arctan2(vb[bsel, 1], vb[bsel, 0])
+        c, s = np.cos(psi), np.sin(psi)
+        mb = 0.5 * (B[jb[bsel]] + B[lb[bsel]])
+        ma = 0.5 * (A[ia[idx_a]] + A[ka[idx_a]])
+        t = ma - np.stack([c * mb[:, 0] - s * mb[:, 1], s * mb[:, 0] + c * mb[:, 1], mb[:, 2]], axis=1)
+        if len(psi) > 4 * len(preview):
+            # Preemptive scoring: a cheap look at a few B points, then all of B for the best.
+            pre = scorer.count(B[preview], cb[preview], psi, t, p.inlier_gate)
+            top = np.argpartition(-pre, 4 * len(preview))[: 4 * len(preview)]
+            psi, t = psi[top], t[top]
+        counts = scorer.count(B, cb, psi, t, p.inlier_gate)
+        good = counts >= p.min_matches
+        hyps_psi.append(psi[good])
+        hyps_t.append(t[good])
+        hyps_n.append(counts[good])
+        if good.any():
+            best_count = max(best_count, int(counts[good].max()))
+            # Adaptive stopping: probability that a random pair of B holds two inliers.
+            w = min(best_count / m, 1.0)
+            w2 = max(w * (best_count - 1) / max(m - 1, 1), 1e-12)
+            if w2 >= 1.0:
+                needed = done
+            else:
+                needed = min(needed, math.ceil(math.log(1.0 - p.confidence) / math.log(1.0 - w2)))
+    if not hyps_psi:
+        return _decide(None, None, p)
+    psi_all = np.concatenate(hyps_psi)
+    t_all = np.concatenate(hyps_t)
+    n_all = np.concatenate(hyps_n)
+    if len(psi_all) == 0:
+        return _decide(None, None, p)
+
+    # Refine the strongest hypotheses, one per distinct transform, best first.
+    cands: list[_Candidate] = []
+    seen: list[_Candidate] = []
+    for h in np.argsort(-n_all, kind="stable"):
+        probe = _Candidate(np.zeros((0, 2), int), float(psi_all[h]), t_all[h], 0.0)
+        if any(not probe.differs(q, p) for q in seen):
+            continue
+        seen.append(probe)
+        if cands and n_all[h] < p.ambiguity_ratio * max(c.k for c in cands):
+            break
+        cand = _refine(A, ca, B, cb, float(psi_all[h]), t_all[h], p)
+        if cand is not None and all(cand.differs(q, p) for q in cands):
+            cands.append(cand)
+            seen.append(cand)
+        if len(seen) > 20:
+            break
+    if not cands:
+        return _decide(None, None, p)
+    cands.sort(key=lambda c: (-c.k, c.residual))
+    best = cands[0]
+    runner = next((c for c in cands[1:] if c.differs(best, p)), None)
+    return _decide(best, runner, p)
