@@ -137,6 +137,10 @@ def cop_tour(
     while open_.any():
         v = int(np.flatnonzero(open_)[np.argmax(value[open_])])
         open_[v] = False
+        if costs[0, v + 1] > budget + _EPS:  # no open tour through v is shorter (metric costs)
+            if stop_at_first_violation:
+                break
+            continue
         pos, delta = cheapest_insertion(costs, tour, v + 1)
         candidate = [*tour[:pos], v + 1, *tour[pos:]]
         new_length = length + delta

@@ -60,15 +60,12 @@ def _share_inside(
     samples: np.ndarray, R_rel: np.ndarray, t_rel: np.ndarray, near: float, far: float, tx: float, ty: float
 ) -> np.ndarray:
     """For each pair, the share of ``samples`` (one camera's frame) inside the other frustum."""
-    p = np.einsum("pij,mj->pmi", R_rel, samples) + t_rel[:, None, :]
-    z = p[..., 2]
+    # One (P·3)×3 by 3×M product (coordinate-major result) is several times faster than a batched
+    # einsum over pairs.
+    p = (R_rel.reshape(-1, 3) @ samples.T).reshape(len(R_rel), 3, len(samples)) + t_rel[:, :, None]
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
     tol = 1e-9 * far
-    inside = (
-        (z >= near - tol)
-        & (z <= far + tol)
-        & (np.abs(p[..., 0]) <= z * tx + tol)
-        & (np.abs(p[..., 1]) <= z * ty + tol)
-    )
+    inside = (z >= near - tol) & (z <= far + tol) & (np.abs(x) <= z * tx + tol) & (np.abs(y) <= z * ty + tol)
     return inside.mean(axis=1)
 
 

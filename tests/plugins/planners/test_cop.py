@@ -205,3 +205,16 @@ def test_events_and_summary_are_reported(camera, tmp_path):
     p.plan(line_request(camera, [[0.0, 1.0, 1]], [1.0]))
     name, fields = events[-1]
     assert name == "planner_tour" and fields["planner"] == "cop" and fields["slc_inserted"] == [100]
+
+
+@pytest.mark.parametrize("name", ["greedy", "cop", "tsp"])
+def test_every_planner_accepts_the_runner_request_shape(camera, name):
+    """The runner sends ``slc_costs`` of shape (0, N+1) when SLC is off or has no candidates."""
+    from amslam.registry import build_plugin_manager
+
+    backend = build_plugin_manager().factory("planner", name)()
+    req = make_request([[1, 0, 1], [3, 1, 1]], [5.0, 8.0], camera)
+    req = type(req)(req.start, 0.0, req.viewpoints, req.costs, camera, (), np.zeros((0, 3)))
+    tour = backend.plan(req)
+    assert tour and all(t.kind is TourItemKind.EXPLORE for t in tour)
+    assert {t.ref for t in tour} <= {0, 1}
