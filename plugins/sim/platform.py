@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+from pathlib import Path
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import Field
@@ -10,6 +11,7 @@ from pydantic import Field
 from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Platform, RunContext
 from amslam.plugins.sim.camera import CameraParams, Renderer
+from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
 from amslam.plugins.sim.vio import VioParams, VioState, wrap_angle
 from amslam.plugins.sim.world import World, WorldSpec
@@ -30,9 +32,14 @@ class SimPlatform(Platform):
     class Params(BackendParams):
         """Parameters of the simulator platform."""
 
-        world: ProceduralWorldParams = Field(default_factory=ProceduralWorldParams)
+        world: Annotated[ProceduralWorldParams | MeshWorldParams, Field(discriminator="kind")] = Field(
+            default_factory=ProceduralWorldParams,
+            description="kind: procedural (seeded building) or kind: mesh (a mesh file + objects file)",
+        )
         start: tuple[float, float] | None = Field(
-            None, description="start (x, y) on the ground floor; default: the world's own start"
+            None,
+            description="start (x, y) on the lowest floor; default: the procedural world's corridor end,"
+            " or the point of a mesh world's lowest floor farthest from any geometry",
         )
         start_yaw: float | None = Field(None, description="start heading in radians; default: the world's")
         camera: CameraParams = Field(default_factory=CameraParams)
@@ -67,7 +74,7 @@ class SimPlatform(Platform):
         # Separate streams: the world, the VIO, the camera and the detector noise must not
         # shift one another when one of them is reconfigured.
         seeds = context.rng.integers(0, 2**63 - 1, size=3)
-        self._world_seed = int(seeds[0]) + params.world.seed_offset
+        self._world_seed = int(seeds[0]) + getattr(params.world, "seed_offset", 0)
         self._vio_rng = np.random.default_rng(int(seeds[1]))
         self._cam_rng = np.random.default_rng(int(seeds[2]))
 
@@ -99,7 +106,12 @@ class SimPlatform(Platform):
         p = self.params
         spec = self._make_world_spec(p)
         self._world = World(spec)
-        xy = np.asarray(p.start, float) if p.start is not None else spec.start_xy
+        if p.start is not None:
+            xy = np.asarray(p.start, float)
+        elif np.all(np.isfinite(spec.start_xy)):
+            xy = spec.start_xy
+        else:
+            xy = self._open_spot(self._world, spec)
         self._ground_z = spec.start_floor_z
         if p.start is not None:
             g = self._world.ground_below(np.array([xy[0], xy[1], spec.bounds_hi[2] - 1e-3 - 0.5]))
@@ -147,7 +159,28 @@ class SimPlatform(Platform):
     def _make_world_spec(self, p: SimPlatform.Params) -> WorldSpec:
         if getattr(self, "_custom_spec", None) is not None:
             return self._custom_spec
+        if isinstance(p.world, MeshWorldParams):
+            return load_mesh_world(p.world, Path(self.context.mission_dir))
         return generate_building(p.world, np.random.default_rng(self._world_seed))
+
+    def _open_spot(self, world: World, spec: WorldSpec) -> np.ndarray:
+        """(x, y) on the lowest floor, under a ceiling, farthest from any geometry at flight height."""
+        lo, hi = spec.bounds_lo, spec.bounds_hi
+        z = spec.floor_heights[0] + self.robot.altitude
+        xs = np.arange(lo[0] + 0.25, hi[0], 0.25)
+        ys = np.arange(lo[1] + 0.25, hi[1], 0.25)
+        g = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+        pts = np.column_stack([g, np.full(len(g), z)])
+        clearance = world.distance(pts)
+        down = np.column_stack([pts, np.tile([0.0, 0.0, -1.0], (len(pts), 1))])
+        up = np.column_stack([pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1))])
+        t_down = world.cast_rays(down)["t_hit"]
+        t_up = world.cast_rays(up)["t_hit"]
+        # indoors: floor right below (at the floor height) and a roof above
+        ok = np.isfinite(t_up) & (np.abs(z - t_down - spec.floor_heights[0]) < 0.1)
+        if not ok.any():
+            raise PlatformError(f"mesh world {spec.name}: no open indoor spot found; set 'start'")
+        return g[np.argmax(np.where(ok, clearance, -1.0))]
 
     def _hover_point(self) -> np.ndarray:
         return np.array([self._start[0], self._start[1], self._ground_z + self.robot.altitude])

@@ -22,6 +22,7 @@ def make_platform(
     spec: WorldSpec | None = None,
     robot: RobotSpec | None = None,
     events: list | None = None,
+    mission_dir: Path | None = None,
     **params,
 ) -> SimPlatform:
     """A configured and started SimPlatform (optionally in a custom world)."""
@@ -31,6 +32,7 @@ def make_platform(
         run_dir=tmp_path,
         robot=robot or RobotSpec(),
         emit=(lambda name, **f: events.append((name, f))) if events is not None else (lambda *a, **k: None),
+        mission_dir=mission_dir or tmp_path,
     )
     params.setdefault("camera", EXACT_CAMERA)
     plat.configure(SimPlatform.Params(**params), ctx)

@@ -1,0 +1,220 @@
+"""Mesh worlds: a building from a triangle-mesh file plus an objects file (see docs/worlds.md).
+
+The mesh (PLY, OBJ, STL, GLB/glTF, OFF — whatever ``open3d.io.read_triangle_mesh`` reads) is the
+whole world. The objects file (JSON) lists the object instances::
+
+    [{"name": "ChairA_01_001", "class": "ChairA", "mesh": "objects/ChairA_01_001.ply",
+      "bounds": [[x0, y0, z0], [x1, y1, z1]]}, ...]
+
+(or ``{"objects": [...]}``). An object's own mesh, already placed in world coordinates, labels the
+world triangles it coincides with (matched by triangle centroid); an object whose mesh is not
+part of the world mesh is added to the world. An object given by ``bounds`` only labels the
+still unlabelled world triangles lying inside its box. Unlabelled triangles are structure, as
+are objects whose class is listed in ``structure_classes`` (walls, floors, ceilings, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+from scipy.spatial import cKDTree
+
+from amslam.errors import PlatformError
+from amslam.interfaces import BackendParams
+from amslam.plugins.sim.world import MeshPart, WorldObject, WorldSpec, class_colour
+
+#: classes treated as building structure (instance 0) unless the mission says otherwise
+DEFAULT_STRUCTURE = (
+    "wall", "house_wall", "room_wall", "floor", "ceiling", "room_ceiling", "added", "carpet", "stairs",
+)  # fmt: skip
+
+
+class MeshWorldParams(BackendParams):
+    """A world loaded from a mesh file and an objects file."""
+
+    kind: Literal["mesh"] = "mesh"
+    mesh: str = Field(description="world mesh (PLY/OBJ/STL/GLB), relative to the mission file")
+    objects: str | None = Field(None, description="objects JSON, relative to the mission file")
+    name: str | None = Field(None, description="name in reports (default: the mesh's folder name)")
+    up_axis: Literal["z", "y"] = Field("z", description="'y' for y-up files such as glTF/GLB exports")
+    scale: float = Field(1.0, gt=0.0, description="multiplies coordinates (e.g. 0.01 for centimetres)")
+    floor_heights: tuple[float, ...] | None = Field(
+        None, description="z of each floor (ascending); default: the bottom of the mesh"
+    )
+    normalize_classes: bool = Field(
+        True, description="'ChairA' → 'chair', 'KitchenTable' → 'kitchen_table' (variant letter dropped)"
+    )
+    class_map: dict[str, str] = Field(
+        default_factory=dict, description="class renames applied after normalisation, e.g. {armchair: chair}"
+    )
+    structure_classes: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_STRUCTURE),
+        description="classes (after renaming) that are building structure, not objects",
+    )
+    match_tolerance: float = Field(1e-3, gt=0.0, description="centroid distance (m) that matches triangles")
+
+
+_SNAKE = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])")
+
+
+def normalize_class(name: str) -> str:
+    """``'ChairA'`` → ``'chair'``, ``'TVCabinet'`` → ``'tv_cabinet'``, ``'HouseWallB'`` → ``'house_wall'``."""
+    base = re.sub(r"(?<=[a-z])[A-Z]$", "", name.strip())  # trailing model-variant letter
+    base = re.sub(r"[_\s-]*\d+$", "", base)  # trailing numbers
+    return _SNAKE.sub("_", base).replace("-", "_").replace(" ", "_").lower()
+
+
+def _read_mesh(path: Path, p: MeshWorldParams) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    import open3d as o3d
+
+    if not path.is_file():
+        raise PlatformError(f"mesh world: file not found: {path}")
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    t = np.asarray(mesh.triangles, dtype=np.int64)
+    if len(t) == 0:
+        raise PlatformError(f"mesh world: no triangles in {path}")
+    v = v * p.scale
+    if p.up_axis == "y":  # (x, y, z) y-up → (x, -z, y) z-up
+        v = np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)
+    colours = np.asarray(mesh.vertex_colors, dtype=np.float64) if mesh.has_vertex_colors() else None
+    return v, t, colours
+
+
+def _ground_height(V: np.ndarray, T: np.ndarray, normals: np.ndarray) -> float:
+    """z of the ground floor: the up-facing surface with the most area in the lowest metre."""
+    area = 0.5 * np.linalg.norm(np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]]), axis=1)
+    z = V[T].mean(axis=1)[:, 2]
+    up = (normals[:, 2] > 0.9) & (z < V[:, 2].min() + 1.0)
+    if not up.any():
+        return float(V[:, 2].min())
+    bins = np.round(z[up] / 0.02).astype(np.int64)
+    uniq, inv = np.unique(bins, return_inverse=True)
+    best = uniq[np.argmax(np.bincount(inv, weights=area[up]))]
+    return float(np.median(z[up][bins == best]))
+
+
+def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
+    """Load a mesh world; relative paths are resolved against ``base_dir`` (the mission folder)."""
+    mesh_path = (base_dir / p.mesh).resolve()
+    V, T, C = _read_mesh(mesh_path, p)
+    n = len(T)
+    tri_inst = np.zeros(n, dtype=np.int32)
+    centroids = V[T].mean(axis=1)
+    normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+
+    entries: list[dict] = []
+    obj_dir = base_dir
+    if p.objects is not None:
+        obj_path = (base_dir / p.objects).resolve()
+        if not obj_path.is_file():
+            raise PlatformError(f"mesh world: objects file not found: {obj_path}")
+        data = json.loads(obj_path.read_text())
+        entries = data["objects"] if isinstance(data, dict) else data
+        obj_dir = obj_path.parent
+
+    objects: list[WorldObject] = []
+    extra_parts: list[MeshPart] = []
+    struct = set(p.structure_classes)
+    # 1. objects with meshes: label the coinciding world triangles
+    labelled_entries = []
+    tri_owner_cls: dict[int, str] = {}
+    for k, e in enumerate(entries):
+        if "name" not in e or "class" not in e:
+            raise PlatformError(f"mesh world: object #{k} of {p.objects} needs 'name' and 'class'")
+        cls = normalize_class(e["class"]) if p.normalize_classes else e["class"]
+        cls = p.class_map.get(cls, p.class_map.get(e["class"], cls))
+        labelled_entries.append((e, cls))
+    inst_of: dict[str, int] = {}
+    next_id = 1
+    for e, cls in labelled_entries:
+        iid = 0 if cls in struct else next_id
+        if iid:
+            next_id += 1
+        inst_of[e["name"]] = iid
+        tri_owner_cls[iid] = cls
+
+    tree = cKDTree(centroids)
+    struct_mask = np.zeros(n, dtype=bool)
+    for e, cls in labelled_entries:
+        if "mesh" not in e:
+            continue
+        ov, ot, _ = _read_mesh((obj_dir / e["mesh"]).resolve(), p)
+        oc = ov[ot].mean(axis=1)
+        # every world triangle within tolerance of an object triangle centroid belongs to it
+        hits = tree.query_ball_point(oc, r=p.match_tolerance)
+        idx = np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])) if len(hits) else []
+        iid = inst_of[e["name"]]
+        if len(idx) >= 0.5 * len(ot):
+            if iid:
+                tri_inst[idx] = iid
+            else:
+                struct_mask[idx] = True
+        else:  # not part of the world mesh: add it
+            albedo = class_colour("wall" if iid == 0 else cls)
+            extra_parts.append(MeshPart.uniform(e["name"], ov, ot, iid, albedo))
+    # 2. objects given by bounds only: label unlabelled triangles inside the box
+    for e, _cls in labelled_entries:
+        if "mesh" in e or "bounds" not in e:
+            continue
+        lo, hi = (np.asarray(b, dtype=np.float64) * p.scale for b in e["bounds"])
+        inside = np.all((V[T] >= lo - 0.01) & (V[T] <= hi + 0.01), axis=(1, 2))
+        sel = inside & (tri_inst == 0) & ~struct_mask
+        tri_inst[sel] = inst_of[e["name"]]
+
+    # ground truth per object: bounds of its labelled triangles (or of its own mesh / the file)
+    for e, cls in labelled_entries:
+        iid = inst_of[e["name"]]
+        if iid == 0:
+            continue
+        sel = tri_inst == iid
+        if sel.any():
+            pts = V[T[sel]].reshape(-1, 3)
+        else:
+            part = next((q for q in extra_parts if q.name == e["name"]), None)
+            if part is not None:
+                pts = part.vertices
+            elif "bounds" in e:
+                pts = np.asarray(e["bounds"], dtype=np.float64) * p.scale
+            else:
+                continue
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        objects.append(WorldObject(e["name"], cls, iid, (lo + hi) / 2, lo, hi))
+
+    # albedo: vertex colours when the file has them, else class / structure colours
+    if C is not None and len(C) == len(V):
+        albedo = C[T].mean(axis=1)
+    else:
+        albedo = np.tile(class_colour("wall"), (n, 1))
+        albedo[(tri_inst == 0) & (normals[:, 2] > 0.9)] = class_colour("floor")
+        albedo[(tri_inst == 0) & (normals[:, 2] < -0.9)] = class_colour("ceiling")
+        for iid in np.unique(tri_inst[tri_inst > 0]):
+            albedo[tri_inst == iid] = class_colour(tri_owner_cls[int(iid)])
+    world_part = MeshPart(
+        mesh_path.parent.name if mesh_path.name.startswith("world") else mesh_path.stem,
+        V,
+        T,
+        tri_inst,
+        albedo.astype(np.float32),
+    )
+    all_v = np.concatenate([V] + [q.vertices for q in extra_parts])
+    lo, hi = all_v.min(axis=0), all_v.max(axis=0)
+    floors = tuple(p.floor_heights) if p.floor_heights else (_ground_height(V, T, normals),)
+    name = p.name or (mesh_path.parent.name if mesh_path.stem == "world" else mesh_path.stem)
+    return WorldSpec(
+        name=name,
+        parts=[world_part, *extra_parts],
+        objects=objects,
+        floor_heights=floors,
+        bounds_lo=lo,
+        bounds_hi=hi,
+        start_xy=np.array([np.nan, np.nan]),  # chosen by the platform (largest clearance) unless given
+        start_floor_z=floors[0],
+        start_yaw=0.0,
+    )
