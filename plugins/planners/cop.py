@@ -130,7 +130,7 @@ def cop_tour(
     """
     m = len(gains)
     off = w - np.diag(np.diag(w))
-    value = gains + off @ gains  # nothing selected yet: every other vertex is in V \\ S
+    value = gains + off @ gains  # nothing selected yet: every other vertex is in V \ S
     open_ = np.ones(m, dtype=bool)
     tour: list[int] = []
     length = 0.0
@@ -154,7 +154,7 @@ def cop_tour(
             continue
         tour = two_opt(costs, candidate)
         length = tour_cost(costs, tour)
-        value -= 2.0 * gains[v] * off[:, v]  # v leaves V \\ S and joins S
+        value -= 2.0 * gains[v] * off[:, v]  # v leaves V \ S and joins S
     if len(tour) > 2:
         tour = two_opt(costs, or_opt(costs, tour))
     return tour
