@@ -161,7 +161,7 @@ class MappingContract:
     def test_integrate_returns_touched_box(self, mapping: Mapping) -> None:
         box = mapping.integrate_global(wall_depth(), CAMERA.K, camera_pose())
         assert isinstance(box, BoundingBox) and not box.empty
-        assert np.all(box.lo <= [0.0, -0.5, -0.5]) and np.all(box.hi >= [WALL_X, 0.5, 0.5])
+        assert np.all(box.lo <= [0.5, -0.5, -0.5]) and np.all(box.hi >= [WALL_X, 0.5, 0.5])
         assert box.hi[0] < WALL_X + 1.0  # nothing behind the wall was touched
         # every occupied voxel lies inside the touched box
         occ = mapping.occupied_points()
@@ -280,3 +280,58 @@ class MappingContract:
         assert other.explored_volume() == pytest.approx(wall_map.explored_volume())
         assert len(other.viewpoints()) == len(wall_map.viewpoints())
         other.close()
+
+
+# ---------------------------------------------------------------------- a furnished room, rendered
+def room_scene():
+    """An Open3D ``RaycastingScene`` of a furnished 8×6×3 m room with a doorway onto a long corridor.
+
+    Geometry in metres, floor at z = 0: walls 0.2 m thick, a doorway (1 m wide) in the wall at
+    x = 8 leading to a 12 m corridor (so some rays get no return within 5 m), a table, two pillars,
+    a cabinet and a chair-sized box. Used by the cross-backend agreement tests and the benchmark.
+    """
+    import open3d as o3d
+
+    boxes = [  # (lo, hi)
+        ((-0.2, -0.2, -0.2), (8.2, 6.2, 0.0)),  # floor
+        ((-0.2, -0.2, 3.0), (8.2, 6.2, 3.2)),  # ceiling
+        ((-0.2, -0.2, 0.0), (0.0, 6.2, 3.0)),  # wall x = 0
+        ((-0.2, -0.2, 0.0), (8.2, 0.0, 3.0)),  # wall y = 0
+        ((-0.2, 6.0, 0.0), (8.2, 6.2, 3.0)),  # wall y = 6
+        ((8.0, -0.2, 0.0), (8.2, 2.5, 3.0)),  # wall x = 8, left of the doorway
+        ((8.0, 3.5, 0.0), (8.2, 6.2, 3.0)),  # wall x = 8, right of the doorway
+        ((8.0, 2.5, 2.1), (8.2, 3.5, 3.0)),  # lintel
+        ((8.2, 2.3, 0.0), (20.2, 2.5, 3.0)),  # corridor walls
+        ((8.2, 3.5, 0.0), (20.2, 3.7, 3.0)),
+        ((3.0, 1.0, 0.0), (4.6, 1.9, 0.75)),  # table
+        ((5.5, 4.2, 0.0), (5.8, 4.5, 3.0)),  # pillars
+        ((2.2, 4.6, 0.0), (2.5, 4.9, 3.0)),
+        ((6.8, 0.3, 0.0), (7.8, 0.8, 1.8)),  # cabinet
+        ((4.2, 3.0, 0.0), (4.7, 3.5, 0.9)),  # chair
+    ]
+    scene = o3d.t.geometry.RaycastingScene()
+    for lo, hi in boxes:
+        size = np.subtract(hi, lo)
+        mesh = o3d.geometry.TriangleMesh.create_box(*size).translate(lo)
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene
+
+
+def render_depth(scene, camera: CameraModel, T_world_cam: np.ndarray) -> np.ndarray:
+    """H×W float32 depth (along the optical axis, 0 = no return within the camera's max range)."""
+    import open3d as o3d
+
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
+    K = camera.K
+    d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones(u.shape)], -1).reshape(-1, 3)
+    d_world = d_cam @ np.asarray(T_world_cam)[:3, :3].T  # unnormalised: t_hit is the optical depth
+    origins = np.broadcast_to(np.asarray(T_world_cam)[:3, 3], d_world.shape)
+    rays = o3d.core.Tensor(np.hstack([origins, d_world]).astype(np.float32))
+    t = scene.cast_rays(rays)["t_hit"].numpy().reshape(camera.height, camera.width)
+    rng = t * np.linalg.norm(d_cam, axis=1).reshape(t.shape)
+    return np.where(np.isfinite(t) & (rng <= camera.max_range), t, 0.0).astype(np.float32)
+
+
+#: A pose in :func:`room_scene`: camera 1.3 m high in the room, looking at the far wall and
+#: through the doorway down the corridor.
+ROOM_POSE = camera_pose((4.0, 1.8, 1.3), np.radians(15.0))
