@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import Discriminator, Field, Tag
 
 from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Platform, RunContext
@@ -16,6 +16,19 @@ from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_buildi
 from amslam.plugins.sim.vio import VioParams, VioState, wrap_angle
 from amslam.plugins.sim.world import World, WorldSpec
 from amslam.types import CameraModel, Frame, Odometry, RobotSpec, VehicleStatus, WorldSummary
+
+
+def _world_kind(v: Any) -> str:
+    """``kind`` of a world section; a section without one is procedural."""
+    if isinstance(v, dict):
+        return v.get("kind", "procedural")
+    return getattr(v, "kind", "procedural")
+
+
+WorldParams = Annotated[
+    Annotated[ProceduralWorldParams, Tag("procedural")] | Annotated[MeshWorldParams, Tag("mesh")],
+    Discriminator(_world_kind),
+]
 
 
 class SimPlatform(Platform):
@@ -32,7 +45,7 @@ class SimPlatform(Platform):
     class Params(BackendParams):
         """Parameters of the simulator platform."""
 
-        world: Annotated[ProceduralWorldParams | MeshWorldParams, Field(discriminator="kind")] = Field(
+        world: WorldParams = Field(
             default_factory=ProceduralWorldParams,
             description="kind: procedural (seeded building) or kind: mesh (a mesh file + objects file)",
         )

@@ -394,6 +394,11 @@ class _Builder:
             start_xy=np.array([t + 1.0, D / 2]),
             start_floor_z=0.0,
             start_yaw=0.0,
+            places={
+                "shaft": np.array([sx, sy, 0.0]),
+                "corridor_east": np.array([xl - 1.0, D / 2, 0.0]),
+                "lobby_entrance": np.array([xl + 1.0, D / 2, 0.0]),
+            },
         )
 
 

@@ -104,6 +104,8 @@ class WorldSpec:
     start_floor_z: float  # z of the ground under the start
     start_yaw: float = 0.0
     extra_classes: tuple[str, ...] = field(default_factory=tuple)
+    #: named places of the layout, e.g. ``"shaft"`` (centre of the open shaft on the ground floor)
+    places: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class World:
