@@ -60,6 +60,9 @@ class SlcParams:
         pair_tolerance: largest difference of the pair invariants (horizontal distance, height
             difference) for two pairs to form a hypothesis (scalable solver); inlier pairs need
             not all pass it, only a few do.
+        exact_pairs: when B has at most this many pairs, hypotheses use the complete tolerance
+            (twice the gate) instead of ``pair_tolerance``.
+        max_refinements: hypotheses refined at most (scalable solver).
         preview: B points every hypothesis is first scored on; only the best ``4 × preview``
             hypotheses of a batch are scored on all of B (preemptive scoring).
         max_samples: point pairs of B drawn by the scalable solver before it gives up; when B has
@@ -75,7 +78,9 @@ class SlcParams:
     distinct_yaw: float = 0.2
     distinct_translation: float = 0.6
     min_pair_distance: float = 0.5
-    pair_tolerance: float = 0.35
+    pair_tolerance: float = 0.25
+    exact_pairs: int = 100
+    max_refinements: int = 30
     preview: int = 12
     max_samples: int = 300
     confidence: float = 0.999
@@ -192,10 +197,17 @@ class _Candidate:
         return len(self.pairs)
 
     def differs(self, other: _Candidate, params: SlcParams) -> bool:
+        """Whether the two transforms are apart (yaw or translation)."""
         return (
             abs(_wrap(self.psi - other.psi)) > params.distinct_yaw
             or float(np.linalg.norm(self.t - other.t)) > params.distinct_translation
         )
+
+    def rival(self, other: _Candidate, params: SlcParams) -> bool:
+        """Whether ``other`` is a genuinely different alignment: transforms apart, and fewer than
+        two shared pairs (two shared pairs pin the same transform; the gap is then noise)."""
+        shared = len({tuple(x) for x in self.pairs.tolist()} & {tuple(x) for x in other.pairs.tolist()})
+        return self.differs(other, params) and shared < 2
 
 
 def _decide(best: _Candidate | None, runner: _Candidate | None, params: SlcParams) -> SlcSolution:
@@ -303,7 +315,7 @@ def solve_exhaustive(
         if level:
             level.sort(key=lambda c: c.residual)
             best = level[0]
-            runner = next((c for c in level[1:] if c.differs(best, p)), None)
+            runner = next((c for c in level[1:] if best.rival(c, p)), None)
             if runner is None:
                 # A smaller, different solution counts too (e.g. a shifted grid losing a row).
                 runner = _best_different_below(A, B, ca, cb, best, k, p, chunk)
@@ -342,7 +354,7 @@ def _best_different_below(
                 err = _pair_errors(pa[idx], pb[idx], psi[idx], t[idx])
                 for i in idx[np.all(err <= p.inlier_gate, axis=1)]:
                     c = _Candidate(np.stack([sel[i], comb], axis=1), float(psi[i]), t[i], float(res[i]))
-                    if c.differs(best, p):
+                    if best.rival(c, p):
                         found.append(c)
         if found:
             return min(found, key=lambda c: c.residual)
@@ -397,32 +409,77 @@ def _associate(
     return np.stack([rows[r[keep]], cols[c[keep]]], axis=1)
 
 
+def _trim(
+    A: np.ndarray, B: np.ndarray, pairs: np.ndarray, p: SlcParams
+) -> tuple[np.ndarray, float, np.ndarray, float] | None:
+    """Fit, then drop the worst pair until the acceptance rule holds (or too few pairs remain)."""
+    while len(pairs) >= p.min_matches:
+        psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
+        err = np.linalg.norm(A[pairs[:, 0]] - (B[pairs[:, 1]] @ yaw_matrix(psi).T + t), axis=1)
+        if res <= p.tolerance**2 and np.all(err <= p.inlier_gate):
+            return pairs, psi, t, res
+        pairs = np.delete(pairs, int(np.argmax(err)), axis=0)
+    return None
+
+
 def _refine(
     A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, psi: float, t: np.ndarray, p: SlcParams
 ) -> _Candidate | None:
     """Alternate association and closed-form alignment until the association is stable.
 
-    Pairs beyond the gate after a refit are dropped (worst first) so that the returned candidate
-    satisfies the acceptance rule, or None.
+    A 2-point hypothesis can be off by up to twice the gate at the far end of B, so the first
+    association uses a doubled gate; each fit is then trimmed (worst pair first) until it
+    satisfies the acceptance rule, and points are re-associated at the gate with the new
+    transform. The result satisfies the rule, or None.
     """
-    pairs = np.zeros((0, 2), dtype=int)
+    pairs = _associate(A, ca, B, cb, psi, t, 2.0 * p.inlier_gate)
+    best: _Candidate | None = None
     for _ in range(10):
+        fit = _trim(A, B, pairs, p)
+        if fit is None:
+            return best
+        pairs, psi, t, res = fit
+        cand = _Candidate(pairs, psi, t, res)
+        if best is not None and (cand.k, -cand.residual) <= (best.k, -best.residual):
+            return best
+        best = cand
         new = _associate(A, ca, B, cb, psi, t, p.inlier_gate)
-        if len(new) < p.min_matches:
-            return None
-        same = len(new) == len(pairs) and np.array_equal(new[np.lexsort(new.T)], pairs[np.lexsort(pairs.T)])
+        if len(new) == len(pairs) and np.array_equal(new[np.lexsort(new.T)], pairs[np.lexsort(pairs.T)]):
+            return best
         pairs = new
-        psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
-        if same:
-            break
-    while True:
-        err = np.linalg.norm(A[pairs[:, 0]] - (B[pairs[:, 1]] @ yaw_matrix(psi).T + t), axis=1)
-        if res <= p.tolerance**2 and np.all(err <= p.inlier_gate):
-            return _Candidate(pairs, psi, t, res)
-        pairs = np.delete(pairs, int(np.argmax(err)), axis=0)
-        if len(pairs) < p.min_matches:
-            return None
-        psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
+    return best
+
+
+def _polish(
+    A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, cand: _Candidate, p: SlcParams
+) -> _Candidate:
+    """Single-pair swaps that lower the residual of eq. (2) at the same cardinality.
+
+    The Hungarian association minimises distances at a fixed transform; the rule ranks by the
+    residual after refitting, so try each unused A point of the right class near a matched B point.
+    """
+    best = cand
+    improved = True
+    while improved:
+        improved = False
+        used = set(best.pairs[:, 0].tolist())
+        pb = B @ yaw_matrix(best.psi).T + best.t
+        for i, (a, b) in enumerate(best.pairs):
+            near = np.flatnonzero((ca == cb[b]) & (np.linalg.norm(A - pb[b], axis=1) <= 2.0 * p.inlier_gate))
+            for a2 in near:
+                if a2 == a or int(a2) in used:
+                    continue
+                pairs = best.pairs.copy()
+                pairs[i, 0] = a2
+                psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
+                err = np.linalg.norm(A[pairs[:, 0]] - (B[pairs[:, 1]] @ yaw_matrix(psi).T + t), axis=1)
+                if res < best.residual - 1e-12 and res <= p.tolerance**2 and np.all(err <= p.inlier_gate):
+                    best = _Candidate(pairs, psi, t, res)
+                    improved = True
+                    break
+            if improved:
+                break
+    return best
 
 
 def solve_scalable(
@@ -484,7 +541,12 @@ def solve_scalable(
     sample_order = sample_order[: p.max_samples]
 
     scorer = _Scorer(A, ca)
-    eps = p.pair_tolerance
+    # Small problems use the exact necessary condition (two points within the gate each give
+    # invariants within twice the gate), so no consistent pair is missed; large ones the tighter
+    # tolerance, relying on some of the many inlier pairs passing it.
+    exact = len(jb) <= p.exact_pairs
+    eps = 2.0 * p.inlier_gate if exact else p.pair_tolerance
+    score_gate = 2.0 * p.inlier_gate if exact else p.inlier_gate
     preview = rng.permutation(m)[: max(p.preview, p.min_matches)] if m > p.preview else np.arange(m)
     hyps_psi: list[np.ndarray] = []
     hyps_t: list[np.ndarray] = []
@@ -519,10 +581,10 @@ def solve_scalable(
         t = ma - np.stack([c * mb[:, 0] - s * mb[:, 1], s * mb[:, 0] + c * mb[:, 1], mb[:, 2]], axis=1)
         if len(psi) > 4 * len(preview):
             # Preemptive scoring: a cheap look at a few B points, then all of B for the best.
-            pre = scorer.count(B[preview], cb[preview], psi, t, p.inlier_gate)
+            pre = scorer.count(B[preview], cb[preview], psi, t, score_gate)
             top = np.argpartition(-pre, 4 * len(preview))[: 4 * len(preview)]
             psi, t = psi[top], t[top]
-        counts = scorer.count(B, cb, psi, t, p.inlier_gate)
+        counts = scorer.count(B, cb, psi, t, score_gate)
         good = counts >= p.min_matches
         hyps_psi.append(psi[good])
         hyps_t.append(t[good])
@@ -544,25 +606,37 @@ def solve_scalable(
     if len(psi_all) == 0:
         return _decide(None, None, p)
 
-    # Refine the strongest hypotheses, one per distinct transform, best first.
+    # Refine the strongest hypotheses, one per distinct transform, best first. Hypotheses close
+    # to a solution already found, or very close to one whose refinement failed, are masked out.
     cands: list[_Candidate] = []
-    seen: list[_Candidate] = []
-    for h in np.argsort(-n_all, kind="stable"):
-        probe = _Candidate(np.zeros((0, 2), int), float(psi_all[h]), t_all[h], 0.0)
-        if any(not probe.differs(q, p) for q in seen):
-            continue
-        seen.append(probe)
+    alive = np.ones(len(psi_all), dtype=bool)
+
+    def mask_near(psi: float, t: np.ndarray, scale: float) -> None:
+        near = (np.abs(_wrap(psi_all - psi)) <= scale * p.distinct_yaw) & (
+            np.linalg.norm(t_all - t, axis=1) <= scale * p.distinct_translation
+        )
+        alive[near] = False
+
+    for _ in range(p.max_refinements):
+        if not alive.any():
+            break
+        h = int(np.argmax(np.where(alive, n_all, -1)))
         if cands and n_all[h] < p.ambiguity_ratio * max(c.k for c in cands):
             break
         cand = _refine(A, ca, B, cb, float(psi_all[h]), t_all[h], p)
-        if cand is not None and all(cand.differs(q, p) for q in cands):
+        alive[h] = False
+        if cand is None:
+            mask_near(float(psi_all[h]), t_all[h], 0.25)
+            continue
+        mask_near(cand.psi, cand.t, 1.0)
+        twin = next((i for i, q in enumerate(cands) if not cand.differs(q, p)), None)
+        if twin is None:
             cands.append(cand)
-            seen.append(cand)
-        if len(seen) > 20:
-            break
+        elif (cand.k, -cand.residual) > (cands[twin].k, -cands[twin].residual):
+            cands[twin] = cand
     if not cands:
         return _decide(None, None, p)
     cands.sort(key=lambda c: (-c.k, c.residual))
-    best = cands[0]
-    runner = next((c for c in cands[1:] if c.differs(best, p)), None)
+    best = _polish(A, ca, B, cb, cands[0], p)
+    runner = next((c for c in cands[1:] if best.rival(c, p)), None)
     return _decide(best, runner, p)

@@ -1,0 +1,168 @@
+"""The ``gtsam`` SLAM backend: graph, data association, outputs, loop closure, eq. (10)."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pydantic
+import pytest
+from gtsam.symbol_shorthand import L, X
+
+from amslam.geometry import pose_from, yaw_of
+from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.information import brute_force_information_gain
+from amslam.plugins.gtsam_slam.synthetic import camera_mount
+from amslam.registry import build_plugin_manager
+from amslam.types import Detection, Odometry
+
+from .conftest import configured, drive_loop
+
+
+def test_registered_through_the_entry_point() -> None:
+    assert build_plugin_manager().factory("slam", "gtsam") is GtsamSlam
+
+
+def test_params_forbid_unknown_keys() -> None:
+    with pytest.raises(pydantic.ValidationError):
+        GtsamSlam.Params(keypose_distanse=1.0)
+
+
+def test_keyposes_every_half_metre_and_yaw_step() -> None:
+    slam = configured()
+    for i in range(51):  # 5 m straight in 0.1 m steps
+        assert slam.add_odometry(Odometry(i * 0.1, pose_from(np.array([i * 0.1, 0, 1]), 0.0))) == (i % 5 == 0)
+    assert len(slam.keyposes()) == 11
+    assert slam.keyposes()[-1].distance == pytest.approx(5.0)
+    assert slam.add_odometry(Odometry(6.0, pose_from(np.array([5.0, 0, 1]), 0.5)))  # turn in place
+    np.testing.assert_allclose(slam.T_world_odom(), np.eye(4), atol=1e-9)  # no information to correct
+
+
+def chair_at(T_world_body: np.ndarray, p_world: np.ndarray, cls: str = "chair") -> Detection:
+    T_world_cam = T_world_body @ camera_mount()
+    c = T_world_cam[:3, :3].T @ (p_world - T_world_cam[:3, 3])
+    return Detection(cls, 0.9, c)
+
+
+def test_landmarks_need_min_observations_and_false_positives_never_enter() -> None:
+    slam = configured(min_observations=3, tentative_timeout=5)
+    chair = np.array([4.0, 0.5, 0.6])
+    ghost = np.array([3.0, -1.0, 0.5])
+    for i in range(12):
+        T = pose_from(np.array([i * 0.2, 0, 1]), 0.0)
+        slam.add_odometry(Odometry(i, T))
+        dets = [chair_at(T, chair)] + ([chair_at(T, ghost, "plant")] if i == 1 else [])
+        slam.add_detections(Odometry(i, T), camera_mount(), dets)
+        if i == 1:
+            assert slam.landmarks() == []  # two sightings: still tentative
+    lms = slam.landmarks()
+    assert [lm.class_name for lm in lms] == ["chair"]
+    assert lms[0].observations == 12
+    np.testing.assert_allclose(lms[0].position, chair, atol=1e-6)
+    assert lms[0].first_keypose == 0
+
+
+def test_nearby_objects_of_one_class_stay_apart() -> None:
+    slam = configured(association_gate=0.4)
+    chairs = [np.array([4.0, 0.0, 0.5]), np.array([4.0, 0.6, 0.5]), np.array([4.3, -0.6, 0.5])]
+    for i in range(6):
+        T = pose_from(np.array([i * 0.3, 0.05 * i, 1]), 0.02 * i)
+        slam.add_odometry(Odometry(i, T))
+        slam.add_detections(Odometry(i, T), camera_mount(), [chair_at(T, c) for c in chairs])
+    found = sorted(slam.landmarks(), key=lambda lm: lm.position[1])
+    assert len(found) == 3
+    for lm, c in zip(found, sorted(chairs, key=lambda c: c[1]), strict=True):
+        np.testing.assert_allclose(lm.position, c, atol=1e-6)
+
+
+def test_covariances_match_gtsam_marginals(looped) -> None:  # noqa: ANN001
+    slam, _ = looped
+    graph, values = slam.graph()
+    marginals = gtsam.Marginals(graph, values)
+    for lm in slam.landmarks()[:5]:
+        np.testing.assert_allclose(
+            lm.covariance, marginals.marginalCovariance(L(lm.id)), rtol=1e-6, atol=1e-12
+        )
+    kps = slam.keyposes()
+    expected = np.mean([np.trace(marginals.marginalCovariance(X(k.id))) for k in kps])
+    assert slam.uncertainty()[0] == pytest.approx(expected, rel=1e-6)
+
+
+@pytest.mark.parametrize("variables", ["all", "poses"])
+def test_information_gain_fast_equals_brute_force(variables: str) -> None:
+    slam, _ = drive_loop(3, slam=configured(ig_variables=variables))
+    graph, values = slam.graph()
+    before = np.array([values.atPose3(X(k.id)).matrix() for k in slam.keyposes()])
+    ids, dists = [0, 7, 20, 45, 80], [30.0, 25.0, 12.0, 6.0, 2.0]
+    fast = slam.information_gain(ids, dists)
+    over = [int(k) for k in values.keys()] if variables == "all" else [X(k.id) for k in slam.keyposes()]  # noqa: SIM118
+    brute = [
+        brute_force_information_gain(graph, values, slam.virtual_factor(i, d), over)
+        for i, d in zip(ids, dists, strict=True)
+    ]
+    np.testing.assert_allclose(fast, brute, rtol=1e-6)
+    assert np.all(fast > 0)
+    # The estimate is untouched by the virtual factors.
+    after = np.array([k.T_world_body for k in slam.keyposes()])
+    np.testing.assert_allclose(after, before, atol=1e-12)
+    # A longer virtual trip is a noisier factor: less gain.
+    assert slam.information_gain([0], [5.0])[0] > slam.information_gain([0], [50.0])[0]
+
+
+def test_slc_candidates_cluster_landmarks_and_pick_the_oldest_keypose(looped) -> None:  # noqa: ANN001
+    slam, _ = looped
+    cands = slam.slc_candidates(sensing_range=5.0)
+    assert cands
+    kps = {k.id: k for k in slam.keyposes()}
+    lms = {lm.id: lm for lm in slam.landmarks()}
+    for c in cands:
+        assert len(c.landmark_ids) >= 3
+        assert c.info_gain > 0
+        near = [
+            k.id
+            for k in kps.values()
+            if min(np.linalg.norm(k.T_world_body[:3, 3] - lms[i].position) for i in c.landmark_ids) <= 5.0
+        ]
+        assert c.keypose_id == min(near)
+        np.testing.assert_allclose(c.position, kps[c.keypose_id].T_world_body[:3, 3])
+        assert c.yaw == pytest.approx(yaw_of(kps[c.keypose_id].T_world_body))
+
+
+def test_no_loop_closure_without_old_landmarks() -> None:
+    slam = configured()
+    T = pose_from(np.array([0.0, 0, 1]), 0.0)
+    slam.add_odometry(Odometry(0, T))
+    dets = [chair_at(T, np.array([3.0, y, 0.5])) for y in (-1.0, 0.0, 1.2)]
+    res = slam.try_loop_closure(Odometry(0, T), camera_mount(), dets)
+    assert not res.accepted
+
+
+def test_semantic_loop_closure_removes_the_drift() -> None:
+    slam, world = drive_loop(0)
+    vio_before = np.linalg.norm(world.T_vio[:3, 3] - world.T_true[:3, 3])
+    assert vio_before > 1.0  # beyond the association gate: only SLC can close this loop
+    pose_tr, lm_tr = slam.uncertainty()
+    Tc = camera_mount()
+    for T in world.panorama():
+        world.move_to(T)
+        slam.add_odometry(world.odometry())
+        slam.add_detections(world.odometry(), Tc, world.detect())
+    res = slam.try_loop_closure(world.odometry(), Tc, [])
+    assert res.accepted, res.reason
+    assert res.matched >= 3
+    assert res.translation_correction > 0.5
+    T_slam = slam.current_pose()
+    slam_err = np.linalg.norm(T_slam[:3, 3] - world.T_true[:3, 3])
+    vio_err = np.linalg.norm(world.T_vio[:3, 3] - world.T_true[:3, 3])
+    assert slam_err < 0.2 * vio_err
+    yaw_err = abs(np.angle(np.exp(1j * (yaw_of(T_slam) - yaw_of(world.T_true)))))
+    assert yaw_err < 0.3 * abs(np.angle(np.exp(1j * (yaw_of(world.T_vio) - yaw_of(world.T_true)))))
+    # The correction propagates back: the pose and landmark uncertainty both drop.
+    pose_after, lm_after = slam.uncertainty()
+    assert pose_after < 0.7 * pose_tr
+    assert lm_after < lm_tr
+    # Duplicates made while drifting were fused: no two same-class landmarks within 0.4 m.
+    lms = slam.landmarks()
+    for a in lms:
+        for b in lms:
+            if a.id < b.id and a.class_name == b.class_name:
+                assert np.linalg.norm(a.position - b.position) > 0.4
