@@ -81,7 +81,7 @@ class SlcParams:
     pair_tolerance: float = 0.25
     exact_pairs: int = 100
     max_refinements: int = 30
-    preview: int = 12
+    preview: int = 8
     max_samples: int = 300
     confidence: float = 0.999
 
@@ -455,30 +455,35 @@ def _polish(
 ) -> _Candidate:
     """Single-pair swaps that lower the residual of eq. (2) at the same cardinality.
 
-    The Hungarian association minimises distances at a fixed transform; the rule ranks by the
-    residual after refitting, so try each unused A point of the right class near a matched B point.
+    The Hungarian association minimises distances at a fixed transform, while the acceptance rule
+    ranks by the residual after refitting; so every swap of one matched A point for an unused A
+    point of the same class near the B point is refitted (all swaps in one vectorised batch), and
+    the best improving swap is taken until none improves.
     """
     best = cand
-    improved = True
-    while improved:
-        improved = False
-        used = set(best.pairs[:, 0].tolist())
+    for _ in range(len(cand.pairs)):
         pb = B @ yaw_matrix(best.psi).T + best.t
-        for i, (a, b) in enumerate(best.pairs):
-            near = np.flatnonzero((ca == cb[b]) & (np.linalg.norm(A - pb[b], axis=1) <= 2.0 * p.inlier_gate))
-            for a2 in near:
-                if a2 == a or int(a2) in used:
-                    continue
-                pairs = best.pairs.copy()
-                pairs[i, 0] = a2
-                psi, t, res = align_yaw(A[pairs[:, 0]], B[pairs[:, 1]])
-                err = np.linalg.norm(A[pairs[:, 0]] - (B[pairs[:, 1]] @ yaw_matrix(psi).T + t), axis=1)
-                if res < best.residual - 1e-12 and res <= p.tolerance**2 and np.all(err <= p.inlier_gate):
-                    best = _Candidate(pairs, psi, t, res)
-                    improved = True
-                    break
-            if improved:
-                break
+        used = np.zeros(len(A), dtype=bool)
+        used[best.pairs[:, 0]] = True
+        rows, alts = [], []
+        for i, (_, b) in enumerate(best.pairs):
+            near = np.flatnonzero(
+                (ca == cb[b]) & ~used & (np.linalg.norm(A - pb[b], axis=1) <= 2.0 * p.inlier_gate)
+            )
+            rows.extend([i] * len(near))
+            alts.extend(near.tolist())
+        if not rows:
+            break
+        swaps = np.broadcast_to(best.pairs, (len(rows), *best.pairs.shape)).copy()
+        swaps[np.arange(len(rows)), rows, 0] = alts
+        pa, pbb = A[swaps[..., 0]], B[swaps[..., 1]]
+        psi, t, res = _align_batch(pa, pbb)
+        err = _pair_errors(pa, pbb, psi, t)
+        ok = (res < best.residual - 1e-12) & (res <= p.tolerance**2) & np.all(err <= p.inlier_gate, axis=1)
+        if not ok.any():
+            break
+        j = int(np.flatnonzero(ok)[np.argmin(res[ok])])
+        best = _Candidate(swaps[j], float(psi[j]), t[j], float(res[j]))
     return best
 
 
@@ -553,7 +558,7 @@ def solve_scalable(
     hyps_n: list[np.ndarray] = []
     best_count = 0
     needed = len(sample_order)
-    batch = 16
+    batch = 24  # B pairs per round; 24 suffice at 50 % inliers (adaptive rule below)
     done = 0
     while done < min(needed, len(sample_order)):
         sel = sample_order[done : done + batch]
