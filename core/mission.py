@@ -96,6 +96,9 @@ class ExplorationSection(_Strict):
     slc: bool = Field(False, description="actively seek semantic loop closures (paper 1 §VI-C, D)")
     slc_sensing_range: float = Field(4.0, gt=0, description="range within which a landmark counts as seen, m")
     panorama_steps: int = Field(8, ge=3, description="headings of the panorama at an SLC viewpoint")
+    viewpoint_period: float = Field(
+        1.0, gt=0, description="refresh frontier viewpoints at most this often, s (they feed replanning)"
+    )
     trajectory_rate_hz: float = Field(10.0, gt=0, description="rate of the trajectory files")
     uncertainty_period: float = Field(5.0, gt=0, description="period of covariance-trace samples, s")
 

@@ -33,14 +33,21 @@ def summarise(value: Any) -> Any:
     return str(value)
 
 
+def _preorder(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
+    """Root first, children in order (``iterate()`` yields children before their parents)."""
+    out = [node]
+    for child in node.children:
+        out += _preorder(child)
+    return out
+
+
 class TreeRecorder:
     """Writes the tree's structure once, then its changes after every tick."""
 
     def __init__(self, tree: py_trees.trees.BehaviourTree, rundir: RunDir):
         self.tree = tree
         self.rundir = rundir
-        self.nodes = list(tree.root.iterate(direct_descendants=False))
-        self.nodes.reverse()  # iterate() yields children before parents; list root first
+        self.nodes = _preorder(tree.root)
         self.ids = {node.id: i for i, node in enumerate(self.nodes)}
         self.last_nodes: dict[int, list] = {}
         self.last_bb: dict[str, Any] = {}

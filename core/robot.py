@@ -43,6 +43,7 @@ class Robot:
     hooks: Callable[..., None] = lambda name, **kwargs: None  # observer hooks, errors contained
     distance: float = 0.0
     home_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cruise_z: float = 1.0  # world z the take-off settled at; the return-home height
     viewpoints: list[Viewpoint] = field(default_factory=list)
     unreachable: list[np.ndarray] = field(default_factory=list)
     recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)

@@ -55,9 +55,9 @@ class RunDir:
 
     # -- streams ------------------------------------------------------------------------------
 
-    def event(self, t: float, name: str, **fields: Any) -> None:
-        """Append one event to ``events.jsonl``."""
-        record = {"t": round(float(t), 4), "event": name, **fields}
+    def event(self, t: float, name: str, /, **fields: Any) -> None:
+        """Append one event to ``events.jsonl`` (the run's clock ``t`` wins over a field of that name)."""
+        record = {"t": round(float(t), 4), "event": name, **{k: v for k, v in fields.items() if k != "t"}}
         self._events.write(json.dumps(_jsonable(record)) + "\n")
         self._events.flush()
 

@@ -159,6 +159,7 @@ class Runner:
         dt = 1.0 / ex.control_rate_hz
         detect_period = 1.0 / max(getattr(detector, "rate_hz", 2.0), 1e-6)
         next_detect = 0.0
+        next_viewpoints = 0.0
         next_traj = 0.0
         next_sample = 0.0
         hard_stop = model.limits.max_time * 1.5 + 300.0
@@ -183,7 +184,9 @@ class Runner:
                     mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
                     T_world_cam = slam.T_world_odom() @ frame.T_odom_cam
                     mapping.integrate_global(frame.depth, frame.K, T_world_cam)
-                    self.robot.viewpoints = mapping.viewpoints()
+                    if frame.stamp >= next_viewpoints:
+                        next_viewpoints = frame.stamp + ex.viewpoint_period
+                        self.robot.viewpoints = mapping.viewpoints()
                     if frame.stamp >= next_detect:
                         next_detect = frame.stamp + detect_period
                         detections = detector.detect(frame)

@@ -45,16 +45,20 @@ class RobotBehaviour(py_trees.behaviour.Behaviour):
 
 
 class TakeOff(RobotBehaviour):
-    """Arm and climb to the mission altitude (idempotent)."""
+    """Arm and climb to the mission altitude (idempotent); SUCCESS once the climb has settled."""
 
     def initialise(self) -> None:
         self.robot.takeoff()
+        self.last_z = self.robot.odometry().T_odom_body[2, 3]
         self.feedback_message = "climbing"
 
     def update(self) -> Status:
         z = self.robot.odometry().T_odom_body[2, 3]
-        target = self.robot.home_world[2] + self.robot.spec.altitude
-        if self.robot.airborne() and abs(z - target) < self.robot.exploration.goal_tolerance:
+        rising, self.last_z = z - self.last_z, z
+        climbed = z - self.robot.home_world[2]
+        # The platform owns the meaning of "altitude" (PX4: above home); settle on its answer.
+        if self.robot.airborne() and climbed > 0.5 * self.robot.spec.altitude and abs(rising) < 1e-3:
+            self.robot.cruise_z = z
             self.feedback_message = f"at {z:.2f} m"
             return Status.SUCCESS
         return Status.RUNNING
@@ -314,7 +318,7 @@ class SetHome(RobotBehaviour):
         self.bb.register_key("/home", access=Access.WRITE)
 
     def update(self) -> Status:
-        home = self.robot.home_world + np.array([0.0, 0.0, self.robot.spec.altitude])
+        home = np.array([*self.robot.home_world[:2], self.robot.cruise_z])
         self.bb.set("/home", TourItem(TourItemKind.EXPLORE, home, self.robot.yaw_world(), 0.0, -1))
         return Status.SUCCESS
 
