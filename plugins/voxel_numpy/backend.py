@@ -103,6 +103,13 @@ class VoxelMapParams(BackendParams):
     min_gain: float = Field(
         0.5, ge=0, description="Viewpoints expecting to see less unknown volume (m³) than this are dropped."
     )
+    viewpoint_resample_ratio: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="A kept viewpoint whose re-checked gain falls below this fraction of its gain when "
+        "sampled is sampled again.",
+    )
     snap_radius: float = Field(
         0.6,
         ge=0,
@@ -173,7 +180,7 @@ class VoxelMapBase(Mapping):
             self.area = BoundingBox(np.asarray(context.world.bounds_lo), np.asarray(context.world.bounds_hi))
         else:
             self.area = BoundingBox(np.array(p.default_area[0]), np.array(p.default_area[1]))
-        self.robot_radius = float(context.robot.radius)
+        self.robot_radius = float(context.robot.planning_radius)
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)
@@ -201,6 +208,7 @@ class VoxelMapBase(Mapping):
                 n_rays_azimuth=p.gain_rays_azimuth,
                 n_rays_elevation=p.gain_rays_elevation,
                 min_gain=p.min_gain,
+                resample_ratio=p.viewpoint_resample_ratio,
             )
         )
         self._pending = BoundingBox.nothing()
