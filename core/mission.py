@@ -50,6 +50,9 @@ class RobotSection(_Strict):
     max_acceleration: float = Field(1.5, gt=0, description="acceleration limit, m/s²")
     max_yaw_rate: float = Field(1.0, gt=0, description="yaw rate limit, rad/s")
     altitude: float = Field(1.2, gt=0, description="take-off height above the start, m")
+    clearance: float = Field(
+        0.15, ge=0, description="extra distance planned paths keep from obstacles (tracking error), m"
+    )
 
     def spec(self) -> RobotSpec:
         return RobotSpec(**self.model_dump())

@@ -46,6 +46,8 @@ class Robot:
     cruise_z: float = 1.0  # world z the take-off settled at; the return-home height
     viewpoints: list[Viewpoint] = field(default_factory=list)
     unreachable: list[np.ndarray] = field(default_factory=list)
+    visited: list[np.ndarray] = field(default_factory=list)
+    viewpoints_stale: bool = False  # ask the runner to refresh viewpoints at the next frame
     recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
     slc_results: list[LoopClosureResult] = field(default_factory=list)
 
@@ -116,6 +118,12 @@ class Robot:
 
     def mark_unreachable(self, position: np.ndarray) -> None:
         self.unreachable.append(np.asarray(position, float))
+        self.viewpoints_stale = True
+
+    def mark_visited(self, position: np.ndarray) -> None:
+        """We looked from here: a viewpoint resampled to the same place cannot show more."""
+        self.visited.append(np.asarray(position, float))
+        self.viewpoints_stale = True
 
     def candidate_viewpoints(self) -> list[Viewpoint]:
         """Viewpoints worth visiting: enough gain, not known to be unreachable."""
@@ -124,6 +132,8 @@ class Robot:
             if vp.gain < self.exploration.min_viewpoint_gain:
                 continue
             if any(np.linalg.norm(vp.position - u) < 0.75 for u in self.unreachable):
+                continue
+            if any(np.linalg.norm(vp.position - u) < 0.5 for u in self.visited):
                 continue
             out.append(vp)
         return out

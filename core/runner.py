@@ -184,7 +184,8 @@ class Runner:
                     mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
                     T_world_cam = slam.T_world_odom() @ frame.T_odom_cam
                     mapping.integrate_global(frame.depth, frame.K, T_world_cam)
-                    if frame.stamp >= next_viewpoints:
+                    if frame.stamp >= next_viewpoints or self.robot.viewpoints_stale:
+                        self.robot.viewpoints_stale = False
                         next_viewpoints = frame.stamp + ex.viewpoint_period
                         self.robot.viewpoints = mapping.viewpoints()
                     if frame.stamp >= next_detect:

@@ -270,6 +270,12 @@ class RobotSpec:
     max_acceleration: float = 1.5
     max_yaw_rate: float = 1.0
     altitude: float = 1.2  # take-off height above the start, metres
+    clearance: float = 0.15  # extra distance paths keep from obstacles, metres
+
+    @property
+    def planning_radius(self) -> float:
+        """The radius paths are planned with: the robot plus a margin for tracking error."""
+        return self.radius + self.clearance
 
 
 @dataclass(frozen=True)

@@ -176,11 +176,24 @@ class GoTo(RobotBehaviour):
         self.index = 1 if self.path is not None and len(self.path) > 1 else 0
         self.blocked = 0
 
+    #: how far ahead along the path the fresh local map is checked, m
+    LOOKAHEAD = 1.5
+
+    def _done(self, why: str) -> Status:
+        self.bb.set("/unreachable", 0)
+        self.feedback_message = why
+        self.robot.emit(
+            "goal_done", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
+        )
+        return Status.SUCCESS
+
     def _fail(self, why: str) -> Status:
         self.robot.mark_unreachable(self.goal.position)
         count = self.bb.get("/unreachable") + 1
         self.bb.set("/unreachable", count)
-        self.robot.emit("unreachable", goal=np.round(self.goal.position, 2).tolist(), why=why)
+        self.robot.emit(
+            "unreachable", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
+        )
         self.robot.hold()
         self.feedback_message = why
         return Status.FAILURE
@@ -192,13 +205,9 @@ class GoTo(RobotBehaviour):
         exploration = self.robot.exploration
         if self.early_exit and self.goal.kind == TourItemKind.EXPLORE:
             if not any(vp.id == self.goal.ref for vp in self.robot.candidate_viewpoints()):
-                self.feedback_message = "frontier seen on the way"
-                self.bb.set("/unreachable", 0)
-                return Status.SUCCESS
+                return self._done("frontier seen on the way")
             if self.robot.time() - self.bb.get("/tour_time") > exploration.replan_period:
-                self.feedback_message = "tour stale: replan"
-                self.bb.set("/unreachable", 0)
-                return Status.SUCCESS
+                return self._done("tour stale: replan")
         while (
             self.index < len(self.path) - 1
             and np.linalg.norm(self.path[self.index] - here) < exploration.goal_tolerance
@@ -212,15 +221,16 @@ class GoTo(RobotBehaviour):
             err = abs(wrap_angle(self.goal.yaw - self.robot.yaw_world()))
             self.robot.send_setpoint_world(target, self.goal.yaw)
             if err < exploration.yaw_tolerance:
-                self.bb.set("/unreachable", 0)
-                self.feedback_message = "arrived"
-                return Status.SUCCESS
+                if self.goal.kind == TourItemKind.EXPLORE:
+                    self.robot.mark_visited(self.goal.position)
+                return self._done("arrived")
             self.feedback_message = "turning to the viewpoint heading"
             return Status.RUNNING
-        if not self.robot.segment_clear_local(here, target):
+        ahead = here + to_target * min(1.0, self.LOOKAHEAD / max(float(np.linalg.norm(to_target)), 1e-9))
+        if not self.robot.segment_clear_local(here, ahead):
             self.blocked += 1
             if self.blocked > 2:
-                return self._fail("the local map shows the way blocked")
+                return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")
             self.path = self.robot.plan_path(self.goal.position)
             self.index = 1 if self.path is not None and len(self.path) > 1 else 0
             self.feedback_message = "blocked: new path"
