@@ -265,13 +265,11 @@ class SimPlatform(Platform):
         self._yaw = wrap_angle(self._yaw + dyaw)
         self._vio.step(dp_true, dyaw, self._yaw, p.vio, self._vio_rng)
 
-        if self._landing:
-            ground = w.ground_below(self._p)
-            if self._p[2] - ground <= self._landed_height + 0.02:
-                self._armed = self._airborne = self._landing = False
-                self._vel[:] = 0.0
-                self.context.emit("sim_landed", t=self._t, position=self._p.round(3).tolist())
-                return
+        if self._landing and self._p[2] - self._land_ground <= self._landed_height + 0.02:
+            self._armed = self._airborne = self._landing = False
+            self._vel[:] = 0.0
+            self.context.emit("sim_landed", t=self._t, position=self._p.round(3).tolist())
+            return
         # --- collision: the robot's sphere touching any geometry
         if w.distance(self._p)[0] < r.radius:
             d, q, what = w.closest(self._p)
@@ -333,8 +331,9 @@ class SimPlatform(Platform):
         if not self._airborne or self._landing:
             return
         self._landing = True
-        ground = self.world.ground_below(self._p)
-        drop = self._p[2] - (ground + self._landed_height) + 0.05  # aim slightly below touchdown
+        # the descent is vertical: the surface below is found once, not at every sub-step
+        self._land_ground = self.world.ground_below(self._p)
+        drop = self._p[2] - (self._land_ground + self._landed_height) + 0.05  # aim just below touchdown
         self._sp = self._vio.position - np.array([0.0, 0.0, drop])
         self._sp_yaw = self._vio.yaw
 
