@@ -213,9 +213,8 @@ def exact_gain(source: StateSource, cfg: FrontierConfig, position: np.ndarray, y
     crosses no occupied voxel (sampled every tenth of a voxel). Slow; for checking :class:`RayFan`.
     """
     v = cfg.voxel
-    tracker = FrontierTracker(cfg)
     p_idx = np.floor(np.asarray(position, float) / v).astype(np.int64)
-    block = tracker._fetch_block(source, p_idx[None])
+    block = FrontierTracker(cfg)._fetch_block(source, p_idx[None])
     origin = (p_idx + 0.5) * v
     st = block.flat.reshape(block.shape)
     cand = np.argwhere(st == UNKNOWN) + block.lo
@@ -323,8 +322,7 @@ class FrontierTracker:
                     self.stats["reused"] += 1
                 else:
                     fresh.append(self._new_cluster(part))
-        resample = self._refresh_viewpoints(source, lo, hi)
-        self._sample_viewpoints(source, fresh + resample)
+        self._update_viewpoints(source, fresh, lo, hi)
 
     def recompute(self, source: StateSource) -> None:
         """Forget everything and detect frontiers and clusters over the whole area."""
@@ -353,8 +351,8 @@ class FrontierTracker:
         if len(pts) < 2:
             return [keys]
         centred = pts - pts.mean(axis=0)
-        _, _, vt = np.linalg.svd(centred, full_matrices=False)
-        proj = centred @ vt[0]
+        _, vecs = np.linalg.eigh(centred.T @ centred)  # principal axis: largest eigenvalue, last
+        proj = centred @ vecs[:, -1]
         if proj.max() - proj.min() <= self.cfg.max_extent:
             return [keys]
         side = proj > 0
@@ -414,60 +412,66 @@ class FrontierTracker:
             out[inside] = np.all(block.flat[base[:, None] + kern[None, :]] == FREE, axis=1)
         return out
 
-    def _refresh_viewpoints(self, source: StateSource, lo: np.ndarray, hi: np.ndarray) -> list[Cluster]:
-        """Re-check kept viewpoints that can see into the touched box; return those to resample.
+    def _candidates(self, c: Cluster) -> np.ndarray:
+        """Voxel indices (N×3, distinct) of the candidate positions around a cluster's centroid."""
+        v = self.cfg.voxel
+        return decode(np.unique(encode(np.floor((c.centroid + self._rings) / v).astype(np.int64))))
 
-        A viewpoint stays where it is (best yaw re-chosen, gain updated) unless it lost its clearance
-        or its gain fell below ``resample_ratio`` of its sampled gain or below ``min_gain``.
+    def _update_viewpoints(
+        self, source: StateSource, fresh: list[Cluster], lo: np.ndarray, hi: np.ndarray
+    ) -> None:
+        """Sample viewpoints of new clusters and re-check kept ones that can see into ``[lo, hi)``.
+
+        A kept viewpoint within sensing range of the box stays where it is (best yaw re-chosen, gain
+        updated) unless it lost its clearance or its gain fell below ``resample_ratio`` of its sampled
+        gain or below ``min_gain``; then its cluster is sampled again. All positions are evaluated
+        against one state block read from the map.
         """
-        v, cfg = self.cfg.voxel, self.cfg
-        reach = cfg.sensing_range + v
+        cfg, v = self.cfg, self.cfg.voxel
         blo, bhi = lo * v, hi * v
         near = []
         for c in self.clusters.values():
             p = c.viewpoint.position
-            gap = np.maximum(np.maximum(blo - p, p - bhi), 0.0)
-            if np.linalg.norm(gap) <= reach:
+            if np.linalg.norm(np.maximum(np.maximum(blo - p, p - bhi), 0.0)) <= cfg.sensing_range + v:
                 near.append(c)
-        if not near:
-            return []
-        self.stats["refreshed"] += len(near)
-        index = np.floor(np.array([c.viewpoint.position for c in near]) / v).astype(np.int64)
-        block = self._fetch_block(source, index)
-        safe = self._safe(block, index)
-        gains = np.zeros((len(near), len(self.fan.yaw_share)))
-        if safe.any():
-            gains[safe] = self.fan.gains(block, block.flat_index(index[safe]))
-        yaws = self._yaws()
+        cands = [self._candidates(c) for c in fresh + near]
+        if not cands:
+            return
+        here = np.floor(np.array([c.viewpoint.position for c in near]) / v).astype(np.int64).reshape(-1, 3)
+        block = self._fetch_block(source, np.concatenate([here, *cands]))
         resample = []
-        for c, ok, g in zip(near, safe, gains, strict=True):
-            best = int(np.argmax(g))
-            if not ok or g[best] < max(cfg.resample_ratio * c.sampled_gain, cfg.min_gain):
-                del self.clusters[c.id]
-                resample.append(c)
-            else:
-                c.viewpoint = self._make_viewpoint(c, c.viewpoint.position, yaws[best], g[best])
-        return resample
+        if near:
+            self.stats["refreshed"] += len(near)
+            safe = self._safe(block, here)
+            gains = np.zeros((len(near), len(self.fan.yaw_share)))
+            if safe.any():
+                gains[safe] = self.fan.gains(block, block.flat_index(here[safe]))
+            yaws = self._yaws()
+            for c, ok, g in zip(near, safe, gains, strict=True):
+                best = int(np.argmax(g))
+                if not ok or g[best] < max(cfg.resample_ratio * c.sampled_gain, cfg.min_gain):
+                    del self.clusters[c.id]
+                    resample.append(c)
+                else:
+                    c.viewpoint = self._make_viewpoint(c, c.viewpoint.position, yaws[best], g[best])
+        todo = fresh + resample
+        at = {id(c): i for i, c in enumerate(fresh + near)}
+        self._sample_viewpoints(block, todo, [cands[at[id(c)]] for c in todo])
 
-    def _sample_viewpoints(self, source: StateSource, clusters: list[Cluster]) -> None:
-        """Sample the viewpoint of each cluster, all candidates in one batch; keep those with one."""
+    def _sample_viewpoints(self, block: _Block, clusters: list[Cluster], cands: list[np.ndarray]) -> None:
+        """Pick each cluster's best (candidate, yaw), all candidates in one batch; keep those with one."""
         if not clusters:
             return
         self.stats["sampled"] += len(clusters)
         v = self.cfg.voxel
-        cand, owner = [], []
-        for i, c in enumerate(clusters):
-            keys = np.unique(encode(np.floor((c.centroid + self._rings) / v).astype(np.int64)))
-            cand.append(decode(keys))
-            owner.append(np.full(len(keys), i))
-        index, owner = np.concatenate(cand), np.concatenate(owner)
-        block = self._fetch_block(source, index)
+        owner = np.concatenate([np.full(len(k), i) for i, k in enumerate(cands)])
+        index = np.concatenate(cands)
         safe = self._safe(block, index)
         index, owner = index[safe], owner[safe]
         gains = self.fan.gains(block, block.flat_index(index)) if len(index) else np.zeros((0, 1))
         yaws = self._yaws()
-        best_p = np.argmax(gains, axis=1) if len(index) else np.zeros(0, np.int64)
-        best_g = gains[np.arange(len(index)), best_p] if len(index) else np.zeros(0)
+        best_p = np.argmax(gains, axis=1)
+        best_g = gains[np.arange(len(index)), best_p]
         for i, c in enumerate(clusters):
             rows = np.nonzero(owner == i)[0]
             if len(rows) == 0:
@@ -489,6 +493,12 @@ class FrontierTracker:
             cluster_centroid=c.centroid.copy(),
             cluster_size=len(c.keys),
         )
+
+    def yaw_gains(self, source: StateSource, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate yaws (Y,) and the P×Y ray-fan gain (m³) from the voxel centres of ``positions``."""
+        index = np.floor(np.asarray(positions, float).reshape(-1, 3) / self.cfg.voxel).astype(np.int64)
+        block = self._fetch_block(source, index)
+        return self._yaws(), self.fan.gains(block, block.flat_index(index))
 
     def viewpoints(self) -> list[Viewpoint]:
         """Current viewpoints, ordered by cluster id."""
