@@ -82,7 +82,7 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
             metrics["landmarks"]["objects_in_world"] = dict(world.objects_by_class)
         metrics["keyposes"] = len(slam.keyposes())
         series = runner.samples["uncertainty"]
-        if series:
+        if any(p or q for _, _, p, q in series):  # a backend without covariances reports zeros
             metrics["uncertainty"] = {
                 "final_mean_pose_trace": series[-1][2],
                 "final_mean_landmark_trace": series[-1][3],
@@ -153,7 +153,8 @@ def plot_top_view(runner: Runner, world: WorldSummary | None) -> str | None:
         for traj, colour, label in ((truth, "tab:green", "ground truth"), (vio, "tab:red", "VIO")):
             sel = (traj[:, 2] >= lo) & (traj[:, 2] < hi)
             if sel.any():
-                ax.plot(traj[sel, 0], traj[sel, 1], ".", ms=1.0, color=colour, label=label)
+                ax.plot(traj[sel, 0], traj[sel, 1], ".", ms=1.0, color=colour)
+                ax.plot([], [], "-", color=colour, label=label)  # a legend entry people can see
         lms = [lm for lm in landmarks if lo <= lm.position[2] < hi]
         if lms:
             pos = np.array([lm.position for lm in lms])
@@ -163,7 +164,7 @@ def plot_top_view(runner: Runner, world: WorldSummary | None) -> str | None:
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-        ax.legend(loc="upper right", fontsize=7, markerscale=4)
+        ax.legend(loc="upper right", fontsize=7)
     fig.suptitle(f"{runner.mission.name}: map and trajectory (top view)")
     fig.tight_layout()
     path = runner.rundir.path / "top_view.png"

@@ -178,6 +178,9 @@ class GoTo(RobotBehaviour):
 
     #: how far ahead along the path the fresh local map is checked, m
     LOOKAHEAD = 1.5
+    SKIP_NEAR = 0.3
+    #: a viewpoint this close to the goal (m) means the goal's frontier is still there
+    SAME_GOAL = 1.0
 
     def _done(self, why: str) -> Status:
         self.bb.set("/unreachable", 0)
@@ -204,7 +207,10 @@ class GoTo(RobotBehaviour):
         here = self.robot.position_world()
         exploration = self.robot.exploration
         if self.early_exit and self.goal.kind == TourItemKind.EXPLORE:
-            if not any(vp.id == self.goal.ref for vp in self.robot.candidate_viewpoints()):
+            # Clusters are re-made as the map grows, so their ids change; the goal is still
+            # worth reaching while some viewpoint remains near it.
+            remaining = self.robot.candidate_viewpoints()
+            if not any(np.linalg.norm(vp.position - self.goal.position) < self.SAME_GOAL for vp in remaining):
                 return self._done("frontier seen on the way")
             if self.robot.time() - self.bb.get("/tour_time") > exploration.replan_period:
                 return self._done("tour stale: replan")
@@ -226,8 +232,12 @@ class GoTo(RobotBehaviour):
                 return self._done("arrived")
             self.feedback_message = "turning to the viewpoint heading"
             return Status.RUNNING
-        ahead = here + to_target * min(1.0, self.LOOKAHEAD / max(float(np.linalg.norm(to_target)), 1e-9))
-        if not self.robot.segment_clear_local(here, ahead):
+        length = max(float(np.linalg.norm(to_target)), 1e-9)
+        ahead = here + to_target * min(1.0, self.LOOKAHEAD / length)
+        # Skip the first stretch: what is already within it cannot be avoided by stopping, and a
+        # robot hovering near furniture must still be able to fly away from it.
+        near = here + to_target * min(1.0, self.SKIP_NEAR / length)
+        if length > self.SKIP_NEAR and not self.robot.segment_clear_local(near, ahead):
             self.blocked += 1
             if self.blocked > 2:
                 return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")

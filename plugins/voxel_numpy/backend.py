@@ -157,6 +157,7 @@ class VoxelMapBase(Mapping):
         self.frontiers: FrontierTracker | None = None
         self.area = BoundingBox.nothing()
         self.robot_radius = 0.25
+        self.segment_radius = 0.25
         self._pending = BoundingBox.nothing()  # global updates not yet seen by the frontier tracker
         self._version = 0
         self._graph: tuple[int, FreeSpaceGraph] | None = None
@@ -180,7 +181,11 @@ class VoxelMapBase(Mapping):
             self.area = BoundingBox(np.asarray(context.world.bounds_lo), np.asarray(context.world.bounds_hi))
         else:
             self.area = BoundingBox(np.array(p.default_area[0]), np.array(p.default_area[1]))
-        self.robot_radius = float(context.robot.planning_radius)
+        # The coarse graph keeps the robot radius from occupied voxel *boxes* (already conservative
+        # by up to a voxel); straight segments — shortcuts and the local look-ahead — keep the
+        # radius plus the clearance margin, so a 1.2 m door stays passable at 0.25 m voxels.
+        self.robot_radius = float(context.robot.radius)
+        self.segment_radius = float(context.robot.planning_radius)
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)
@@ -327,7 +332,10 @@ class VoxelMapBase(Mapping):
         self._require()
         store = self.local_map if local else self.global_map
         samples = segment_samples(a, b, 0.5 * store.voxel)
-        return samples_clear(samples, self.robot_radius, store.voxel, store.states_at_index)
+        # The local check guards against collision (the robot radius); global segments are
+        # planning shortcuts and keep the clearance margin as well.
+        radius = self.robot_radius if local else self.segment_radius
+        return samples_clear(samples, radius, store.voxel, store.states_at_index)
 
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""
