@@ -148,8 +148,10 @@ def mission_table(mission: str) -> None:
             wall = time.perf_counter() - t0
     finally:
         SimPlatform.advance, SimPlatform.capture = orig_adv, orig_cap
-    sim = float(result.metrics.get("sim_duration", result.metrics.get("duration", float("nan"))))
-    print(f"mission {m.name!r}: verdict {result.verdict!r}")
+    mt = result.metrics
+    sim = float(mt.get("sim_duration_s", float("nan")))
+    dist, explored = mt.get("distance_m", float("nan")), mt.get("explored_percent", float("nan"))
+    print(f"mission {m.name!r}: verdict {result.verdict!r}, distance {dist:.0f} m, explored {explored} %")
     head = ("simulated s", "wall s", "real-time factor", "frames", "platform share")
     print(f"{head[0]:>12} | {head[1]:>7} | {head[2]:>16} | {head[3]:>6} | {head[4]:>14}")
     print("-" * 70)
