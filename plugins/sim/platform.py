@@ -126,8 +126,8 @@ class SimPlatform(Platform):
         else:
             xy = self._open_spot(self._world, spec)
         self._ground_z = spec.start_floor_z
-        if p.start is not None:
-            g = self._world.ground_below(np.array([xy[0], xy[1], spec.bounds_hi[2] - 1e-3 - 0.5]))
+        if p.start is not None:  # the ground under the given point, on the lowest floor
+            g = self._world.ground_below(np.array([xy[0], xy[1], spec.floor_heights[0] + 1.0]))
             if np.isfinite(g):
                 self._ground_z = g
         yaw = float(p.start_yaw if p.start_yaw is not None else spec.start_yaw)
@@ -153,11 +153,15 @@ class SimPlatform(Platform):
         self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
         self._check_due_frame()
         self._frames_rendered = 0
-        d, _, what = self._world.closest(self._hover_point())
-        if d <= self.robot.radius:
+        # the take-off column must be free: from just above the landed pose up to the hover point
+        column = np.linspace(pos + [0, 0, 0.1], self._hover_point(), 20)
+        clear = self._world.distance(column)
+        if clear.min() <= self.robot.radius:
+            q = column[int(np.argmin(clear))]
+            d, _, what = self._world.closest(q)
             raise PlatformError(
-                f"start {np.round(self._hover_point(), 2).tolist()} is {d:.2f} m from {what}, "
-                f"closer than the robot radius {self.robot.radius} m"
+                f"no room to take off at the start {np.round(pos[:2], 2).tolist()}: at height {q[2]:.2f} m"
+                f" it is {d:.2f} m from {what}, closer than the robot radius ({self.robot.radius} m)"
             )
 
     def use_world(self, spec: WorldSpec) -> None:

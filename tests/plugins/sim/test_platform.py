@@ -188,3 +188,14 @@ def test_procedural_building_summary_is_sensible(tmp_path):
         assert 0 < p[0] < W and 0 < p[1] < D
     assert np.all(s.reachable_points >= s.bounds_lo) and np.all(s.reachable_points <= s.bounds_hi)
     assert plat.world_summary() is s  # cached
+
+
+def test_start_parameter_and_blocked_start(tmp_path, room_with_chair):
+    from amslam.errors import PlatformError
+
+    plat = make_platform(tmp_path, spec=room_with_chair, start=(7.0, 2.0), start_yaw=1.0)
+    T = plat.ground_truth()
+    np.testing.assert_allclose(T[:3, 3], [7.0, 2.0, 0.25 + 0.05])
+    assert abs(np.arctan2(T[1, 0], T[0, 0]) - 1.0) < 1e-12
+    with pytest.raises(PlatformError, match="no room to take off.*chair_1"):
+        make_platform(tmp_path, spec=room_with_chair, start=(5.0, 4.3))  # beside the chair
