@@ -27,7 +27,7 @@ import numpy as np
 
 from amslam.interfaces import RunContext
 from amslam.plugins.sim import SimPlatform
-from amslam.plugins.sim.camera import CameraParams, Renderer
+from amslam.plugins.sim.camera import CameraParams, Renderer, viewing_pose
 
 
 def _best_ms(fn, repeats: int) -> float:
@@ -63,7 +63,7 @@ def rendering_table(repeats: int) -> None:
         full = CameraParams(width=w, height=h)
         nrgb = CameraParams(width=w, height=h, rgb=False)
         r_full, r_nrgb = Renderer(full.model(), full), Renderer(nrgb.model(), nrgb)
-        T_wc = _looking_at(obj.centroid, full.model().T_body_cam, world)
+        T_wc = viewing_pose(world, obj.centroid, full.model().T_body_cam)
         rng = np.random.default_rng(0)
         rays = r_full.rays(T_wc)
         import open3d as o3d
@@ -76,23 +76,6 @@ def rendering_table(repeats: int) -> None:
         ratio = ms_full / ms_cast
         print(f"{w:>5}×{h:<5} | {ms_full:>10.1f} | {ms_nrgb:>8.1f} | {ms_cast:>9.1f} | {ratio:>15.1f}×")
     print()
-
-
-def _looking_at(target: np.ndarray, T_body_cam: np.ndarray, world) -> np.ndarray:
-    """A camera pose 2.5 m from the target, at 1.2 m height, in free space, facing it."""
-    best = None
-    for a in np.linspace(-np.pi, np.pi, 24, endpoint=False):
-        p = target[:2] + 2.5 * np.array([np.cos(a), np.sin(a)])
-        pos = np.array([p[0], p[1], 1.2])
-        d = world.distance(pos)[0]
-        if best is None or d > best[0]:
-            best = (d, pos, a + np.pi)
-    _, pos, yaw = best
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-    T[:3, 3] = pos
-    return T @ T_body_cam
 
 
 def vehicle_table() -> None:

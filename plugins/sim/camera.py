@@ -169,3 +169,26 @@ class Renderer:
             off = int(rng.integers(0, m))
             img += self._rgb_noise[off : off + m].reshape(img.shape)
         return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def viewing_pose(
+    world: World, target: np.ndarray, T_body_cam: np.ndarray, distance: float = 2.5, height: float = 1.2
+) -> np.ndarray:
+    """``T_world_cam`` of a level body ``distance`` from ``target`` at ``height``, facing it.
+
+    Of 24 headings around the target, the one whose body position is farthest from any geometry.
+    Handy for benchmarks, tests and scripted views.
+    """
+    best: tuple[float, np.ndarray, float] | None = None
+    for a in np.linspace(-np.pi, np.pi, 24, endpoint=False):
+        pos = np.array([target[0] + distance * np.cos(a), target[1] + distance * np.sin(a), height])
+        d = float(world.distance(pos)[0])
+        if best is None or d > best[0]:
+            best = (d, pos, a + np.pi)
+    assert best is not None
+    _, pos, yaw = best
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = pos
+    return T @ T_body_cam
