@@ -214,10 +214,14 @@ def exact_gain(source: StateSource, cfg: FrontierConfig, position: np.ndarray, y
     """
     v = cfg.voxel
     p_idx = np.floor(np.asarray(position, float) / v).astype(np.int64)
-    block = FrontierTracker(cfg)._fetch_block(source, p_idx[None])
+    tracker = FrontierTracker(cfg)
+    tracker.sync(source)
+    block, reach = tracker.block, tracker._reach
     origin = (p_idx + 0.5) * v
     st = block.flat.reshape(block.shape)
-    cand = np.argwhere(st == UNKNOWN) + block.lo
+    wlo = p_idx - reach - block.lo
+    window = st[tuple(slice(int(a), int(a) + 2 * reach + 1) for a in wlo)]
+    cand = np.argwhere(window == UNKNOWN) + p_idx - reach
     vec = centres(cand, v) - origin
     rng = np.linalg.norm(vec, axis=1)
     with np.errstate(invalid="ignore"):
@@ -258,24 +262,54 @@ class FrontierTracker:
         Rr, A, H = np.meshgrid(np.asarray(config.radii), ang, np.asarray(config.heights), indexing="ij")
         self._rings = np.stack([Rr * np.cos(A), Rr * np.sin(A), H], -1).reshape(-1, 3)
         self.stats = {"sampled": 0, "refreshed": 0, "reused": 0}
+        # A mirror of the map's states over the area (grown by the clearance), refreshed box by box,
+        # padded with _IGNORE far enough that no gain ray or clearance check of a position inside
+        # the area leaves the array: every lookup is a plain gather, no bounds checks, no map reads.
+        grow, pad = self._clear_half + 2, max(self._reach, self._clear_half) + 1
+        self._read_lo, self._read_hi = self.area_lo - grow, self.area_hi + grow
+        lo = self._read_lo - pad
+        shape = tuple(int(x) for x in self._read_hi - self._read_lo + 2 * pad)
+        self._mirror = np.full(shape, _IGNORE, dtype=np.int8)
+        self.block = _Block(self._mirror.reshape(-1), lo, shape)
+        self._synced = False
+
+    # ------------------------------------------------------------------ state mirror
+    def sync(self, source: StateSource, lo: np.ndarray | None = None, hi: np.ndarray | None = None) -> None:
+        """Copy the map's states of voxel indices ``[lo, hi)`` (default: all) into the mirror.
+
+        Only the area grown by the clearance is read; unknown voxels outside the area become
+        ``_IGNORE`` (they neither make frontiers nor count as gain nor occlude).
+        """
+        full = lo is None and hi is None
+        lo = self._read_lo if lo is None else np.maximum(lo, self._read_lo)
+        hi = self._read_hi if hi is None else np.minimum(hi, self._read_hi)
+        if np.any(hi <= lo):
+            return
+        sub = source.dense_states(lo, tuple(int(x) for x in hi - lo))
+        a = np.clip(self.area_lo - lo, 0, np.array(sub.shape))
+        b = np.clip(self.area_hi - lo, 0, np.array(sub.shape))
+        inside = np.zeros(sub.shape, dtype=bool)
+        inside[a[0] : b[0], a[1] : b[1], a[2] : b[2]] = True
+        sub[(sub == UNKNOWN) & ~inside] = _IGNORE
+        self._mirror[self._slices(lo, hi)] = sub
+        self._synced = self._synced or full
+
+    def _slices(self, lo: np.ndarray, hi: np.ndarray) -> tuple[slice, slice, slice]:
+        return tuple(
+            slice(int(x), int(y)) for x, y in zip(lo - self.block.lo, hi - self.block.lo, strict=True)
+        )
 
     # ------------------------------------------------------------------ frontier voxels
-    def _frontier_in(self, source: StateSource, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    def _frontier_in(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Sorted keys of frontier voxels with indices in ``[lo, hi)`` (already clipped to the area)."""
-        shape = tuple(int(s) for s in hi - lo + 2)
-        s = source.dense_states(lo - 1, shape)
-        # neighbours outside the area never make a frontier: mark them as not unknown
-        rel_lo, rel_hi = self.area_lo - (lo - 1), self.area_hi - (lo - 1)
-        outside = np.ones(shape, dtype=bool)
-        a, b = np.maximum(rel_lo, 0), np.minimum(rel_hi, np.array(shape))
-        outside[a[0] : b[0], a[1] : b[1], a[2] : b[2]] = False
-        unknown = (s == UNKNOWN) & ~outside
+        s = self._mirror[self._slices(lo - 1, hi + 1)]
+        unknown = s == UNKNOWN  # unknown outside the area is _IGNORE in the mirror
         core = (slice(1, -1),) * 3
         near_unknown = np.zeros_like(unknown[core])
         for ax in range(3):
             for d in (-1, 1):
                 sl = [slice(1, -1)] * 3
-                sl[ax] = slice(1 + d, shape[ax] - 1 + d)
+                sl[ax] = slice(1 + d, s.shape[ax] - 1 + d)
                 near_unknown |= unknown[tuple(sl)]
         mask = (s[core] == FREE) & near_unknown
         return np.sort(encode(np.argwhere(mask) + lo))
@@ -287,10 +321,14 @@ class FrontierTracker:
         v = self.cfg.voxel
         lo = np.floor(np.asarray(box.lo) / v).astype(np.int64) - 1
         hi = np.floor(np.asarray(box.hi) / v).astype(np.int64) + 2
+        if self._synced:
+            self.sync(source, lo, hi)
+        else:
+            self.sync(source)
         lo, hi = np.maximum(lo, self.area_lo), np.minimum(hi, self.area_hi)
         if np.any(hi <= lo):
             return
-        new = self._frontier_in(source, lo, hi)
+        new = self._frontier_in(lo, hi)
         idx = decode(self.frontier)
         in_box = np.all((idx >= lo) & (idx < hi), axis=1)
         self.frontier = np.union1d(self.frontier[~in_box], new)
@@ -322,12 +360,13 @@ class FrontierTracker:
                     self.stats["reused"] += 1
                 else:
                     fresh.append(self._new_cluster(part))
-        self._update_viewpoints(source, fresh, lo, hi)
+        self._update_viewpoints(fresh, lo, hi)
 
     def recompute(self, source: StateSource) -> None:
         """Forget everything and detect frontiers and clusters over the whole area."""
         self.frontier = np.zeros(0, dtype=np.int64)
         self.clusters.clear()
+        self._synced = False
         v = self.cfg.voxel
         self.update(source, BoundingBox(self.area_lo * v, self.area_hi * v))
 
@@ -376,40 +415,15 @@ class FrontierTracker:
     def _yaws(self) -> np.ndarray:
         return np.linspace(-np.pi, np.pi, self.cfg.n_yaws, endpoint=False) + np.pi / self.cfg.n_yaws
 
-    def _fetch_block(self, source: StateSource, index: np.ndarray) -> _Block:
-        """States around voxels ``index`` (N×3) out to the ray and clearance reach, in one block.
-
-        Only the area (grown by the clearance) is read from the map: gain rays that leave the convex
-        area never come back, so everything farther is set to ``_IGNORE``, as is unknown outside the
-        area.
-        """
-        reach = max(self._reach, self._clear_half) + 1
-        lo = index.min(axis=0) - reach
-        hi = index.max(axis=0) + reach + 1
-        shape = tuple(int(s) for s in hi - lo)
-        states = np.full(shape, _IGNORE, dtype=np.int8)
-        grow = self._clear_half + 2
-        flo, fhi = np.maximum(lo, self.area_lo - grow), np.minimum(hi, self.area_hi + grow)
-        if np.all(fhi > flo):
-            sub = source.dense_states(flo, tuple(int(s) for s in fhi - flo))
-            a = np.clip(self.area_lo - flo, 0, np.array(sub.shape))
-            b = np.clip(self.area_hi - flo, 0, np.array(sub.shape))
-            inside = np.zeros(sub.shape, dtype=bool)
-            inside[a[0] : b[0], a[1] : b[1], a[2] : b[2]] = True
-            sub[(sub == UNKNOWN) & ~inside] = _IGNORE
-            dst = tuple(slice(int(x), int(y)) for x, y in zip(flo - lo, fhi - lo, strict=True))
-            states[dst] = sub
-        return _Block(states.reshape(-1), lo, shape)
-
-    def _safe(self, block: _Block, index: np.ndarray) -> np.ndarray:
+    def _safe(self, index: np.ndarray) -> np.ndarray:
         """Candidate voxels inside the area whose voxels within the robot radius are all known free."""
         centre = centres(index, self.cfg.voxel)
         inside = np.all((centre >= self.cfg.area.lo) & (centre <= self.cfg.area.hi), axis=1)
         out = np.zeros(len(index), dtype=bool)
         if inside.any():
-            base = block.flat_index(index[inside])
-            kern = self._clear @ np.asarray(block.strides, np.int64)
-            out[inside] = np.all(block.flat[base[:, None] + kern[None, :]] == FREE, axis=1)
+            base = self.block.flat_index(index[inside])
+            kern = self._clear @ np.asarray(self.block.strides, np.int64)
+            out[inside] = np.all(self.block.flat[base[:, None] + kern[None, :]] == FREE, axis=1)
         return out
 
     def _candidates(self, c: Cluster) -> np.ndarray:
@@ -417,35 +431,27 @@ class FrontierTracker:
         v = self.cfg.voxel
         return decode(np.unique(encode(np.floor((c.centroid + self._rings) / v).astype(np.int64))))
 
-    def _update_viewpoints(
-        self, source: StateSource, fresh: list[Cluster], lo: np.ndarray, hi: np.ndarray
-    ) -> None:
+    def _update_viewpoints(self, fresh: list[Cluster], lo: np.ndarray, hi: np.ndarray) -> None:
         """Sample viewpoints of new clusters and re-check kept ones that can see into ``[lo, hi)``.
 
         A kept viewpoint within sensing range of the box stays where it is (best yaw re-chosen, gain
         updated) unless it lost its clearance or its gain fell below ``resample_ratio`` of its sampled
-        gain or below ``min_gain``; then its cluster is sampled again. All positions are evaluated
-        against one state block read from the map.
+        gain or below ``min_gain``; then its cluster is sampled again.
         """
         cfg, v = self.cfg, self.cfg.voxel
         blo, bhi = lo * v, hi * v
-        near = []
-        for c in self.clusters.values():
-            p = c.viewpoint.position
-            if np.linalg.norm(np.maximum(np.maximum(blo - p, p - bhi), 0.0)) <= cfg.sensing_range + v:
-                near.append(c)
-        cands = [self._candidates(c) for c in fresh + near]
-        if not cands:
-            return
-        here = np.floor(np.array([c.viewpoint.position for c in near]) / v).astype(np.int64).reshape(-1, 3)
-        block = self._fetch_block(source, np.concatenate([here, *cands]))
+        kept = list(self.clusters.values())
+        pos = np.array([c.viewpoint.position for c in kept]).reshape(-1, 3)
+        gap = np.linalg.norm(np.maximum(np.maximum(blo - pos, pos - bhi), 0.0), axis=1)
+        near = [c for c, g in zip(kept, gap, strict=True) if g <= cfg.sensing_range + v]
         resample = []
         if near:
             self.stats["refreshed"] += len(near)
-            safe = self._safe(block, here)
+            here = np.floor(np.array([c.viewpoint.position for c in near]) / v).astype(np.int64)
+            safe = self._safe(here)
             gains = np.zeros((len(near), len(self.fan.yaw_share)))
             if safe.any():
-                gains[safe] = self.fan.gains(block, block.flat_index(here[safe]))
+                gains[safe] = self.fan.gains(self.block, self.block.flat_index(here[safe]))
             yaws = self._yaws()
             for c, ok, g in zip(near, safe, gains, strict=True):
                 best = int(np.argmax(g))
@@ -454,21 +460,20 @@ class FrontierTracker:
                     resample.append(c)
                 else:
                     c.viewpoint = self._make_viewpoint(c, c.viewpoint.position, yaws[best], g[best])
-        todo = fresh + resample
-        at = {id(c): i for i, c in enumerate(fresh + near)}
-        self._sample_viewpoints(block, todo, [cands[at[id(c)]] for c in todo])
+        self._sample_viewpoints(fresh + resample)
 
-    def _sample_viewpoints(self, block: _Block, clusters: list[Cluster], cands: list[np.ndarray]) -> None:
+    def _sample_viewpoints(self, clusters: list[Cluster]) -> None:
         """Pick each cluster's best (candidate, yaw), all candidates in one batch; keep those with one."""
         if not clusters:
             return
         self.stats["sampled"] += len(clusters)
         v = self.cfg.voxel
+        cands = [self._candidates(c) for c in clusters]
         owner = np.concatenate([np.full(len(k), i) for i, k in enumerate(cands)])
         index = np.concatenate(cands)
-        safe = self._safe(block, index)
+        safe = self._safe(index)
         index, owner = index[safe], owner[safe]
-        gains = self.fan.gains(block, block.flat_index(index)) if len(index) else np.zeros((0, 1))
+        gains = self.fan.gains(self.block, self.block.flat_index(index)) if len(index) else np.zeros((0, 1))
         yaws = self._yaws()
         best_p = np.argmax(gains, axis=1)
         best_g = gains[np.arange(len(index)), best_p]
@@ -495,10 +500,17 @@ class FrontierTracker:
         )
 
     def yaw_gains(self, source: StateSource, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Candidate yaws (Y,) and the P×Y ray-fan gain (m³) from the voxel centres of ``positions``."""
-        index = np.floor(np.asarray(positions, float).reshape(-1, 3) / self.cfg.voxel).astype(np.int64)
-        block = self._fetch_block(source, index)
-        return self._yaws(), self.fan.gains(block, block.flat_index(index))
+        """Candidate yaws (Y,) and the P×Y ray-fan gain (m³) from the voxel centres of ``positions``.
+
+        Reads the whole area from ``source`` first (a diagnostic, not on the update path); positions
+        must lie inside the area.
+        """
+        pts = np.asarray(positions, float).reshape(-1, 3)
+        if not np.all((pts >= self.cfg.area.lo) & (pts <= self.cfg.area.hi)):
+            raise ValueError("yaw_gains: positions must lie inside the exploration area")
+        self.sync(source)
+        index = np.floor(pts / self.cfg.voxel).astype(np.int64)
+        return self._yaws(), self.fan.gains(self.block, self.block.flat_index(index))
 
     def viewpoints(self) -> list[Viewpoint]:
         """Current viewpoints, ordered by cluster id."""

@@ -128,3 +128,15 @@ def test_changed_clusters_are_resampled(tmp_path: Path) -> None:
     after = {vp.id for vp in m.viewpoints()}
     assert m.frontiers.stats["sampled"] > sampled
     assert after - before, "changed clusters get new ids"
+
+
+def test_state_mirror_follows_the_map(tmp_path: Path) -> None:
+    m = wall_mapping(tmp_path)
+    m.viewpoints()
+    for yaw in (0.5, -0.7):  # updated box by box
+        m.integrate_global(np.full_like(wall_depth(), 2.2), CAMERA.K, camera_pose((0.5, 0.2, 0.0), yaw))
+        m.viewpoints()
+    fresh = FrontierTracker(m.frontiers.cfg)
+    fresh.sync(m.global_map)  # everything read at once
+    np.testing.assert_array_equal(m.frontiers._mirror, fresh._mirror)
+    assert np.any(fresh._mirror == OCCUPIED)
