@@ -82,7 +82,6 @@ def cmd_plugins(args) -> int:
 
 
 def cmd_dump_config(args) -> int:
-    import yaml
 
     registry = _registry()
     cls = registry.backend_class(args.kind, args.plugin)
@@ -92,13 +91,28 @@ def cmd_dump_config(args) -> int:
         print(f"# {doc[0]}")
     print(f"{args.kind}:")
     print(f"  plugin: {args.plugin}")
-    defaults = cls.Params().model_dump(mode="json")
-    for name, info in cls.Params.model_fields.items():
-        if info.description:
-            print(f"  # {info.description}")
-        text = yaml.safe_dump({name: defaults[name]}, default_flow_style=True, sort_keys=False).strip()
-        print(f"  {text.strip('{}')}")
+    for line in _describe_params(cls.Params, cls.Params().model_dump(mode="json"), indent="  "):
+        print(line)
     return 0
+
+
+def _describe_params(model, values: dict, indent: str) -> list[str]:
+    """A parameter model as commented YAML, nested sections as nested blocks."""
+    import yaml
+    from pydantic import BaseModel
+
+    lines = []
+    for name, info in model.model_fields.items():
+        if info.description:
+            lines.append(f"{indent}# {info.description}")
+        sub = info.annotation
+        if isinstance(sub, type) and issubclass(sub, BaseModel) and isinstance(values[name], dict):
+            lines.append(f"{indent}{name}:")
+            lines += _describe_params(sub, values[name], indent + "  ")
+            continue
+        text = yaml.safe_dump({name: values[name]}, default_flow_style=True, sort_keys=False, width=1000)
+        lines.append(f"{indent}{text.strip()[1:-1]}")
+    return lines
 
 
 def cmd_tree(args) -> int:

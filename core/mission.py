@@ -98,6 +98,12 @@ class ExplorationSection(_Strict):
     )
     slc: bool = Field(False, description="actively seek semantic loop closures (paper 1 §VI-C, D)")
     slc_sensing_range: float = Field(4.0, gt=0, description="range within which a landmark counts as seen, m")
+    slc_min_travel: float = Field(
+        25.0,
+        gt=0,
+        description="distance to travel before a landmark cluster is offered for loop closure "
+        "(again), m: drift has to build up before revisiting pays",
+    )
     panorama_steps: int = Field(8, ge=3, description="headings of the panorama at an SLC viewpoint")
     viewpoint_period: float = Field(
         1.0, gt=0, description="refresh frontier viewpoints at most this often, s (they feed replanning)"

@@ -8,6 +8,7 @@ into the other at the moment a setpoint is sent.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -22,6 +23,7 @@ from amslam.types import (
     Odometry,
     PlanRequest,
     RobotSpec,
+    SlcCandidate,
     TourItem,
     Viewpoint,
 )
@@ -50,6 +52,8 @@ class Robot:
     viewpoints_stale: bool = False  # ask the runner to refresh viewpoints at the next frame
     recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
     slc_results: list[LoopClosureResult] = field(default_factory=list)
+    slc_offered: dict[int, SlcCandidate] = field(default_factory=dict)  # key pose id → last offer
+    slc_tried_at: dict[int, float] = field(default_factory=dict)  # landmark id → distance tried
 
     def plugin_hook(self, name: str, **kwargs) -> None:
         """Call an observer hook of every plugin (see :mod:`amslam.hookspecs`)."""
@@ -149,7 +153,15 @@ class Robot:
         slc_candidates: tuple = ()
         slc_costs = np.zeros((0, len(nodes)))
         if self.exploration.slc:
-            cands = self.slam.slc_candidates(self.exploration.slc_sensing_range)
+            cands = [
+                # A key pose from the take-off climb is still a fine place to look from, in the air.
+                dataclasses.replace(
+                    c, position=np.array([*c.position[:2], max(c.position[2], self.cruise_z)])
+                )
+                for c in self.slam.slc_candidates(self.exploration.slc_sensing_range)
+                if self._slc_due(c)
+            ]
+            self.slc_offered = {c.keypose_id: c for c in cands}
             if cands:
                 slc_candidates = tuple(cands)
                 slc_costs = self.mapping.path_costs(np.array([c.position for c in cands]), nodes)
@@ -166,8 +178,19 @@ class Robot:
 
     # -- semantic loop closure -----------------------------------------------------------------
 
-    def attempt_loop_closure(self) -> LoopClosureResult:
+    def _slc_due(self, candidate: SlcCandidate) -> bool:
+        """Offer a cluster only after enough travel, and not again until as much travel again."""
+        wait = self.exploration.slc_min_travel
+        if self.distance < wait:
+            return False
+        return all(self.distance - self.slc_tried_at.get(i, -np.inf) >= wait for i in candidate.landmark_ids)
+
+    def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
         """Try an SLC with what the detector saw most recently (e.g. during a panorama)."""
+        candidate = self.slc_offered.get(goal.ref) if goal is not None else None
+        if candidate is not None:
+            for i in candidate.landmark_ids:
+                self.slc_tried_at[i] = self.distance
         odom = self.platform.odometry()
         detections = [d for _, dets in self.recent_detections for d in dets]
         result = self.slam.try_loop_closure(odom, self.platform.camera.T_body_cam, detections)
