@@ -5,6 +5,7 @@
     amslam plugins
     amslam dump-config KIND PLUGIN
     amslam tree MISSION
+    amslam experiment {slc-ablation,planners} MISSION [--seeds N]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
 are printed as ``error: ...`` lines with exit status 2, never as a traceback.
@@ -126,6 +127,23 @@ def cmd_tree(args) -> int:
     return 0
 
 
+def cmd_experiment(args) -> int:
+    from amslam import experiments
+
+    registry = _registry()
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    print(f"experiment {args.name} on {args.mission}, seeds {seeds}", flush=True)
+    if args.name == "slc-ablation":
+        folder = experiments.slc_ablation(args.mission, registry, seeds, Path(args.out), args.set or [])
+    else:
+        folder = experiments.planner_comparison(
+            args.mission, registry, seeds, Path(args.out), overrides=args.set or []
+        )
+    print((folder / "table.md").read_text())
+    print(f"experiment folder: {folder}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="amslam", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -148,6 +166,14 @@ def build_parser() -> argparse.ArgumentParser:
     tree = sub.add_parser("tree", help="print the behaviour tree a mission would run")
     tree.add_argument("mission")
     tree.set_defaults(func=cmd_tree)
+    exp = sub.add_parser("experiment", help="fly a mission several ways over several seeds and compare")
+    exp.add_argument("name", choices=["slc-ablation", "planners"], help="which comparison")
+    exp.add_argument("mission")
+    exp.add_argument("--seeds", type=int, default=5, help="number of seeds (default 5)")
+    exp.add_argument("--first-seed", type=int, default=1)
+    exp.add_argument("--out", default="runs", help="folder that receives the experiment folder")
+    exp.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override for every run")
+    exp.set_defaults(func=cmd_experiment)
     return parser
 
 

@@ -56,6 +56,9 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
     world = platform.world_summary()
     if mapping is not None:
         metrics["explored_volume_m3"] = round(mapping.explored_volume(), 3)
+        metrics["explored_series"] = [
+            [round(t, 2), round(d, 2), round(v, 2)] for t, d, v in runner.samples["explored"]
+        ]
         if world is not None:
             share, per_floor = explored_share(mapping, world)
             metrics["reachable_free_volume_m3"] = round(world.reachable_free_volume, 3)
@@ -89,10 +92,23 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
                 "series": [[round(t, 2), round(d, 2), p, q] for t, d, p, q in series],
             }
     if robot is not None:
-        results = robot.slc_results
+        results = [r for _, _, r in robot.slc_log]
         metrics["slc"] = {
             "attempts": len(results),
             "accepted": sum(r.accepted for r in results),
+            "events": [
+                {
+                    "t": round(t, 2),
+                    "distance": round(d, 2),
+                    "accepted": r.accepted,
+                    "reason": r.reason,
+                    "matched": r.matched,
+                    "residual": r.residual,
+                    "yaw_correction": r.yaw_correction,
+                    "translation_correction": r.translation_correction,
+                }
+                for t, d, r in robot.slc_log
+            ],
         }
     return metrics
 

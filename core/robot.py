@@ -51,7 +51,9 @@ class Robot:
     visited: list[np.ndarray] = field(default_factory=list)
     viewpoints_stale: bool = False  # ask the runner to refresh viewpoints at the next frame
     recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
-    slc_results: list[LoopClosureResult] = field(default_factory=list)
+    slc_log: list[tuple[float, float, LoopClosureResult]] = field(
+        default_factory=list
+    )  # (t, distance, result)
     slc_offered: dict[int, SlcCandidate] = field(default_factory=dict)  # key pose id → last offer
     slc_tried_at: dict[int, float] = field(default_factory=dict)  # landmark id → distance tried
 
@@ -194,5 +196,5 @@ class Robot:
         odom = self.platform.odometry()
         detections = [d for _, dets in self.recent_detections for d in dets]
         result = self.slam.try_loop_closure(odom, self.platform.camera.T_body_cam, detections)
-        self.slc_results.append(result)
+        self.slc_log.append((self.time(), self.distance, result))
         return result
