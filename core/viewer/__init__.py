@@ -1,0 +1,1 @@
+"""Run replay and live view: a self-contained HTML page of the tree, map and trajectories."""
