@@ -4,7 +4,8 @@
     amslam validate MISSION
     amslam plugins
     amslam dump-config KIND PLUGIN
-    amslam tree MISSION
+    amslam tree MISSION [--format ascii|unicode|dot|svg|png] [--out FILE]
+    amslam view RUN_DIR [--out FILE] [--serve [--port N]] [--at T]
     amslam experiment {slc-ablation,planners} MISSION [--seeds N]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
@@ -123,7 +124,72 @@ def cmd_tree(args) -> int:
 
     mission, registry = _load(args)
     root = build_exploration_tree(mission.model.exploration, registry.behaviours)
-    print(py_trees.display.unicode_tree(root))
+    if args.format in ("ascii", "unicode"):
+        render = py_trees.display.ascii_tree if args.format == "ascii" else py_trees.display.unicode_tree
+        return _write_text(render(root), args.out)
+    graph = py_trees.display.dot_tree(root, with_blackboard_variables=args.blackboard)
+    graph.set_name(mission.name)
+    for defaults in (d for kind in ("graph", "node", "edge") for d in graph.get_node(kind)):
+        defaults.set("fontname", "DejaVu Sans")  # py_trees' times-roman lacks the Ⓜ of memory composites
+    if args.format == "dot":
+        return _write_text(graph.to_string(), args.out)
+    import shutil
+    import subprocess
+
+    if args.format == "png":  # few fonts draw py_trees' Ⓜ (memory composites): spell it for the bitmap
+        for node in graph.get_nodes():
+            label = node.get("label")
+            if label and "Ⓜ " in label:
+                node.set("label", label.replace("Ⓜ ", "[M] "))
+    dot = shutil.which("dot")
+    if dot is None:
+        raise AmslamError(
+            f"--format {args.format} needs Graphviz's `dot` program: install the Debian package graphviz "
+            "(sudo apt-get install -y graphviz); --format ascii and dot work without it"
+        )
+    out = Path(args.out or f"{mission.name}-tree.{args.format}")
+    done = subprocess.run(
+        [dot, f"-T{args.format}", "-o", str(out)], input=graph.to_string().encode(), capture_output=True
+    )
+    if done.returncode != 0:
+        raise AmslamError(f"dot failed: {done.stderr.decode(errors='replace').strip()}")
+    print(f"tree of {mission.name!r} written to {out}")
+    return 0
+
+
+def _write_text(text: str, out: str | None) -> int:
+    if out is None:
+        print(text)
+    else:
+        Path(out).write_text(text + "\n")
+        print(f"written to {out}")
+    return 0
+
+
+def cmd_view(args) -> int:
+    from amslam.viewer import LiveServer, build_page, resolve_run_folder
+
+    run_dir, picked = resolve_run_folder(Path(args.run))
+    if picked:
+        print(f"newest run in {args.run}: {run_dir}")
+    if args.at is not None:
+        from amslam.viewer.runfiles import poll_run
+        from amslam.viewer.timeline import render_text, tree_state_at
+
+        delta = poll_run(run_dir)
+        print(render_text(delta.structure or [], tree_state_at(delta.tree, args.at)))
+        return 0
+    if not args.serve:
+        print(f"replay page: {build_page(run_dir, Path(args.out) if args.out else None)}")
+        return 0
+    server = LiveServer(run_dir, port=args.port)
+    print(f"serving {run_dir} at {server.start()} (follows the run while it is written; Ctrl-C to stop)")
+    try:
+        server.thread.join()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
     return 0
 
 
@@ -163,9 +229,24 @@ def build_parser() -> argparse.ArgumentParser:
     dump.add_argument("kind", help="platform, mapping, slam, detector or planner")
     dump.add_argument("plugin", help="backend name, as listed by `amslam plugins`")
     dump.set_defaults(func=cmd_dump_config)
-    tree = sub.add_parser("tree", help="print the behaviour tree a mission would run")
+    tree = sub.add_parser("tree", help="print or draw the behaviour tree a mission would run")
     tree.add_argument("mission")
+    tree.add_argument(
+        "--format",
+        choices=["ascii", "unicode", "dot", "svg", "png"],
+        default="ascii",
+        help="text (ascii, unicode), Graphviz source (dot) or a drawing (svg, png: needs Graphviz)",
+    )
+    tree.add_argument("--out", help="file to write (svg/png default: MISSION-tree.FORMAT; text: stdout)")
+    tree.add_argument("--blackboard", action="store_true", help="dot/svg/png: show the blackboard keys")
     tree.set_defaults(func=cmd_tree)
+    view = sub.add_parser("view", help="replay a run folder in the browser: tree, map, trajectories, events")
+    view.add_argument("run", help="a run folder, or a folder of runs (the newest is shown)")
+    view.add_argument("--out", help="page to write (default: RUN/viewer.html)")
+    view.add_argument("--serve", action="store_true", help="serve on 127.0.0.1 and follow a run in progress")
+    view.add_argument("--port", type=int, default=8765, help="port for --serve (default 8765; 0: any free)")
+    view.add_argument("--at", type=float, metavar="T", help="print the tree's state at time T (s) instead")
+    view.set_defaults(func=cmd_view)
     exp = sub.add_parser("experiment", help="fly a mission several ways over several seeds and compare")
     exp.add_argument("name", choices=["slc-ablation", "planners"], help="which comparison")
     exp.add_argument("mission")

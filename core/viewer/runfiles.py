@@ -1,0 +1,344 @@
+"""Reading a run folder for the viewer, whole or incrementally while the run is still writing it.
+
+The streams (``events.jsonl``, ``tree.jsonl``, ``*.tum``) are read from a byte offset and only up
+to their last complete line, so a reader polling a run in progress never sees half a record.
+The summaries (``map.ply``, ``landmarks.json``, ``metrics.json``) exist once the run has finished.
+
+Everything is turned into small JSON-ready structures, the shapes the page's script expects:
+
+- ``structure``: ``[{id, name, type, parent}, ...]`` in pre-order (root first);
+- ``tree``: ``[[t, tick, {node_id: [status, feedback]}, {key: value}], ...]``, changes only;
+- ``events``: the event records as written;
+- ``traj``: ``{"ground_truth" | "vio" | "slam": [[t, x, y, z, yaw], ...]}``;
+- ``static``: ``{"floors", "voxel", "landmarks", "metrics", "bounds"}`` once the run is finished.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+STREAMS = ("events", "tree", "ground_truth", "vio", "slam")
+TRAJECTORIES = ("ground_truth", "vio", "slam")
+FILES = {
+    "events": "events.jsonl",
+    "tree": "tree.jsonl",
+    "ground_truth": "ground_truth.tum",
+    "vio": "vio.tum",
+    "slam": "slam.tum",
+}
+#: a floor's top-down slice starts this far above its slab (skips the floor surface itself) ...
+SLICE_ABOVE_FLOOR = 0.3
+#: ... and stops this far below the next floor's slab (skips the ceiling)
+SLICE_BELOW_CEILING = 0.45
+
+
+def yaw_from_quaternion(qx: float, qy: float, qz: float, qw: float) -> float:
+    """Heading (rotation about z) of a unit quaternion, in (-π, π]."""
+    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+
+
+def parse_tum_line(line: str) -> list[float] | None:
+    """``t x y z qx qy qz qw`` → ``[t, x, y, z, yaw]`` rounded for the page; None for a bad line."""
+    parts = line.split()
+    if len(parts) != 8 or line.startswith("#"):
+        return None
+    try:
+        t, x, y, z, qx, qy, qz, qw = (float(p) for p in parts)
+    except ValueError:
+        return None
+    return [round(t, 3), round(x, 3), round(y, 3), round(z, 3), round(yaw_from_quaternion(qx, qy, qz, qw), 4)]
+
+
+def parse_json_line(line: str) -> dict[str, Any] | None:
+    try:
+        value = json.loads(line)
+    except json.JSONDecodeError:
+        return None
+    return value if isinstance(value, dict) else None
+
+
+def tree_record(raw: dict[str, Any]) -> list[Any]:
+    """A ``tree.jsonl`` change record in the page's compact form ``[t, tick, nodes, blackboard]``."""
+    return [raw.get("t", 0.0), raw.get("tick", 0), raw.get("nodes") or {}, raw.get("blackboard") or {}]
+
+
+@dataclass
+class Chunk:
+    """What a poll of one stream returned: new complete lines and the offset after them."""
+
+    lines: list[str]
+    offset: int
+    reset: bool = False  # the file shrank (rewritten): lines start again from its beginning
+
+
+def read_lines(path: Path, offset: int = 0) -> Chunk:
+    """Complete lines of ``path`` from byte ``offset`` on (a trailing partial line is left for later)."""
+    try:
+        size = os.path.getsize(path)
+    except OSError:
+        return Chunk([], 0, reset=offset > 0)
+    reset = size < offset
+    if reset:
+        offset = 0
+    if size == offset:
+        return Chunk([], offset)
+    with open(path, "rb") as f:
+        f.seek(offset)
+        data = f.read(size - offset)
+    end = data.rfind(b"\n")
+    if end < 0:
+        return Chunk([], offset, reset)
+    text = data[: end + 1].decode("utf-8", errors="replace")
+    return Chunk([line for line in text.splitlines() if line.strip()], offset + end + 1, reset)
+
+
+@dataclass
+class Delta:
+    """New data of a run since a cursor; ``to_json()`` is what the live endpoint sends."""
+
+    cursor: dict[str, int]
+    structure: list[dict[str, Any]] | None = None
+    tree: list[list[Any]] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    traj: dict[str, list[list[float]]] = field(default_factory=dict)
+    reset: list[str] = field(default_factory=list)
+    static: dict[str, Any] | None = None
+    finished: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "cursor": self.cursor,
+            "structure": self.structure,
+            "tree": self.tree,
+            "events": self.events,
+            "traj": self.traj,
+            "reset": self.reset,
+            "static": self.static,
+            "finished": self.finished,
+        }
+
+
+def poll_run(run_dir: Path, cursor: dict[str, int] | None = None) -> Delta:
+    """Everything new in ``run_dir`` since ``cursor`` (byte offsets per stream; None: from the start).
+
+    The run is finished once ``run_end`` is in the events: the runner writes it after all the
+    summaries and after rewriting ``slam.tum`` with the optimised key poses. The poll that first
+    sees it sends the summaries and the trajectories again from their start (marked ``reset``);
+    ``cursor["ended"]`` remembers that the caller has them.
+    """
+    run_dir = Path(run_dir)
+    cursor = dict(cursor or {})
+    delta = Delta(cursor={})
+    already_ended = bool(cursor.get("ended"))
+    for stream in STREAMS:  # events first: whether the run ended decides how to read the rest
+        offset = int(cursor.get(stream, 0))
+        newly_ended = delta.finished and not already_ended
+        if stream in TRAJECTORIES and newly_ended and offset > 0:
+            offset = 0
+            delta.reset.append(stream)
+        chunk = read_lines(run_dir / FILES[stream], offset)
+        delta.cursor[stream] = chunk.offset
+        if chunk.reset and stream not in delta.reset:
+            delta.reset.append(stream)
+        if stream == "events":
+            delta.events = [r for r in map(parse_json_line, chunk.lines) if r is not None]
+            delta.finished = already_ended or any(e.get("event") == "run_end" for e in delta.events)
+        elif stream == "tree":
+            for raw in (r for r in map(parse_json_line, chunk.lines) if r is not None):
+                if "structure" in raw:
+                    delta.structure = raw["structure"]
+                else:
+                    delta.tree.append(tree_record(raw))
+        else:
+            delta.traj[stream] = [r for r in map(parse_tum_line, chunk.lines) if r is not None]
+    delta.cursor["ended"] = int(delta.finished)
+    if delta.finished and not already_ended:
+        delta.static = read_summaries(run_dir)
+    return delta
+
+
+# -- summaries --------------------------------------------------------------------------------------
+
+
+def read_ply_points(path: Path) -> np.ndarray:
+    """Vertices of an ASCII PLY as an N×3 array (empty when the file is missing or empty)."""
+    try:
+        text = path.read_text()
+    except OSError:
+        return np.zeros((0, 3))
+    header, sep, body = text.partition("end_header\n")
+    if not sep or "format ascii" not in header:
+        return np.zeros((0, 3))
+    rows = [line.split()[:3] for line in body.splitlines() if line.strip()]
+    return np.asarray(rows, dtype=float).reshape(-1, 3)
+
+
+def voxel_size(points: np.ndarray) -> float:
+    """The lattice spacing of voxel centres: the smallest gap between distinct coordinates."""
+    gaps = []
+    for axis in range(3):
+        values = np.unique(np.round(points[:, axis], 4))
+        if len(values) > 1:
+            gaps.append(float(np.diff(values).min()))
+    return round(min(gaps), 4) if gaps else 0.25
+
+
+def floor_heights(run_dir: Path, points: np.ndarray) -> list[float]:
+    """Heights of the floors' slabs, best source first.
+
+    ``metrics.json`` ``floor_heights`` (the world's truth) when the run recorded it; else the
+    simulated world's parameters in ``mission.yaml``; else the map: horizontal surfaces are the
+    z levels holding many occupied voxels (floors and ceilings); each floor stands on the top
+    of one such band, and the highest band is the roof.
+    """
+    try:
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        if metrics.get("floor_heights"):
+            return [float(h) for h in metrics["floor_heights"]]
+    except (OSError, json.JSONDecodeError):
+        pass
+    try:
+        mission = yaml.safe_load((run_dir / "mission.yaml").read_text()) or {}
+        world = (mission.get("platform") or {}).get("world") or {}
+        if world.get("floor_heights"):
+            return [float(h) for h in world["floor_heights"]]
+        if world.get("floors") and world.get("floor_height"):
+            return [i * float(world["floor_height"]) for i in range(int(world["floors"]))]
+    except (OSError, yaml.YAMLError, AttributeError, TypeError, ValueError):
+        pass
+    return floors_from_map(points)
+
+
+def floors_from_map(points: np.ndarray, min_storey: float = 1.8) -> list[float]:
+    """Floor heights guessed from the z histogram of occupied voxels (see :func:`floor_heights`)."""
+    if len(points) == 0:
+        return []
+    v = voxel_size(points)
+    z0 = float(points[:, 2].min())
+    levels, counts = np.unique(np.round((points[:, 2] - z0) / v).astype(int), return_counts=True)
+    dense = levels[counts >= 0.35 * counts.max()]
+    bands: list[list[int]] = []
+    for level in dense:
+        if bands and level - bands[-1][-1] <= 2:
+            bands[-1].append(int(level))
+        else:
+            bands.append([int(level)])
+    heights: list[float] = []
+    # A floor stands on the top of a band (a slab, or a ceiling with the next slab); the last is the roof.
+    for band in bands[:-1]:
+        top = z0 + (band[-1] + 0.5) * v
+        if not heights or top - heights[-1] >= min_storey:
+            heights.append(top)
+    if not heights:
+        heights = [z0]
+    return [round(h, 3) for h in heights]
+
+
+def floor_slices(points: np.ndarray, heights: list[float]) -> list[dict[str, Any]]:
+    """Per floor, the occupied columns seen from above: ``[[x, y, n], ...]`` with n voxels in the slice.
+
+    A floor spans ``[heights[i], heights[i+1])``; its slice leaves out the slab and the ceiling so
+    walls and furniture remain, and ``n`` (voxels in the column) tells a wall from a chair.
+    """
+    if not heights:
+        heights = [float(points[:, 2].min()) if len(points) else 0.0]
+    roof = float(points[:, 2].max()) if len(points) else math.inf
+    tops = [*heights[1:], roof]
+    v = voxel_size(points) if len(points) else 0.25
+    origin = points[:, :2].min(axis=0) if len(points) else np.zeros(2)
+    floors = []
+    for lo, hi in zip(heights, tops, strict=True):
+        z = points[:, 2]
+        band = (z > lo + SLICE_ABOVE_FLOOR) & (z < hi - SLICE_BELOW_CEILING)
+        cells: list[list[float]] = []
+        if band.any():
+            # Index relative to the lowest centre: rounding centres like 0.125 / 0.25 directly would
+            # send neighbours to one cell (round half to even).
+            keys = np.round((points[band, :2] - origin) / v).astype(np.int64)
+            uniq, counts = np.unique(keys, axis=0, return_counts=True)
+            xy = np.round(origin + uniq * v, 3)
+            cells = [[float(x), float(y), int(n)] for (x, y), n in zip(xy, counts, strict=True)]
+        floors.append({"lo": round(lo, 3), "hi": None if math.isinf(hi) else round(hi, 3), "cells": cells})
+    return floors
+
+
+def read_landmarks(path: Path) -> list[dict[str, Any]]:
+    """``landmarks.json`` as ``{id, class, p: [x, y, z], sigma: √(tr Σ), n}`` (empty when missing)."""
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return []
+    out = []
+    for lm in raw if isinstance(raw, list) else []:
+        try:
+            cov = np.asarray(lm.get("covariance") or np.zeros((3, 3)), float)
+            out.append(
+                {
+                    "id": lm.get("id"),
+                    "class": str(lm.get("class", "?")),
+                    "p": [round(float(c), 3) for c in lm["position"][:3]],
+                    "sigma": round(float(math.sqrt(max(np.trace(cov), 0.0))), 4),
+                    "n": lm.get("observations", 0),
+                }
+            )
+        except (KeyError, TypeError, ValueError):
+            continue
+    return out
+
+
+METRIC_KEYS = (
+    "verdict",
+    "mission",
+    "seed",
+    "plugins",
+    "sim_duration_s",
+    "distance_m",
+    "explored_percent",
+    "explored_percent_per_floor",
+    "explored_volume_m3",
+    "final_error",
+    "landmarks",
+    "keyposes",
+)
+
+
+def read_summaries(run_dir: Path) -> dict[str, Any]:
+    """The end-of-run files: the map sliced per floor, the landmarks and the headline metrics."""
+    points = read_ply_points(run_dir / "map.ply")
+    heights = floor_heights(run_dir, points)
+    try:
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        metrics = {}
+    return {
+        "voxel": voxel_size(points) if len(points) else None,
+        "floors": floor_slices(points, heights),
+        "landmarks": read_landmarks(run_dir / "landmarks.json"),
+        "metrics": {k: metrics[k] for k in METRIC_KEYS if k in metrics},
+    }
+
+
+def mission_info(run_dir: Path) -> dict[str, Any]:
+    """Name and floors from ``mission.yaml`` (known from the start of a run, unlike the map)."""
+    info: dict[str, Any] = {"folder": Path(run_dir).resolve().name}
+    try:
+        mission = yaml.safe_load((Path(run_dir) / "mission.yaml").read_text()) or {}
+        info["mission"] = mission.get("name")
+        info["description"] = mission.get("description")
+        info["plugins"] = {
+            kind: (mission.get(kind) or {}).get("plugin")
+            for kind in ("platform", "mapping", "slam", "detector", "planner")
+            if isinstance(mission.get(kind), dict)
+        }
+    except (OSError, yaml.YAMLError, AttributeError):
+        pass
+    info["floor_heights"] = floor_heights(Path(run_dir), np.zeros((0, 3)))
+    return info
