@@ -82,6 +82,12 @@ class ExplorationSection(_Strict):
 
     control_rate_hz: float = Field(10.0, gt=0, description="tick rate of the behaviour tree and setpoints")
     replan_period: float = Field(6.0, gt=0, description="replan at least this often while flying, s")
+    replan_fraction: float = Field(
+        0.5, gt=0, le=1, description="replan once this share of the tour's stops is done (receding horizon)"
+    )
+    frontier_change: float = Field(
+        0.3, gt=0, le=1, description="replan when this share of the viewpoints changed since the last plan"
+    )
     goal_tolerance: float = Field(0.3, gt=0, description="distance at which a waypoint counts as reached, m")
     yaw_tolerance: float = Field(0.15, gt=0, description="heading error counted as reached, rad")
     look_around: bool = Field(

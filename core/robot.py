@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +51,8 @@ class Robot:
     unreachable: list[np.ndarray] = field(default_factory=list)
     visited: list[np.ndarray] = field(default_factory=list)
     viewpoints_stale: bool = False  # ask the runner to refresh viewpoints at the next frame
+    planned_viewpoints: list[np.ndarray] = field(default_factory=list)
+    _executor: ThreadPoolExecutor | None = None
     recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
     slc_log: list[tuple[float, float, LoopClosureResult]] = field(
         default_factory=list
@@ -144,9 +147,44 @@ class Robot:
             out.append(vp)
         return out
 
+    def frontier_change(self) -> float:
+        """Share of viewpoints that appeared or vanished (by position) since the last plan."""
+        now = [vp.position for vp in self.candidate_viewpoints()]
+        then = self.planned_viewpoints
+        if not now and not then:
+            return 0.0
+        if not now or not then:
+            return 1.0
+        d = np.linalg.norm(np.asarray(now)[:, None] - np.asarray(then)[None], axis=2)
+        kept = min(int((d.min(axis=1) < 1.0).sum()), int((d.min(axis=0) < 1.0).sum()))
+        return 1.0 - kept / max(len(now), len(then))
+
+    def plan_async(self) -> Future:
+        """Plan off the control loop; the future holds the tour (or the planner's exception).
+
+        With a simulated platform the plan is made at once, so simulated time does not pass while
+        it computes and runs stay deterministic; on a real vehicle a worker thread computes it
+        while the tree keeps ticking.
+        """
+        if self.platform.simulated:
+            future: Future = Future()
+            try:
+                future.set_result(self.plan())
+            except Exception as exc:  # delivered through the future, like the threaded path
+                future.set_exception(exc)
+            return future
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="amslam-planner")
+        return self._executor.submit(self.plan)
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+
     def plan(self) -> list[TourItem]:
         """Ask the planner for a tour over the current viewpoints (and SLC candidates)."""
         vps = self.candidate_viewpoints()
+        self.planned_viewpoints = [vp.position for vp in vps]
         if not vps:
             return []
         start = self.position_world()

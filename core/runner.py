@@ -281,6 +281,8 @@ class Runner:
             metrics=metrics,
             trajectory=np.array([T[:3, 3] for _, T in getattr(self, "truth", [])]).reshape(-1, 3),
         )
+        if getattr(self, "robot", None) is not None:
+            self.robot.close()
         for backend in reversed(list(self.backends.values())):
             try:
                 backend.close()

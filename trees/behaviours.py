@@ -81,16 +81,23 @@ class WithinLimits(RobotBehaviour):
 
 
 class Replan(RobotBehaviour):
-    """Ask the planner for a tour; FAILURE when nothing is left to explore or it keeps failing.
+    """Keep following the refined tour, or ask the planner for a new one (paper 1 §VI-B).
 
-    A planner exception is counted, not raised: after ``max_replan_failures`` consecutive failures
-    exploration gives up, so a broken planner cannot livelock the robot.
+    Each loop iteration first drops the stop just handled from ``/tour``. The planner is asked
+    again when the tour is used up, when ``replan_fraction`` of it has been executed (receding
+    horizon), when ``frontier_change`` of the viewpoints changed since it was planned, or when it
+    is older than ``replan_period``; otherwise the next stop becomes ``/goal`` at once. Planning
+    runs off the control loop (see :meth:`Robot.plan_async`); the robot holds until the tour is
+    ready. A planner exception is counted, not raised: after ``max_replan_failures`` consecutive
+    failures exploration gives up, so a broken planner cannot livelock the robot. FAILURE also when
+    nothing reachable is left to explore.
     """
 
     def __init__(self, name: str = "Replan"):
         super().__init__(name)
-        for key in ("/tour", "/goal", "/tour_time", "/exploration", "/replan_failures"):
+        for key in ("/tour", "/goal", "/tour_time", "/tour_planned", "/exploration", "/replan_failures"):
             self.bb.register_key(key, access=Access.WRITE)
+        self.future = None
 
     def setup(self, **kwargs) -> None:
         super().setup(**kwargs)
@@ -98,11 +105,44 @@ class Replan(RobotBehaviour):
         self.bb.set("/exploration", "exploring")
         self.bb.set("/tour", [])
         self.bb.set("/goal", None)
+        self.bb.set("/tour_time", -np.inf)
+        self.bb.set("/tour_planned", 0)
+
+    def _replan_reason(self, tour: list[TourItem]) -> str | None:
+        ex = self.robot.exploration
+        if not tour:
+            return "tour done" if self.bb.get("/tour_planned") else "no tour yet"
+        planned = max(self.bb.get("/tour_planned"), 1)
+        if (planned - len(tour)) / planned >= ex.replan_fraction:
+            return "receding horizon"
+        if self.robot.time() - self.bb.get("/tour_time") > ex.replan_period:
+            return "tour stale"
+        if self.robot.frontier_change() >= ex.frontier_change:
+            return "frontiers changed"
+        return None
+
+    def initialise(self) -> None:
+        tour: list[TourItem] = list(self.bb.get("/tour"))
+        goal = self.bb.get("/goal")
+        if tour and goal is not None and tour[0] is goal:
+            tour = tour[1:]  # the stop the last iteration handled
+            self.bb.set("/tour", tour)
+        self.reason = self._replan_reason(tour)
+        self.future = self.robot.plan_async() if self.reason else None
 
     def update(self) -> Status:
+        if self.future is None:
+            tour = self.bb.get("/tour")
+            self.bb.set("/goal", tour[0])
+            self.feedback_message = f"following the tour: {len(tour)} stops left"
+            return Status.SUCCESS
+        if not self.future.done():
+            self.robot.hold()
+            self.feedback_message = f"planning ({self.reason})"
+            return Status.RUNNING
         try:
-            tour = self.robot.plan()
-        except Exception as exc:  # recovery: count, report, hold position, retry on the next tick
+            tour = self.future.result()
+        except Exception as exc:  # recovery: count, report, hold position, retry
             failures = self.bb.get("/replan_failures") + 1
             self.bb.set("/replan_failures", failures)
             self.robot.emit("planner_error", error=f"{type(exc).__name__}: {exc}", failures=failures)
@@ -112,6 +152,7 @@ class Replan(RobotBehaviour):
                 self.feedback_message = "planner keeps failing"
                 return Status.FAILURE
             self.feedback_message = f"planner failed ({failures})"
+            self.future = self.robot.plan_async()
             return Status.RUNNING
         self.bb.set("/replan_failures", 0)
         reachable = [item for item in tour if np.all(np.isfinite(item.position))]
@@ -124,14 +165,20 @@ class Replan(RobotBehaviour):
         self.bb.set("/tour", reachable)
         self.bb.set("/goal", reachable[0])
         self.bb.set("/tour_time", self.robot.time())
+        self.bb.set("/tour_planned", len(reachable))
         self.robot.emit(
             "replan",
+            reason=self.reason,
             tour=[[item.kind.value, *np.round(item.position, 2).tolist()] for item in reachable],
             viewpoints=len(self.robot.viewpoints),
         )
-        self.robot.plugin_hook("amslam_replan", t=self.robot.time(), tour=reachable, reason="loop")
+        self.robot.plugin_hook("amslam_replan", t=self.robot.time(), tour=reachable, reason=self.reason)
         self.feedback_message = f"{len(reachable)} stops, next {reachable[0].kind.value}"
         return Status.SUCCESS
+
+    def terminate(self, new_status: Status) -> None:
+        if new_status == Status.INVALID and self.future is not None:
+            self.future.cancel()
 
 
 class IsGoalKind(RobotBehaviour):
@@ -178,6 +225,7 @@ class GoTo(RobotBehaviour):
 
     #: how far ahead along the path the fresh local map is checked, m
     LOOKAHEAD = 1.5
+    WAYPOINT_TOLERANCE = 0.15
     SKIP_NEAR = 0.3
     #: a viewpoint this close to the goal (m) means the goal's frontier is still there
     SAME_GOAL = 1.0
@@ -214,9 +262,11 @@ class GoTo(RobotBehaviour):
                 return self._done("frontier seen on the way")
             if self.robot.time() - self.bb.get("/tour_time") > exploration.replan_period:
                 return self._done("tour stale: replan")
+        # Intermediate waypoints are passed tightly: cutting a corner near a door frame is how
+        # a drone hits it.
         while (
             self.index < len(self.path) - 1
-            and np.linalg.norm(self.path[self.index] - here) < exploration.goal_tolerance
+            and np.linalg.norm(self.path[self.index] - here) < self.WAYPOINT_TOLERANCE
         ):
             self.index += 1
         target = self.path[self.index]
@@ -293,9 +343,10 @@ class AttemptLoopClosure(RobotBehaviour):
     def __init__(self, name: str = "AttemptSLC"):
         super().__init__(name)
         self.bb.register_key("/slc", access=Access.WRITE)
+        self.bb.register_key("/goal", access=Access.READ)
 
     def update(self) -> Status:
-        result = self.robot.attempt_loop_closure()
+        result = self.robot.attempt_loop_closure(self.bb.get("/goal"))
         self.bb.set("/slc", {"accepted": result.accepted, "reason": result.reason, "matched": result.matched})
         self.robot.emit(
             "loop_closure",

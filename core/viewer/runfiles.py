@@ -34,10 +34,9 @@ FILES = {
     "vio": "vio.tum",
     "slam": "slam.tum",
 }
-#: a floor's top-down slice starts this far above its slab (skips the floor surface itself) ...
-SLICE_ABOVE_FLOOR = 0.3
-#: ... and stops this far below the next floor's slab (skips the ceiling)
-SLICE_BELOW_CEILING = 0.45
+#: a z level of the map holding this many times the median count of its floor's levels is a
+#: horizontal surface (floor or ceiling), not walls or furniture
+SURFACE_SPIKE = 1.6
 
 
 def yaw_from_quaternion(qx: float, qy: float, qz: float, qw: float) -> float:
@@ -242,29 +241,49 @@ def floors_from_map(points: np.ndarray, min_storey: float = 1.8) -> list[float]:
     return [round(h, 3) for h in heights]
 
 
+def slice_levels(z: np.ndarray, v: float) -> tuple[float, float]:
+    """The z range of a floor's points to look at from above: above its floor, below its ceiling.
+
+    Walls add about as many voxels to every level; a floor or a ceiling adds a spike. Spikes in
+    the lower half of the floor are its floor surface, in the upper half its ceiling.
+    """
+    if len(z) == 0:
+        return math.inf, -math.inf
+    levels, counts = np.unique(np.round(z / v).astype(np.int64), return_counts=True)
+    spikes = levels[counts > SURFACE_SPIKE * np.median(counts)]
+    middle = (levels[0] + levels[-1]) / 2
+    lower = spikes[spikes <= middle]
+    upper = spikes[spikes > middle]
+    low = (lower.max() + 0.5) * v if len(lower) else -math.inf
+    high = (upper.min() - 0.5) * v if len(upper) else math.inf
+    return float(low), float(high)
+
+
 def floor_slices(points: np.ndarray, heights: list[float]) -> list[dict[str, Any]]:
     """Per floor, the occupied columns seen from above: ``[[x, y, n], ...]`` with n voxels in the slice.
 
-    A floor spans ``[heights[i], heights[i+1])``; its slice leaves out the slab and the ceiling so
-    walls and furniture remain, and ``n`` (voxels in the column) tells a wall from a chair.
+    A floor spans ``[heights[i], heights[i+1])``; its slice leaves out its floor and ceiling
+    surfaces (:func:`slice_levels`) so walls and furniture remain, and ``n`` (voxels in the
+    column) tells a wall from a chair.
     """
     if not heights:
         heights = [float(points[:, 2].min()) if len(points) else 0.0]
-    roof = float(points[:, 2].max()) if len(points) else math.inf
-    tops = [*heights[1:], roof]
+    tops = [*heights[1:], math.inf]
     v = voxel_size(points) if len(points) else 0.25
-    origin = points[:, :2].min(axis=0) if len(points) else np.zeros(2)
+    origin = points.min(axis=0) if len(points) else np.zeros(3)
     floors = []
     for lo, hi in zip(heights, tops, strict=True):
-        z = points[:, 2]
-        band = (z > lo + SLICE_ABOVE_FLOOR) & (z < hi - SLICE_BELOW_CEILING)
+        inside = points[(points[:, 2] >= lo) & (points[:, 2] < hi)]
+        # levels relative to the lowest centre: rounding centres like 0.125 / 0.25 directly would
+        # send neighbours to one cell (round half to even)
+        low, high = slice_levels(inside[:, 2] - origin[2], v) if len(points) else (0.0, 0.0)
+        rel = inside[:, 2] - origin[2]
+        inside = inside[(rel > low) & (rel < high)]
         cells: list[list[float]] = []
-        if band.any():
-            # Index relative to the lowest centre: rounding centres like 0.125 / 0.25 directly would
-            # send neighbours to one cell (round half to even).
-            keys = np.round((points[band, :2] - origin) / v).astype(np.int64)
+        if len(inside):
+            keys = np.round((inside[:, :2] - origin[:2]) / v).astype(np.int64)
             uniq, counts = np.unique(keys, axis=0, return_counts=True)
-            xy = np.round(origin + uniq * v, 3)
+            xy = np.round(origin[:2] + uniq * v, 3)
             cells = [[float(x), float(y), int(n)] for (x, y), n in zip(xy, counts, strict=True)]
         floors.append({"lo": round(lo, 3), "hi": None if math.isinf(hi) else round(hi, 3), "cells": cells})
     return floors

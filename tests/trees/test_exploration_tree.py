@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import Future
 from types import SimpleNamespace
 
 import numpy as np
@@ -42,6 +43,17 @@ class FakeRobot(SimpleNamespace):
             raise outcome
         return outcome
 
+    def plan_async(self):
+        future = Future()
+        try:
+            future.set_result(self.plan())
+        except Exception as exc:
+            future.set_exception(exc)
+        return future
+
+    def frontier_change(self):
+        return 0.0
+
     def emit(self, name, **fields):
         self.events.append(name)
 
@@ -64,7 +76,10 @@ def clean_blackboard():
 
 def tick(behaviour) -> Status:
     behaviour.tick_once()
-    return behaviour.status
+    status = behaviour.status
+    if status != Status.RUNNING:
+        behaviour.stop(status)  # as a parent composite would: the next tick initialises again
+    return status
 
 
 def test_replan_counts_failures_then_gives_up():
@@ -104,3 +119,17 @@ def test_skip_unreachable_gives_up_after_the_limit():
     assert tick(skip) == Status.SUCCESS
     py_trees.blackboard.Blackboard.set("/unreachable", 2)
     assert tick(skip) == Status.FAILURE
+
+
+def test_replan_follows_the_tour_until_half_is_done():
+    items = [TourItem(TourItemKind.EXPLORE, np.array([float(i), 0.0, 1.0]), 0.0, 5.0, i) for i in range(4)]
+    fresh = TourItem(TourItemKind.EXPLORE, np.array([9.0, 9.0, 1.0]), 0.0, 5.0, 9)
+    robot = FakeRobot([list(items), [fresh]])
+    replan = Replan()
+    replan.setup(robot=robot)
+    storage = py_trees.blackboard.Blackboard.storage
+    assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[0]
+    assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[1]  # 1 of 4 done: follow
+    assert replan.feedback_message == "following the tour: 3 stops left"
+    assert tick(replan) == Status.SUCCESS  # 2 of 4 done: receding horizon
+    assert storage["/tour"] == [fresh] and robot.plans == []
