@@ -5,7 +5,7 @@
     amslam plugins
     amslam dump-config KIND PLUGIN
     amslam tree MISSION [--format ascii|unicode|dot|svg|png] [--out FILE]
-    amslam view RUN_DIR [--out FILE] [--serve [--port N]] [--at T]
+    amslam view RUN_DIR [--out FILE] [--screenshot PNG [--time T]] [--serve [--port N]] [--at T]
     amslam experiment {slc-ablation,planners} MISSION [--seeds N]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
@@ -180,7 +180,12 @@ def cmd_view(args) -> int:
         print(render_text(delta.structure or [], tree_state_at(delta.tree, args.at)))
         return 0
     if not args.serve:
-        print(f"replay page: {build_page(run_dir, Path(args.out) if args.out else None)}")
+        page = build_page(run_dir, Path(args.out) if args.out else None)
+        print(f"replay page: {page}")
+        if args.screenshot:
+            from amslam.viewer.browser import screenshot
+
+            print(f"screenshot: {screenshot(page, Path(args.screenshot), at=args.time)}")
         return 0
     server = LiveServer(run_dir, port=args.port)
     print(f"serving {run_dir} at {server.start()} (follows the run while it is written; Ctrl-C to stop)")
@@ -246,6 +251,10 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--serve", action="store_true", help="serve on 127.0.0.1 and follow a run in progress")
     view.add_argument("--port", type=int, default=8765, help="port for --serve (default 8765; 0: any free)")
     view.add_argument("--at", type=float, metavar="T", help="print the tree's state at time T (s) instead")
+    view.add_argument(
+        "--screenshot", metavar="PNG", help="also save a picture of the page (headless Chromium)"
+    )
+    view.add_argument("--time", type=float, metavar="T", help="the page's initial time (s), for --screenshot")
     view.set_defaults(func=cmd_view)
     exp = sub.add_parser("experiment", help="fly a mission several ways over several seeds and compare")
     exp.add_argument("name", choices=["slc-ablation", "planners"], help="which comparison")
