@@ -7,6 +7,10 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.amslam-installed
 # Shared libraries the Python wheels load at import time, and the Debian packages providing them.
 SYSTEM_LIBS := libusb-1.0.so.0:libusb-1.0-0 libgomp.so.1:libgomp1
+# Programs optional features use, and their Debian packages: Graphviz draws `amslam tree --format svg|png`,
+# Chromium and its driver run the viewer's browser tests and `amslam view --screenshot`. Set-up installs
+# them where it can (root or password-less sudo) and otherwise goes on with a warning.
+OPTIONAL_PROGRAMS := dot:graphviz chromium:chromium chromedriver:chromium-driver
 
 .PHONY: setup system-deps demo test lint clean
 
@@ -26,6 +30,30 @@ system-deps:
 	  echo "installing system packages:$$missing"; \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq$$missing >/dev/null \
 	    || { echo "could not install:$$missing (run: sudo apt-get install -y$$missing)"; exit 1; }; \
+	fi
+	@missing=""; \
+	for pair in $(OPTIONAL_PROGRAMS); do \
+	  prog=$${pair%%:*}; pkg=$${pair##*:}; \
+	  command -v "$$prog" >/dev/null 2>&1 || missing="$$missing $$pkg"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ]; then SUDO=""; \
+	  elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then SUDO="sudo"; \
+	  else SUDO="-"; fi; \
+	  failed=""; \
+	  if [ "$$SUDO" = "-" ]; then failed="$$missing"; \
+	  else \
+	    echo "installing optional system packages:$$missing"; \
+	    $$SUDO apt-get update -qq >/dev/null 2>&1; \
+	    for pkg in $$missing; do \
+	      DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$pkg >/dev/null 2>&1 || failed="$$failed $$pkg"; \
+	    done; \
+	  fi; \
+	  if [ -n "$$failed" ]; then \
+	    echo "warning: optional Debian packages not installed:$$failed"; \
+	    echo "         tree drawings (svg/png), browser tests and page screenshots are skipped without them;"; \
+	    echo "         install them with:  sudo apt-get install -y$$failed"; \
+	  fi; \
 	fi
 
 $(STAMP): pyproject.toml | system-deps

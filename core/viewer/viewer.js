@@ -683,6 +683,11 @@
     },
     robot: () => T.poseAt(state.traj.ground_truth || [], state.t, state.trajTimes.ground_truth),
     finished: () => state.finished,
+    /** Device pixel of world point (x, y) on floor i's canvas (for tests and tools reading pixels). */
+    toCanvas: (i, x, y) => {
+      const v = state.floorCanvases[i];
+      return [Math.round(v.X(x) * v.dpr), Math.round(v.Y(y) * v.dpr)];
+    },
     records: () => state.timeline.records.length,
   };
 
