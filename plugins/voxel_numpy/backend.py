@@ -110,6 +110,12 @@ class VoxelMapParams(BackendParams):
         description="A kept viewpoint whose re-checked gain falls below this fraction of its gain when "
         "sampled is sampled again.",
     )
+    tight_penalty: float = Field(
+        3.0,
+        ge=1.0,
+        description="Cost multiplier of path stretches closer to obstacles than the robot radius plus "
+        "its clearance margin (still passable, e.g. doors).",
+    )
     snap_radius: float = Field(
         0.6,
         ge=0,
@@ -293,12 +299,15 @@ class VoxelMapBase(Mapping):
         lo, hi = lo - 1, hi + 1
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
+        passable = traversable(states, self.robot_radius, self.global_map.voxel)
+        roomy = traversable(states, self.segment_radius, self.global_map.voxel)
         graph = FreeSpaceGraph(
-            traversable(states, self.robot_radius, self.global_map.voxel),
+            passable,
             lo,
             self.global_map.voxel,
             self.params.snap_radius,
             states,
+            penalty=np.where(roomy, 1.0, self.params.tight_penalty),
         )
         self._graph = (self._version, graph)
         return graph

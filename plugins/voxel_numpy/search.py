@@ -73,10 +73,19 @@ class FreeSpaceGraph:
         snap_radius: a query point off the graph connects to the nearest node within this distance,
             provided its own voxel is not occupied (the robot's own cell is unseen at take-off).
         states: the matching VoxelState block, used to refuse snapping from occupied voxels.
+        penalty: optional per-voxel cost multiplier (≥ 1); an edge costs its length times the mean
+            of its two ends' multipliers. Like a costmap's inflation layer, it keeps paths away from
+            walls where there is room without closing narrow doors.
     """
 
     def __init__(
-        self, passable: np.ndarray, lo: np.ndarray, voxel: float, snap_radius: float, states: np.ndarray
+        self,
+        passable: np.ndarray,
+        lo: np.ndarray,
+        voxel: float,
+        snap_radius: float,
+        states: np.ndarray,
+        penalty: np.ndarray | None = None,
     ):
         self.lo = np.asarray(lo, dtype=np.int64)
         self.voxel = voxel
@@ -94,7 +103,11 @@ class FreeSpaceGraph:
             both = passable[sa] & passable[sb]
             rows.append(self.node_of_voxel[sa][both])
             cols.append(self.node_of_voxel[sb][both])
-            weights.append(np.full(int(both.sum()), voxel * float(np.linalg.norm(off))))
+            length = voxel * float(np.linalg.norm(off))
+            if penalty is None:
+                weights.append(np.full(int(both.sum()), length))
+            else:
+                weights.append(length * 0.5 * (penalty[sa][both] + penalty[sb][both]))
         r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
         n = len(self.node_index)
         self.graph = sparse.csr_matrix((w, (r, c)), shape=(n, n))
