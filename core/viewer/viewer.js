@@ -37,6 +37,7 @@
     finished: !live || !!(data.static && live.finished),
     timeline: new T.TreeTimeline(data.structure || [], data.tree || []),
     events: data.events || [],
+    eventTimes: [],
     traj: data.traj || {},
     trajTimes: {},
     stat: data.static || null,
@@ -416,7 +417,7 @@
         const ring = 2 * lm.sigma * Math.SQRT1_2 * view.scale;
         g.strokeStyle = classColour(lm.class);
         if (ring > 7) {
-          g.globalAlpha = 0.45;
+          g.globalAlpha = 0.3;
           g.lineWidth = 1;
           g.beginPath(); g.arc(x, y, ring, 0, 2 * Math.PI); g.stroke();
           g.globalAlpha = 1;
@@ -509,7 +510,8 @@
 
   let currentEvent = null;
   function renderEvents(scroll) {
-    const i = T.upperBound(state.events.map((e) => e.t), state.t) - 1;
+    if (state.eventTimes.length !== state.events.length) state.eventTimes = state.events.map((e) => e.t);
+    const i = T.upperBound(state.eventTimes, state.t) - 1;
     const row = i >= 0 ? state.eventRows[i] : null;
     if (row === currentEvent) return;
     if (currentEvent) currentEvent.classList.remove("current");
