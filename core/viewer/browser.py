@@ -45,7 +45,7 @@ def find_chromedriver() -> str | None:
     return shutil.which("chromedriver")
 
 
-def screenshot(page: Path, out: Path, at: float | None = None, size: tuple[int, int] = (1600, 1000)) -> Path:
+def screenshot(page: Path, out: Path, at: float | None = None, size: tuple[int, int] = (1440, 900)) -> Path:
     """Render ``page`` in headless Chromium at time ``at`` (default: the start) and save a PNG.
 
     Raises:

@@ -5,9 +5,13 @@ Skipped, with the reason, where Selenium or the system's Chromium and chromedriv
 
 from __future__ import annotations
 
+import struct
+
 import pytest
 
+from amslam.cli import main
 from amslam.viewer import LiveServer, build_page
+from amslam.viewer.browser import INSTALL_HINT, find_chromium
 from amslam.viewer.runfiles import poll_run
 from amslam.viewer.timeline import tree_state_at
 from tests.viewer import synthetic
@@ -209,3 +213,15 @@ def test_replay_of_a_real_run(browser, small_run, tmp_path):
     assert max(pixel(browser, wall[0], wall[1])[:3]) < 140
     browser.save_screenshot(str(tmp_path / "real.png"))
     assert js_errors(browser) == []
+
+
+@pytest.mark.skipif(find_chromium() is None, reason=f"no headless browser: {INSTALL_HINT}")
+def test_cli_screenshot(tmp_path, capsys):
+    folder = synthetic.write_run(tmp_path / "run")
+    png = tmp_path / "shot.png"
+    assert main(["view", str(folder), "--screenshot", str(png), "--time", "7"]) == 0
+    header = png.read_bytes()[:24]
+    assert header.startswith(b"\x89PNG")
+    width, height = struct.unpack(">II", header[16:24])
+    assert (width, height) == (1440, 900)
+    assert f"screenshot: {png}" in capsys.readouterr().out
