@@ -442,6 +442,15 @@
           g.strokeStyle = "#1f9e5a"; g.lineWidth = 2.5; g.stroke();
         } else drawCross(g, x, y, 6, "#d23b3b");
       }
+      // a crash, where it happened
+      for (const e of state.events) {
+        if (e.t > t) break;
+        if (e.event !== "sim_crash" && e.event !== "crash") continue;
+        const p = e.position || T.poseAt(state.traj.ground_truth || [], e.t, state.trajTimes.ground_truth);
+        if (!p || floorOf(p[2]) !== fi) continue;
+        drawCross(g, view.X(p[0]), view.Y(p[1]), 11, "#b00020");
+        break; // one mark: sim_crash and crash name the same collision
+      }
       // estimates (hollow) and the true robot (filled)
       for (const name in estimates) {
         const p = estimates[name];
