@@ -126,6 +126,23 @@ class GtsamSlam(Slam):
         )
         slc_max_drift_floor: float = Field(1.0, ge=0, description="plus this many metres")
         slc_merge_sigma: float = Field(0.05, gt=0, description="std of the duplicate-landmark fusion, m")
+        slc_prior: bool = Field(
+            True,
+            description="only corrections within the drift bound of the current estimate are candidates"
+            " (False: the paper's search over all transforms)",
+        )
+        slc_prior_translation_floor: float = Field(
+            0.4, ge=0, description="drift bound: position correction at zero untied travel, m"
+        )
+        slc_prior_translation_ratio: float = Field(
+            0.03, ge=0, description="drift bound: plus this share of the travel since the map here was seen"
+        )
+        slc_prior_yaw_floor: float = Field(
+            0.15, ge=0, description="drift bound: yaw correction at zero untied travel, rad"
+        )
+        slc_prior_yaw_ratio: float = Field(
+            0.005, ge=0, description="drift bound: plus this much yaw per metre of untied travel, rad/m"
+        )
         # active SLC
         dbscan_eps: float = Field(2.5, gt=0, description="DBSCAN neighbourhood of landmark clusters, m")
         cluster_min_landmarks: int = Field(3, ge=1, description="fewest landmarks of an SLC cluster")
@@ -532,8 +549,23 @@ class GtsamSlam(Slam):
 
     # ---------------------------------------------------------------- semantic loop closure (§V-C)
 
+    def _live_id(self, lm_id: int) -> int:
+        """The landmark an id stands for now (following merges; a dropped one stands for itself)."""
+        seen = {lm_id}
+        while (nxt := self._lms[lm_id].alias_of) is not None and nxt >= 0 and nxt not in seen:
+            lm_id = nxt
+            seen.add(lm_id)
+        return lm_id
+
     def _panorama(self, odom: Odometry) -> tuple[list[list[_Observation]], np.ndarray, list[str]]:
-        """Objects seen in the current panorama, merged per class, in the yaw-free local frame."""
+        """Objects seen in the current panorama, in the yaw-free local frame.
+
+        Detections the front end associated with the same landmark are one object (one chair seen
+        from several headings gives centroids more than ``slc_merge_radius`` apart, biased towards
+        the visible side; splitting it would put several B points on one map landmark). Objects of
+        one class whose centres (odometry frame) lie within ``slc_merge_radius`` are then merged:
+        duplicates the drifting front end created for one physical object.
+        """
         p = self.params
         T = odom.T_odom_body
         recent = [
@@ -542,25 +574,68 @@ class GtsamSlam(Slam):
             if odom.stamp - o.stamp <= p.slc_window
             and np.linalg.norm(self._kps[o.keypose].T_odom_body[:3, 3] - T[:3, 3]) <= p.slc_panorama_radius
         ]
+        by_landmark: dict[int, list[_Observation]] = {}
+        for o in recent:
+            by_landmark.setdefault(self._live_id(o.landmark), []).append(o)
         groups: list[list[_Observation]] = []
         centres: list[np.ndarray] = []
-        for o in recent:
+        for obs in by_landmark.values():
+            c = np.mean([q.p_odom for q in obs], axis=0)
             best, bd = -1, p.slc_merge_radius
-            for g, (grp, c) in enumerate(zip(groups, centres, strict=True)):
-                dd = float(np.linalg.norm(c - o.p_odom))
-                if grp[0].class_name == o.class_name and dd <= bd:
+            for g, (grp, cg) in enumerate(zip(groups, centres, strict=True)):
+                dd = float(np.linalg.norm(cg - c))
+                if grp[0].class_name == obs[0].class_name and dd <= bd:
                     best, bd = g, dd
             if best < 0:
-                groups.append([o])
-                centres.append(o.p_odom.copy())
+                groups.append(list(obs))
+                centres.append(c)
             else:
-                groups[best].append(o)
+                groups[best].extend(obs)
                 centres[best] = np.mean([q.p_odom for q in groups[best]], axis=0)
         psi = yaw_of(T)
         c, s = math.cos(psi), math.sin(psi)
         Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         local = (np.array(centres).reshape(-1, 3) - T[:3, 3]) @ Rz  # Rzᵀ (p − t), row-wise
         return groups, local, [g[0].class_name for g in groups]
+
+    def _slc_prior(
+        self, odom: Odometry, old: list[_LandmarkRec], groups: list[list[_Observation]]
+    ) -> tuple[slc.SlcPrior, np.ndarray]:
+        """The current estimate of the robot's world yaw and position, and per-landmark drift bounds.
+
+        A registration's correction is the drift of the estimate relative to the landmarks it
+        matches, accumulated since the estimate was last tied to them: since each landmark was last
+        observed by a detection *other than the panorama's own* (those are what the loop closure
+        verifies), or since its first sighting. Landmark ``i`` thus bounds the correction by
+        ``floor + ratio × untied_i`` (position and yaw alike), and a solution must respect the
+        bound of every landmark it matches (:class:`.slc.SlcPrior`). A robot that returns after a
+        long loop, whose detections made new duplicates instead of re-observing the old landmarks,
+        gets a wide bound; one whose front end kept re-observing them a narrow one, which rules out
+        alignments shifted by a row of a repeated layout.
+
+        Returns:
+            The prior and the untied travel of each landmark of ``old`` (m).
+        """
+        p = self.params
+        T = self.T_world_odom() @ odom.T_odom_body
+        own = {id(o) for g in groups for o in g}
+        tie = np.array(
+            [
+                max(
+                    (self._kps[o.keypose].distance for o in lm.observations if id(o) not in own),
+                    default=lm.first_distance,
+                )
+                for lm in old
+            ]
+        )
+        untied = np.maximum(self._distance - tie, 0.0)
+        prior = slc.SlcPrior(
+            yaw=yaw_of(T),
+            translation=T[:3, 3].copy(),
+            max_translation=p.slc_prior_translation_floor + p.slc_prior_translation_ratio * untied,
+            max_yaw=p.slc_prior_yaw_floor + p.slc_prior_yaw_ratio * untied,
+        )
+        return prior, untied
 
     def try_loop_closure(
         self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]
@@ -592,13 +667,23 @@ class GtsamSlam(Slam):
             ambiguity_ratio=p.slc_ambiguity_ratio,
         )
         rng = self._context.rng if self._context is not None else None
+        prior, untied = self._slc_prior(odom, old, groups) if p.slc_prior else (None, np.zeros(0))
+        bound: dict[str, float] = {}
         sol = (
-            slc.solve_scalable(A, B, ca, cb, sp, rng=rng)
+            slc.solve_scalable(A, B, ca, cb, sp, prior=prior, rng=rng)
             if p.slc_solver == "scalable"
-            else slc.solve_exhaustive(A, B, ca, cb, sp)
+            else slc.solve_exhaustive(A, B, ca, cb, sp, prior=prior)
         )
+        if prior is not None and sol.matched:
+            # The bound the solution (or the rejected best) was held to: its freshest landmark's.
+            fresh = int(sol.pairs[np.argmin(untied[sol.pairs[:, 0]]), 0])
+            bound = dict(
+                untied_distance=float(untied[fresh]),
+                bound_translation=float(prior.max_translation[fresh]),
+                bound_yaw=float(prior.max_yaw[fresh]),
+            )
         if not sol.accepted:
-            return self._report(LoopClosureResult(False, sol.reason, sol.matched, sol.rms))
+            return self._report(LoopClosureResult(False, sol.reason, sol.matched, sol.rms), **bound)
         # The robot's world pose implied by the registration vs the current SLAM estimate.
         T = odom.T_odom_body
         Rz_vio = slc.yaw_matrix(yaw_of(T))
@@ -611,11 +696,10 @@ class GtsamSlam(Slam):
         oldest = min(old[int(a)].first_distance for a, _ in sol.pairs)
         limit = p.slc_max_drift_floor + p.slc_max_drift_ratio * (now - oldest)
         if dt > limit:
-            return self._report(
-                LoopClosureResult(False, f"correction {dt:.2f} m exceeds {limit:.2f} m", sol.matched, sol.rms)
-            )
+            reason = f"correction {dt:.2f} m exceeds {limit:.2f} m"
+            return self._report(LoopClosureResult(False, reason, sol.matched, sol.rms), **bound)
         self._close_loop(sol, old, groups, T_world_body)
-        return self._report(LoopClosureResult(True, sol.reason, sol.matched, sol.rms, dyaw, dt))
+        return self._report(LoopClosureResult(True, sol.reason, sol.matched, sol.rms, dyaw, dt), **bound)
 
     def _close_loop(
         self,
@@ -653,7 +737,7 @@ class GtsamSlam(Slam):
         # Large corrections need a few relinearisation rounds to settle.
         self._flush(extra_iterations=5)
 
-    def _report(self, result: LoopClosureResult) -> LoopClosureResult:
+    def _report(self, result: LoopClosureResult, **extra: float) -> LoopClosureResult:
         if self._context is not None:
             self._context.emit(
                 "slam_loop_closure",
@@ -663,5 +747,6 @@ class GtsamSlam(Slam):
                 residual=result.residual,
                 yaw_correction=result.yaw_correction,
                 translation_correction=result.translation_correction,
+                **extra,
             )
         return result

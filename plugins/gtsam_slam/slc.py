@@ -19,6 +19,13 @@ pairs, every matched pair within ``inlier_gate`` after alignment, RMS residual `
 ``tolerance``; the best solution has the most pairs, then the smallest residual. A second
 solution with a clearly different transform and nearly as many pairs makes the match
 *ambiguous* (e.g. a regular grid of chairs) and it is rejected rather than guessed.
+
+Both solvers optionally take a :class:`SlcPrior`: the current estimate of the robot's yaw and
+position and a bound on the plausible correction (the drift accumulated since the map was
+built). Transforms outside the bound are not candidates at all, neither as the solution nor as a
+rival, so a repeated layout whose shifted alignments imply an impossible correction is
+disambiguated, while rivals within the bound still make the match ambiguous. Without a prior the
+search is the paper's, over all transforms.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from scipy.spatial import cKDTree
 
 __all__ = [
     "SlcParams",
+    "SlcPrior",
     "SlcSolution",
     "align_yaw",
     "yaw_matrix",
@@ -84,6 +92,79 @@ class SlcParams:
     preview: int = 8
     max_samples: int = 300
     confidence: float = 0.999
+
+
+@dataclass(frozen=True)
+class SlcPrior:
+    """The current estimate of the transform and the largest plausible correction of it.
+
+    B's frame is the robot's yaw-free local frame, so the transform of eq. (1) *is* the robot's
+    world yaw and position: ``yaw`` and ``translation`` are their current (SLAM) estimates, and a
+    registration implying a correction beyond ``max_yaw`` or ``max_translation`` is physically
+    implausible (more drift than the odometry can have accumulated).
+
+    The bounds are one number for all of A, or one per point of A: matching map point ``i``
+    limits the correction to ``max_translation[i]`` / ``max_yaw[i]`` (e.g. the drift accumulated
+    since that landmark was last observed), so a solution must respect the bound of every point
+    it matches, i.e. the smallest.
+
+    Attributes:
+        yaw: estimated world yaw of B's frame, rad.
+        translation: estimated world position of B's origin (3-vector).
+        max_translation: largest plausible ``‖t − translation‖``, metres (scalar or per A point).
+        max_yaw: largest plausible ``|ψ − yaw|`` (wrapped), rad (scalar or per A point).
+    """
+
+    yaw: float
+    translation: np.ndarray
+    max_translation: float | np.ndarray
+    max_yaw: float | np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "translation", np.asarray(self.translation, float).reshape(3))
+        for name in ("max_translation", "max_yaw"):
+            v = np.asarray(getattr(self, name), float)
+            if v.ndim > 1 or np.any(v < 0) or not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be finite, non-negative, a scalar or one per A point")
+            object.__setattr__(self, name, float(v) if v.ndim == 0 else v)
+
+    def _bound(self, value: float | np.ndarray, a_idx: np.ndarray | None) -> np.ndarray | float:
+        if np.ndim(value) == 0:
+            return value
+        if a_idx is None:
+            return float(np.max(value))  # no association yet: the loosest bound over A
+        return np.asarray(value)[np.asarray(a_idx, dtype=np.int64)].min(axis=-1)
+
+    def admits(self, psi: np.ndarray | float, t: np.ndarray, a_idx: np.ndarray | None = None) -> np.ndarray:
+        """Whether transforms ``(ψ, t)`` (N and N×3, or one) lie within the bound.
+
+        Args:
+            psi: yaw of each transform.
+            t: translation of each transform.
+            a_idx: the A points each transform matches (N×k, or k for one transform); only
+                needed for per-point bounds (None: the loosest bound over A).
+        """
+        return self.near(psi, t, 0.0, 0.0, a_idx)
+
+    def near(
+        self,
+        psi: np.ndarray | float,
+        t: np.ndarray,
+        yaw_slack: np.ndarray | float,
+        t_slack: np.ndarray | float,
+        a_idx: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Whether transforms lie within the bound widened by the given slacks (vectorised)."""
+        t = np.asarray(t, float).reshape(-1, 3)
+        if len(t) == 0:
+            return np.zeros(0, dtype=bool)
+        dyaw = np.abs(_wrap(np.asarray(psi, float).reshape(-1) - self.yaw))
+        dt = np.linalg.norm(t - self.translation, axis=1)
+        if a_idx is not None:
+            a_idx = np.asarray(a_idx, dtype=np.int64).reshape(len(t), -1)
+        max_yaw = self._bound(self.max_yaw, a_idx)
+        max_t = self._bound(self.max_translation, a_idx)
+        return (dyaw <= max_yaw + np.asarray(yaw_slack) + 1e-12) & (dt <= max_t + np.asarray(t_slack) + 1e-12)
 
 
 @dataclass(frozen=True)
@@ -210,10 +291,13 @@ class _Candidate:
         return self.differs(other, params) and shared < 2
 
 
-def _decide(best: _Candidate | None, runner: _Candidate | None, params: SlcParams) -> SlcSolution:
+def _decide(
+    best: _Candidate | None, runner: _Candidate | None, params: SlcParams, prior: SlcPrior | None = None
+) -> SlcSolution:
     """The shared acceptance rule."""
     if best is None:
-        return SlcSolution(False, f"no consistent set of {params.min_matches} or more landmarks")
+        where = "" if prior is None else " within the drift bound"
+        return SlcSolution(False, f"no consistent set of {params.min_matches} or more landmarks{where}")
     sol = dict(pairs=best.pairs, yaw=float(_wrap(best.psi)), translation=best.t, residual=best.residual)
     if runner is not None and runner.k >= params.ambiguity_ratio * best.k:
         return SlcSolution(
@@ -262,6 +346,7 @@ def solve_exhaustive(
     labels_b: np.ndarray | list | None = None,
     params: SlcParams | None = None,
     *,
+    prior: SlcPrior | None = None,
     chunk: int = 200_000,
 ) -> SlcSolution:
     """The paper's exhaustive search (§V-C): variations of A × combinations of B, largest first.
@@ -277,6 +362,7 @@ def solve_exhaustive(
         labels_a: class of each A point (None: one class).
         labels_b: class of each B point.
         params: acceptance rule.
+        prior: when given, only transforms within its bound are candidates (solution or rival).
         chunk: associations evaluated per vectorised batch (memory bound).
     """
     p = params or SlcParams()
@@ -307,6 +393,8 @@ def solve_exhaustive(
                 if not valid.any():
                     continue
                 idx = np.flatnonzero(valid)
+                if prior is not None:
+                    idx = idx[prior.admits(psi[idx], t[idx], sel[idx])]
                 err = _pair_errors(pa[idx], pb[idx], psi[idx], t[idx])
                 idx = idx[np.all(err <= p.inlier_gate, axis=1)]
                 for i in idx:
@@ -318,9 +406,9 @@ def solve_exhaustive(
             runner = next((c for c in level[1:] if best.rival(c, p)), None)
             if runner is None:
                 # A smaller, different solution counts too (e.g. a shifted grid losing a row).
-                runner = _best_different_below(A, B, ca, cb, best, k, p, chunk)
+                runner = _best_different_below(A, B, ca, cb, best, k, p, chunk, prior)
             break
-    return _decide(best, runner, p)
+    return _decide(best, runner, p, prior)
 
 
 def _best_different_below(
@@ -332,8 +420,10 @@ def _best_different_below(
     k_best: int,
     p: SlcParams,
     chunk: int,
+    prior: SlcPrior | None = None,
 ) -> _Candidate | None:
-    """Largest valid solution below level ``k_best`` whose transform differs from ``best``."""
+    """Largest valid solution below level ``k_best`` whose transform differs from ``best``
+    (and lies within the prior's bound, when one is given)."""
     n, m = len(A), len(B)
     k_min = max(p.min_matches, math.ceil(p.ambiguity_ratio * k_best))
     for k in range(k_best - 1, k_min - 1, -1):
@@ -349,6 +439,8 @@ def _best_different_below(
                 pb = np.broadcast_to(B[comb], pa.shape)
                 psi, t, res = _align_batch(pa, pb)
                 idx = np.flatnonzero(res <= p.tolerance**2)
+                if prior is not None:
+                    idx = idx[prior.admits(psi[idx], t[idx], sel[idx])]
                 if len(idx) == 0:
                     continue
                 err = _pair_errors(pa[idx], pb[idx], psi[idx], t[idx])
@@ -423,14 +515,22 @@ def _trim(
 
 
 def _refine(
-    A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, psi: float, t: np.ndarray, p: SlcParams
+    A: np.ndarray,
+    ca: np.ndarray,
+    B: np.ndarray,
+    cb: np.ndarray,
+    psi: float,
+    t: np.ndarray,
+    p: SlcParams,
+    prior: SlcPrior | None = None,
 ) -> _Candidate | None:
     """Alternate association and closed-form alignment until the association is stable.
 
     A 2-point hypothesis can be off by up to twice the gate at the far end of B, so the first
     association uses a doubled gate; each fit is then trimmed (worst pair first) until it
     satisfies the acceptance rule, and points are re-associated at the gate with the new
-    transform. The result satisfies the rule, or None.
+    transform. The result satisfies the rule (and lies within the prior's bound), or None: a
+    refinement drifting out of the bound stops at its last admissible fit.
     """
     pairs = _associate(A, ca, B, cb, psi, t, 2.0 * p.inlier_gate)
     best: _Candidate | None = None
@@ -439,6 +539,8 @@ def _refine(
         if fit is None:
             return best
         pairs, psi, t, res = fit
+        if prior is not None and not prior.admits(psi, t, pairs[:, 0])[0]:
+            return best
         cand = _Candidate(pairs, psi, t, res)
         if best is not None and (cand.k, -cand.residual) <= (best.k, -best.residual):
             return best
@@ -451,7 +553,13 @@ def _refine(
 
 
 def _polish(
-    A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, cand: _Candidate, p: SlcParams
+    A: np.ndarray,
+    ca: np.ndarray,
+    B: np.ndarray,
+    cb: np.ndarray,
+    cand: _Candidate,
+    p: SlcParams,
+    prior: SlcPrior | None = None,
 ) -> _Candidate:
     """Single-pair swaps that lower the residual of eq. (2) at the same cardinality.
 
@@ -480,11 +588,38 @@ def _polish(
         psi, t, res = _align_batch(pa, pbb)
         err = _pair_errors(pa, pbb, psi, t)
         ok = (res < best.residual - 1e-12) & (res <= p.tolerance**2) & np.all(err <= p.inlier_gate, axis=1)
+        if prior is not None:
+            ok &= prior.admits(psi, t, swaps[..., 0])
         if not ok.any():
             break
         j = int(np.flatnonzero(ok)[np.argmin(res[ok])])
         best = _Candidate(swaps[j], float(psi[j]), t[j], float(res[j]))
     return best
+
+
+def _may_reach_prior(
+    prior: SlcPrior,
+    psi: np.ndarray,
+    t: np.ndarray,
+    h_a: np.ndarray,
+    h_b: np.ndarray,
+    mid_b: np.ndarray,
+    pair_a: np.ndarray,
+    gate: float,
+) -> np.ndarray:
+    """Whether a 2-point hypothesis can belong to a solution within the prior's bound.
+
+    If both points of the pair are inliers of a solution (ψ*, t*) (each within ``gate``), the
+    pair vectors differ by at most 2·gate after rotation by ψ*, so the hypothesis yaw is within
+    δ = asin(2·gate / max(h_A, h_B)) of ψ* (any yaw when 2·gate ≥ that length); the midpoints
+    agree within ``gate``, so ‖t_h − t*‖ ≤ gate + 2 sin(δ/2) ‖m_B,xy‖. A hypothesis farther than
+    these slacks beyond the bound cannot lead to an admissible solution through its own pair
+    (whose two A points ``pair_a`` any such solution matches, so their bounds apply).
+    """
+    ratio = 2.0 * gate / np.maximum(np.maximum(h_a, h_b), 1e-12)
+    delta = np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
+    t_slack = gate + 2.0 * np.sin(0.5 * delta) * np.hypot(mid_b[:, 0], mid_b[:, 1])
+    return prior.near(psi, t, delta, t_slack, pair_a)
 
 
 def solve_scalable(
@@ -494,6 +629,7 @@ def solve_scalable(
     labels_b: np.ndarray | list | None = None,
     params: SlcParams | None = None,
     *,
+    prior: SlcPrior | None = None,
     rng: np.random.Generator | None = None,
 ) -> SlcSolution:
     """Invariant-guided 2-point RANSAC with the closed form of eqs. (3)–(6).
@@ -507,12 +643,18 @@ def solve_scalable(
     with a different transform is kept to detect ambiguity. Sampling stops by the usual adaptive
     rule once the best inlier ratio makes a miss unlikely (``params.confidence``).
 
+    With a ``prior``, a hypothesis is dropped before scoring when no transform within the bound
+    can have both of its points as inliers (a necessary condition, so nothing admissible is
+    lost), the prior transform itself is one more hypothesis, and refined solutions outside the
+    bound are discarded: neither solution nor rival.
+
     Args:
         A: n×3 map centroids (world).
         B: m×3 observed centroids (yaw-free local frame).
         labels_a: class of each A point (None: one class).
         labels_b: class of each B point.
         params: acceptance rule and search settings.
+        prior: when given, only transforms within its bound are candidates (solution or rival).
         rng: generator for sampling B pairs (only used when B has more than ``max_samples`` pairs).
     """
     p = params or SlcParams()
@@ -521,7 +663,7 @@ def solve_scalable(
     ca, cb = _encode_classes(_labels(labels_a, len(A)), _labels(labels_b, len(B)))
     n, m = len(A), len(B)
     if min(n, m) < max(p.min_matches, 2):
-        return _decide(None, None, p)
+        return _decide(None, None, p, prior)
     rng = rng or np.random.default_rng(0)
 
     # Ordered pairs of A with their invariants, sorted by horizontal distance.
@@ -541,7 +683,7 @@ def solve_scalable(
     keep = hb >= p.min_pair_distance
     jb, lb, vb, hb = jb[keep], lb[keep], vb[keep], hb[keep]
     if len(jb) == 0 or len(ia) == 0:
-        return _decide(None, None, p)
+        return _decide(None, None, p, prior)
     sample_order = rng.permutation(len(jb)) if len(jb) > p.max_samples else np.arange(len(jb))
     sample_order = sample_order[: p.max_samples]
 
@@ -557,6 +699,13 @@ def solve_scalable(
     hyps_t: list[np.ndarray] = []
     hyps_n: list[np.ndarray] = []
     best_count = 0
+    if prior is not None:
+        # The prior transform is a hypothesis of its own (the refinement takes it from there).
+        n0 = scorer.count(B, cb, np.array([prior.yaw]), prior.translation[None], score_gate)
+        if n0[0] >= p.min_matches:
+            hyps_psi.append(np.array([prior.yaw]))
+            hyps_t.append(prior.translation[None].copy())
+            hyps_n.append(n0)
     needed = len(sample_order)
     batch = 24  # B pairs per round; 24 suffice at 50 % inliers (adaptive rule below)
     done = 0
@@ -584,6 +733,12 @@ def solve_scalable(
         mb = 0.5 * (B[jb[bsel]] + B[lb[bsel]])
         ma = 0.5 * (A[ia[idx_a]] + A[ka[idx_a]])
         t = ma - np.stack([c * mb[:, 0] - s * mb[:, 1], s * mb[:, 0] + c * mb[:, 1], mb[:, 2]], axis=1)
+        if prior is not None:
+            pair_a = np.stack([ia[idx_a], ka[idx_a]], axis=1)
+            keep = _may_reach_prior(prior, psi, t, ha[idx_a], hb[bsel], mb, pair_a, p.inlier_gate)
+            psi, t = psi[keep], t[keep]
+            if len(psi) == 0:
+                continue
         if len(psi) > 4 * len(preview):
             # Preemptive scoring: a cheap look at a few B points, then all of B for the best.
             pre = scorer.count(B[preview], cb[preview], psi, t, score_gate)
@@ -604,12 +759,12 @@ def solve_scalable(
             else:
                 needed = min(needed, math.ceil(math.log(1.0 - p.confidence) / math.log(1.0 - w2)))
     if not hyps_psi:
-        return _decide(None, None, p)
+        return _decide(None, None, p, prior)
     psi_all = np.concatenate(hyps_psi)
     t_all = np.concatenate(hyps_t)
     n_all = np.concatenate(hyps_n)
     if len(psi_all) == 0:
-        return _decide(None, None, p)
+        return _decide(None, None, p, prior)
 
     # Refine the strongest hypotheses, one per distinct transform, best first. Hypotheses close
     # to a solution already found, or very close to one whose refinement failed, are masked out.
@@ -628,7 +783,7 @@ def solve_scalable(
         h = int(np.argmax(np.where(alive, n_all, -1)))
         if cands and n_all[h] < p.ambiguity_ratio * max(c.k for c in cands):
             break
-        cand = _refine(A, ca, B, cb, float(psi_all[h]), t_all[h], p)
+        cand = _refine(A, ca, B, cb, float(psi_all[h]), t_all[h], p, prior)
         alive[h] = False
         if cand is None:
             mask_near(float(psi_all[h]), t_all[h], 0.25)
@@ -640,8 +795,8 @@ def solve_scalable(
         elif (cand.k, -cand.residual) > (cands[twin].k, -cands[twin].residual):
             cands[twin] = cand
     if not cands:
-        return _decide(None, None, p)
+        return _decide(None, None, p, prior)
     cands.sort(key=lambda c: (-c.k, c.residual))
-    best = _polish(A, ca, B, cb, cands[0], p)
+    best = _polish(A, ca, B, cb, cands[0], p, prior)
     runner = next((c for c in cands[1:] if best.rival(c, p)), None)
-    return _decide(best, runner, p)
+    return _decide(best, runner, p, prior)

@@ -10,6 +10,7 @@ from scipy.optimize import minimize
 
 from amslam.plugins.gtsam_slam.slc import (
     SlcParams,
+    SlcPrior,
     align_yaw,
     solve_exhaustive,
     solve_scalable,
@@ -142,3 +143,112 @@ def test_tolerance_rejects_a_bad_fit() -> None:
     B = A + np.array([[0.3, 0, 0], [-0.3, 0, 0], [0, 0.3, 0.2]])  # no rigid motion explains it
     assert not solve_exhaustive(A, B, params=SlcParams(tolerance=0.2)).accepted
     assert solve_exhaustive(A, B, params=SlcParams(tolerance=0.4)).accepted
+
+
+# ------------------------------------------------------------------ the prior (drift bound)
+
+
+def classroom(rows: int = 3, cols: int = 3) -> np.ndarray:
+    """Rows of identical chairs at the simulator's classroom pitch (0.9 m × 0.75 m)."""
+    return np.array([[i * 0.9, j * 0.75, 0.45] for i, j in itertools.product(range(rows), range(cols))])
+
+
+def seen_two_rows() -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """A 3×3 classroom in the map; the robot, at (-2, 0.8) facing +x, sees its first two rows.
+
+    Shifting the observation by one row (0.9 m) matches the last two rows just as well.
+    """
+    A = classroom()
+    yaw, t = 0.1, np.array([-2.0, 0.8, 1.0])
+    rng = np.random.default_rng(4)
+    B = (A[:6] - t) @ yaw_matrix(yaw) + rng.normal(0, 0.03, (6, 3))
+    return A, B, yaw, t
+
+
+@pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
+def test_row_shift_is_ambiguous_without_prior(solver) -> None:  # noqa: ANN001
+    A, B, _, _ = seen_two_rows()
+    sol = solver(A, B)
+    assert not sol.accepted
+    assert sol.reason.startswith("ambiguous")
+
+
+@pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
+def test_drift_bound_disambiguates_the_row_shift(solver) -> None:  # noqa: ANN001
+    A, B, yaw, t = seen_two_rows()
+    # The SLAM estimate is 0.25 m and 0.05 rad off; the shifted rows would imply ~0.9 m.
+    prior = SlcPrior(yaw - 0.05, t + np.array([0.15, -0.2, 0.0]), max_translation=0.5, max_yaw=0.15)
+    sol = solver(A, B, prior=prior)
+    assert sol.accepted, sol.reason
+    assert sorted(map(tuple, sol.pairs.tolist())) == [(i, i) for i in range(6)]
+    assert sol.yaw == pytest.approx(yaw, abs=0.02)
+    np.testing.assert_allclose(sol.translation, t, atol=0.05)
+
+
+@pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
+def test_rival_within_the_drift_bound_is_still_ambiguous(solver) -> None:  # noqa: ANN001
+    A, B, yaw, t = seen_two_rows()
+    prior = SlcPrior(yaw - 0.05, t + np.array([0.15, -0.2, 0.0]), max_translation=1.5, max_yaw=0.15)
+    sol = solver(A, B, prior=prior)
+    assert not sol.accepted
+    assert sol.reason.startswith("ambiguous")
+
+
+@pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
+def test_per_landmark_bounds_take_the_freshest_matched_landmark(solver) -> None:  # noqa: ANN001
+    A, B, yaw, t = seen_two_rows()
+    prior_t = t + np.array([0.15, -0.2, 0.0])
+    # Only the last row is stale (loose bound): the shift also matches the fresh middle row, so
+    # its own landmarks rule it out.
+    loose = np.where(np.arange(len(A)) >= 6, 3.0, 0.5)
+    sol = solver(A, B, prior=SlcPrior(yaw - 0.05, prior_t, loose, np.full(len(A), 0.15)))
+    assert sol.accepted, sol.reason
+    assert sorted(map(tuple, sol.pairs.tolist())) == [(i, i) for i in range(6)]
+    # Every landmark stale: the shift is within the bound again.
+    sol = solver(A, B, prior=SlcPrior(yaw - 0.05, prior_t, np.full(len(A), 3.0), 0.15))
+    assert sol.reason.startswith("ambiguous")
+
+
+@pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
+def test_solution_outside_the_bound_is_refused(solver) -> None:  # noqa: ANN001
+    A, B, yaw, t = seen_two_rows()
+    far = SlcPrior(yaw, t + np.array([3.0, 0.0, 0.0]), max_translation=0.5, max_yaw=0.15)
+    sol = solver(A, B, prior=far)
+    assert not sol.accepted
+    assert "within the drift bound" in sol.reason
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_prior_never_changes_a_unique_answer(seed: int) -> None:
+    inst = make_instance(np.random.default_rng(seed), n=6 + seed % 3, outliers=0.3)
+    rng = np.random.default_rng(1000 + seed)
+    prior = SlcPrior(
+        inst.yaw + rng.uniform(-0.1, 0.1),
+        inst.t + rng.uniform(-0.2, 0.2, 3),
+        max_translation=0.8,
+        max_yaw=0.25,
+    )
+    ex = solve_exhaustive(inst.A, inst.B, inst.ca, inst.cb)
+    answers = [
+        solve_exhaustive(inst.A, inst.B, inst.ca, inst.cb, prior=prior),
+        solve_scalable(inst.A, inst.B, inst.ca, inst.cb, prior=prior),
+    ]
+    for sol in answers:
+        if ex.accepted:  # the unique answer, found with or without the prior
+            assert sol.accepted, sol.reason
+            assert {tuple(p) for p in sol.pairs.tolist()} == {tuple(p) for p in ex.pairs.tolist()}
+            assert sol.yaw == pytest.approx(ex.yaw, abs=1e-9)
+            assert sol.residual == pytest.approx(ex.residual, rel=1e-9)
+    # With a prior, the two solvers still agree.
+    assert answers[0].accepted == answers[1].accepted, (answers[0].reason, answers[1].reason)
+    assert {tuple(p) for p in answers[0].pairs.tolist()} == {tuple(p) for p in answers[1].pairs.tolist()}
+
+
+def test_prior_bounds_are_checked() -> None:
+    with pytest.raises(ValueError):
+        SlcPrior(0.0, np.zeros(3), -1.0, 0.1)
+    pr = SlcPrior(0.0, np.zeros(3), np.array([0.5, 2.0]), 0.1)
+    # A transform 1 m away is admissible only for associations using map point 1 alone.
+    assert not pr.admits(0.0, np.array([1.0, 0, 0]), np.array([0, 1]))[0]
+    assert pr.admits(0.0, np.array([1.0, 0, 0]), np.array([1, 1]))[0]
+    assert not pr.admits(0.2, np.zeros(3), np.array([1]))[0]
