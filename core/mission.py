@@ -99,6 +99,8 @@ class ExplorationSection(_Strict):
     max_unreachable: int = Field(
         8, ge=1, description="consecutive unreachable goals before exploration gives up and returns home"
     )
+    min_height: float = Field(0.7, ge=0, description="fly at least this high above the floor below, m")
+    min_headroom: float = Field(0.6, ge=0, description="and at least this far below the ceiling above, m")
     min_viewpoint_gain: float = Field(
         0.5, ge=0, description="viewpoints promising less unknown volume than this (m³) are ignored"
     )

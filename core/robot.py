@@ -27,6 +27,7 @@ from amslam.types import (
     SlcCandidate,
     TourItem,
     Viewpoint,
+    VoxelState,
 )
 
 
@@ -134,8 +135,39 @@ class Robot:
         self.visited.append(np.asarray(position, float))
         self.viewpoints_stale = True
 
+    def set_viewpoints(self, viewpoints: list[Viewpoint]) -> None:
+        """Take the mapping backend's fresh viewpoints, each moved into the safe height band."""
+        self.viewpoints = [self._within_band(vp) for vp in viewpoints]
+
+    def _within_band(self, vp: Viewpoint) -> Viewpoint:
+        """Move a viewpoint vertically into the band between floor and ceiling the tree flies in.
+
+        The coarse map allows any height with a robot radius of clearance, but odometry drifts
+        most in z: a goal a radius above the floor or below the ceiling is a crash waiting for
+        a few centimetres of drift. Floor and ceiling are the nearest occupied voxels below and
+        above in the global map.
+        """
+        ex = self.exploration
+        step = self.mapping.voxel_size()
+        offsets = np.arange(step, 3.0 + step, step)
+        column = np.concatenate(
+            [vp.position + np.outer(-offsets, [0, 0, 1]), vp.position + np.outer(offsets, [0, 0, 1])]
+        )
+        occupied = self.mapping.states(column) == VoxelState.OCCUPIED
+        below, above = occupied[: len(offsets)], occupied[len(offsets) :]
+        z = vp.position[2]
+        floor = z - offsets[np.argmax(below)] if below.any() else -np.inf
+        ceiling = z + offsets[np.argmax(above)] if above.any() else np.inf
+        lo, hi = floor + ex.min_height, ceiling - ex.min_headroom
+        if lo > hi:
+            return vp  # a low gap: leave it to the path planner's clearance
+        new_z = float(np.clip(z, lo, hi))
+        if new_z == z:
+            return vp
+        return dataclasses.replace(vp, position=np.array([vp.position[0], vp.position[1], new_z]))
+
     def candidate_viewpoints(self) -> list[Viewpoint]:
-        """Viewpoints worth visiting: enough gain, not known to be unreachable."""
+        """Viewpoints worth visiting: enough gain, not known to be unreachable, at a safe height."""
         out = []
         for vp in self.viewpoints:
             if vp.gain < self.exploration.min_viewpoint_gain:

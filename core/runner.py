@@ -187,7 +187,7 @@ class Runner:
                     if frame.stamp >= next_viewpoints or self.robot.viewpoints_stale:
                         self.robot.viewpoints_stale = False
                         next_viewpoints = frame.stamp + ex.viewpoint_period
-                        self.robot.viewpoints = mapping.viewpoints()
+                        self.robot.set_viewpoints(mapping.viewpoints())
                     if frame.stamp >= next_detect:
                         next_detect = frame.stamp + detect_period
                         detections = detector.detect(frame)

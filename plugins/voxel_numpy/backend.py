@@ -187,10 +187,11 @@ class VoxelMapBase(Mapping):
             self.area = BoundingBox(np.asarray(context.world.bounds_lo), np.asarray(context.world.bounds_hi))
         else:
             self.area = BoundingBox(np.array(p.default_area[0]), np.array(p.default_area[1]))
-        # The coarse graph keeps the robot radius from occupied voxel *boxes* (already conservative
-        # by up to a voxel); straight segments — shortcuts and the local look-ahead — keep the
-        # radius plus the clearance margin, so a 1.2 m door stays passable at 0.25 m voxels.
-        self.robot_radius = float(context.robot.radius)
+        # Hard limit: the robot radius plus half the clearance margin from occupied voxel *boxes*
+        # (drift of the odometry between mapping a surface and passing it eats into the margin;
+        # a 1.2 m door still leaves four 0.25 m voxels whose centres clear 0.375 m). Paths are
+        # pushed out to the full margin by the cost penalty, and straight shortcuts keep it.
+        self.robot_radius = float(context.robot.radius + 0.5 * context.robot.clearance)
         self.segment_radius = float(context.robot.planning_radius)
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
