@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gtsam
 import numpy as np
 import pydantic
@@ -9,6 +11,7 @@ import pytest
 from gtsam.symbol_shorthand import L, X
 
 from amslam.geometry import pose_from, yaw_of
+from amslam.interfaces import RunContext
 from amslam.plugins.gtsam_slam import GtsamSlam
 from amslam.plugins.gtsam_slam.information import brute_force_information_gain
 from amslam.plugins.gtsam_slam.synthetic import camera_mount
@@ -166,3 +169,36 @@ def test_semantic_loop_closure_removes_the_drift() -> None:
         for b in lms:
             if a.id < b.id and a.class_name == b.class_name:
                 assert np.linalg.norm(a.position - b.position) > 0.4
+
+
+def _loop_then_panorama(**params: object) -> tuple[GtsamSlam, list[tuple[str, dict]]]:
+    events: list[tuple[str, dict]] = []
+    slam = GtsamSlam()
+    emit = lambda e, **k: events.append((e, k))  # noqa: E731
+    ctx = RunContext(rng=np.random.default_rng(7), run_dir=Path("."), emit=emit)
+    slam.configure(GtsamSlam.Params(**params), ctx)
+    slam, world = drive_loop(0, slam=slam)
+    Tc = camera_mount()
+    for T in world.panorama():
+        world.move_to(T)
+        slam.add_odometry(world.odometry())
+        slam.add_detections(world.odometry(), Tc, world.detect())
+    slam.try_loop_closure(world.odometry(), Tc, [])
+    return slam, events
+
+
+def test_loop_closure_is_held_to_the_drift_bound() -> None:
+    # Default bound: the start's landmarks were last observed a whole loop (~40 m) ago.
+    _, events = _loop_then_panorama()
+    name, ev = events[-1]
+    assert name == "slam_loop_closure" and ev["accepted"], ev
+    assert ev["untied_distance"] > 30.0
+    p = GtsamSlam.Params()
+    assert ev["bound_translation"] == pytest.approx(
+        p.slc_prior_translation_floor + p.slc_prior_translation_ratio * ev["untied_distance"]
+    )
+    assert ev["translation_correction"] <= ev["bound_translation"]
+    # A bound that does not grow with the untied travel makes the 1 m correction implausible.
+    _, events = _loop_then_panorama(slc_prior_translation_ratio=0.0, slc_prior_yaw_ratio=0.0)
+    assert not events[-1][1]["accepted"]
+    assert "within the drift bound" in events[-1][1]["reason"]
