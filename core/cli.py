@@ -50,7 +50,11 @@ def cmd_run(args) -> int:
 
     mission, registry = _load(args)
     print(f"flying mission {mission.name!r} ({mission.source})", flush=True)
-    result = Runner(mission, registry, Path(args.out), progress=not args.quiet).run()
+
+    def announce(run_dir: Path) -> None:
+        print(f"run folder: {run_dir}  (watch it live: amslam view {run_dir} --serve)", flush=True)
+
+    result = Runner(mission, registry, Path(args.out), progress=not args.quiet, on_start=announce).run()
     m = result.metrics
     print(f"verdict: {result.verdict}")
     if "explored_percent" in m:

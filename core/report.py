@@ -62,6 +62,7 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
         if world is not None:
             share, per_floor = explored_share(mapping, world)
             metrics["reachable_free_volume_m3"] = round(world.reachable_free_volume, 3)
+            metrics["floor_heights"] = [round(float(z), 3) for z in world.floor_heights]
             metrics["explored_percent"] = round(100 * share, 2)
             metrics["explored_percent_per_floor"] = [round(100 * s, 2) for s in per_floor]
     slam = backends.get("slam")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -55,12 +56,18 @@ class Runner:
     """Flies one mission and fills one run folder."""
 
     def __init__(
-        self, mission: Mission, registry: Registry, out_root: Path = Path("runs"), progress: bool = False
+        self,
+        mission: Mission,
+        registry: Registry,
+        out_root: Path = Path("runs"),
+        progress: bool = False,
+        on_start: Callable[[Path], None] = lambda run_dir: None,
     ):
         self.mission = mission
         self.registry = registry
         self.out_root = Path(out_root)
         self.progress = progress
+        self.on_start = on_start
         self.backends: dict[str, Backend] = {}
         self.samples: dict[str, list] = {"uncertainty": [], "explored": []}
 
@@ -112,6 +119,7 @@ class Runner:
         """Fly the mission; always returns with a verdict and a complete run folder."""
         self.rundir = RunDir(self.out_root, self.mission.name)
         self.rundir.write_yaml("mission.yaml", self.mission.resolved())
+        self.on_start(self.rundir.path)
         verdict = "failed: did not start"
         try:
             self._configure()
