@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 
-import pytest
-
 import amslam
 from amslam.mission import load_mission
 from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
@@ -26,14 +24,6 @@ RUN_FILES = (
     "top_view.png",
     "report.md",
 )
-
-
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("small")
-    registry = build_plugin_manager()
-    mission = load_mission(small_mission(folder), registry)
-    return Runner(mission, registry, folder / "runs").run()
 
 
 def test_small_mission_completes_and_explores(small_run):
