@@ -18,10 +18,10 @@ import copy
 import importlib.resources
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from amslam.errors import MissionError, PluginError
 from amslam.interfaces import BACKEND_KINDS, BackendParams
@@ -120,6 +120,23 @@ class ExplorationSection(_Strict):
     uncertainty_period: float = Field(5.0, gt=0, description="period of covariance-trace samples, s")
 
 
+class WaypointsSection(_Strict):
+    """A fixed flight pattern for ``tree: waypoints`` (see docs/flight.md)."""
+
+    points: list[tuple[float, float, float]] = Field(
+        default_factory=list,
+        description="waypoints (x east, y north, z up) in metres relative to the take-off point on the "
+        "ground, flown in straight lines: the operator vouches the way is clear",
+    )
+    heading: Literal["keep", "travel"] = Field(
+        "keep", description="keep the take-off heading, or face the direction of travel"
+    )
+    tolerance: float = Field(0.2, gt=0, description="distance at which a waypoint counts as reached, m")
+    land_timeout: float = Field(
+        60.0, gt=0, description="how long a failsafe waits to see the vehicle touch down, s"
+    )
+
+
 class PluginsSection(_Strict):
     """Plugins to leave out of this run, by entry-point name."""
 
@@ -137,11 +154,21 @@ class MissionModel(_Strict):
     limits: LimitsSection = LimitsSection()
     area: AreaSection | None = None
     exploration: ExplorationSection = ExplorationSection()
+    tree: Literal["exploration", "waypoints"] = Field(
+        "exploration", description="the mission tree: explore (default) or fly the waypoints section"
+    )
+    waypoints: WaypointsSection = WaypointsSection()
     platform: dict[str, Any] = Field(default_factory=dict)
     mapping: dict[str, Any] = Field(default_factory=dict)
     slam: dict[str, Any] = Field(default_factory=dict)
     detector: dict[str, Any] = Field(default_factory=dict)
     planner: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _waypoints_given(self) -> MissionModel:
+        if self.tree == "waypoints" and not self.waypoints.points:
+            raise ValueError("tree: waypoints needs at least one point in waypoints.points")
+        return self
 
 
 @dataclass

@@ -35,7 +35,7 @@ from amslam.registry import Registry
 from amslam.report import compute_metrics, write_outputs
 from amslam.robot import Robot
 from amslam.rundir import RunDir
-from amslam.trees.exploration import build_exploration_tree
+from amslam.trees.flight import build_mission_tree
 from amslam.types import BoundingBox, Odometry
 
 
@@ -157,7 +157,7 @@ class Runner:
             home_world=odom0.T_odom_body[:3, 3].copy(),
         )
         py_trees.blackboard.Blackboard.clear()
-        root = build_exploration_tree(ex, self.registry.behaviours)
+        root = build_mission_tree(model, self.registry.behaviours, failsafe=not platform.simulated)
         tree = py_trees.trees.BehaviourTree(root)
         tree.setup(robot=self.robot)
         recorder = TreeRecorder(tree, self.rundir)

@@ -1,0 +1,299 @@
+"""Trees for real flights: the failsafe guard and the waypoint mission.
+
+A real vehicle can end a mission in ways a simulator does not: the radio link drops, the battery
+runs low, the vehicle leaves its geofence, refuses a command or is taken over by its pilot. A
+platform that knows of such conditions offers ``failsafe() -> Failsafe | None`` (the ``mavsdk``
+platform does; the simulator does not), and the mission tree is put under a guard that answers
+them, built from py_trees composites only::
+
+    Guarded (sequence, reactive)
+    ├── FailsafeGuard (selector, reactive)
+    │   ├── NoFailsafe (inverter)
+    │   │   └── FailsafeTriggered    SUCCESS once the platform reports a failsafe (latched)
+    │   └── Failsafe (sequence)
+    │       ├── FailsafeReturn       return_and_land: straight back over the take-off point
+    │       ├── FailsafeLand         land (hand_over: wait); FAILURE if no touchdown is seen in time
+    │       └── FailsafeEnd          FAILURE naming the failsafe: the run's verdict
+    └── Mission                      the exploration tree, or the waypoint flight:
+        ├── TakeOff
+        ├── FlyWaypoints             straight lines through ``waypoints.points`` (from take-off)
+        └── Land
+
+The guard is ticked first at every tick, so a failsafe pre-empts whatever the mission was doing
+(the pre-empted leaf's ``terminate`` holds position) and the mission is never resumed: the run
+ends with the verdict ``failed: FailsafeEnd: <kind>: <reason>; landed`` (or ``FailsafeLand: ...``
+when no touchdown was seen) and a complete run folder.
+
+========================  ====================================================================
+key                       meaning
+========================  ====================================================================
+``/failsafe``             Failsafe | None — the failsafe being answered
+``/waypoint``             int — index of the waypoint being flown to
+========================  ====================================================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import py_trees
+from py_trees.common import Access, Status
+from py_trees.composites import Selector, Sequence
+from py_trees.decorators import Inverter
+
+import amslam
+from amslam.geometry import wrap_angle
+from amslam.mission import MissionModel, WaypointsSection
+from amslam.trees.behaviours import RobotBehaviour
+
+FailsafeAction = Literal["land", "return_and_land", "hand_over"]
+
+
+@dataclass(frozen=True)
+class Failsafe:
+    """A condition that ends the mission, and what the tree does about it.
+
+    Attributes:
+        kind: ``link_lost``, ``geofence``, ``low_battery``, ``critical_battery``,
+            ``command_refused``, ``mode_changed`` (the vehicle or its pilot left offboard).
+        reason: one sentence for the operator.
+        action: ``land`` here, ``return_and_land`` over the take-off point, or ``hand_over``:
+            send nothing and wait for the vehicle (or its pilot) to land.
+        t: platform time it was raised.
+    """
+
+    kind: str
+    reason: str
+    action: FailsafeAction = "land"
+    t: float = 0.0
+
+
+def active_failsafe(platform) -> Failsafe | None:
+    """The platform's failsafe, if it reports failsafes at all (the simulator does not)."""
+    query = getattr(platform, "failsafe", None)
+    return query() if callable(query) else None
+
+
+class FailsafeTriggered(RobotBehaviour):
+    """SUCCESS once the platform reports a failsafe; it stays SUCCESS from then on."""
+
+    def __init__(self, name: str = "FailsafeTriggered"):
+        super().__init__(name)
+        self.bb.register_key("/failsafe", access=Access.WRITE)
+        self.latched: Failsafe | None = None
+
+    def setup(self, **kwargs) -> None:
+        super().setup(**kwargs)
+        self.bb.set("/failsafe", None)
+
+    def update(self) -> Status:
+        current = active_failsafe(self.robot.platform)
+        if current is not None and (self.latched is None or current.action != self.latched.action):
+            self.latched = current  # escalation (e.g. low → critical battery) replaces the answer
+            self.bb.set("/failsafe", current)
+            self.robot.emit(
+                "failsafe_answered", kind=current.kind, reason=current.reason, action=current.action
+            )
+        if self.latched is None:
+            self.feedback_message = "no failsafe"
+            return Status.FAILURE
+        self.feedback_message = f"{self.latched.kind}: {self.latched.action}"
+        return Status.SUCCESS
+
+
+class FailsafeReturn(RobotBehaviour):
+    """For ``return_and_land``: fly straight back over the take-off point at the current height.
+
+    SUCCESS at once for other actions, on arrival, or when the failsafe escalates to another
+    action (a battery turning critical on the way lands where the vehicle is).
+    """
+
+    def __init__(self, name: str = "FailsafeReturn", tolerance: float = 0.3):
+        super().__init__(name)
+        self.tolerance = tolerance
+        self.bb.register_key("/failsafe", access=Access.READ)
+
+    def initialise(self) -> None:
+        here = self.robot.position_world()
+        self.target = np.array([*self.robot.home_world[:2], here[2]])
+        self.yaw = self.robot.yaw_world()
+
+    def update(self) -> Status:
+        failsafe: Failsafe | None = self.bb.get("/failsafe")
+        if failsafe is None or failsafe.action != "return_and_land":
+            self.feedback_message = "no return needed"
+            return Status.SUCCESS
+        if not self.robot.airborne():
+            self.feedback_message = "on the ground"
+            return Status.SUCCESS
+        if np.linalg.norm(self.robot.position_world() - self.target) < self.tolerance:
+            self.feedback_message = "over the take-off point"
+            return Status.SUCCESS
+        self.robot.send_setpoint_world(self.target, self.yaw)
+        self.feedback_message = "returning"
+        return Status.RUNNING
+
+
+class FailsafeLand(RobotBehaviour):
+    """Land (``hand_over``: only wait); SUCCESS on touchdown, FAILURE after ``timeout`` seconds.
+
+    On a lost link the platform cannot confirm a touchdown: the vehicle's own failsafe lands it
+    and this leaf gives up after the timeout, saying so.
+    """
+
+    def __init__(self, name: str = "FailsafeLand", timeout: float = 60.0):
+        super().__init__(name)
+        self.timeout = timeout
+        self.bb.register_key("/failsafe", access=Access.READ)
+
+    def initialise(self) -> None:
+        self.failsafe: Failsafe | None = self.bb.get("/failsafe")
+        self.started = self.robot.time()
+        if self.failsafe is None or self.failsafe.action != "hand_over":
+            self.robot.land()
+
+    def update(self) -> Status:
+        if not self.robot.airborne():
+            self.feedback_message = "landed"
+            return Status.SUCCESS
+        if self.robot.time() - self.started > self.timeout:
+            self.feedback_message = f"no touchdown seen within {self.timeout:g} s"
+            if self.failsafe is not None and self.failsafe.kind == "link_lost":
+                self.feedback_message += " (link lost: the vehicle's own failsafe is landing it)"
+            return Status.FAILURE
+        self.feedback_message = (
+            "waiting for the vehicle" if self.failsafe.action == "hand_over" else "descending"
+        )
+        return Status.RUNNING
+
+
+class FailsafeEnd(RobotBehaviour):
+    """FAILURE naming the failsafe, so the run's verdict says why the mission ended."""
+
+    def __init__(self, name: str = "FailsafeEnd"):
+        super().__init__(name)
+        self.bb.register_key("/failsafe", access=Access.READ)
+
+    def update(self) -> Status:
+        failsafe: Failsafe | None = self.bb.get("/failsafe")
+        what = f"{failsafe.kind}: {failsafe.reason}" if failsafe else "failsafe"
+        self.feedback_message = f"{what}; landed"
+        return Status.FAILURE
+
+
+class FlyWaypoints(RobotBehaviour):
+    """Fly straight to each waypoint in turn (positions relative to the take-off point).
+
+    SUCCESS after the last one. No obstacle checks: waypoint missions are for open spaces the
+    operator has looked at (see docs/flight.md).
+    """
+
+    def __init__(self, name: str = "FlyWaypoints", section: WaypointsSection | None = None):
+        super().__init__(name)
+        self.section = section or WaypointsSection()
+        self.bb.register_key("/waypoint", access=Access.WRITE)
+
+    def initialise(self) -> None:
+        self.index = 0
+        self.yaw = self.robot.yaw_world()
+        self.bb.set("/waypoint", 0)
+
+    def _target(self, i: int) -> np.ndarray:
+        return self.robot.home_world + np.asarray(self.section.points[i], float)
+
+    def update(self) -> Status:
+        points = self.section.points
+        while self.index < len(points):
+            target = self._target(self.index)
+            here = self.robot.position_world()
+            if np.linalg.norm(target - here) >= self.section.tolerance:
+                break
+            self.robot.emit("waypoint_reached", index=self.index, position=np.round(target, 3).tolist())
+            self.index += 1
+            self.bb.set("/waypoint", self.index)
+        if self.index >= len(points):
+            self.feedback_message = f"all {len(points)} waypoints reached"
+            return Status.SUCCESS
+        yaw = self.yaw
+        if self.section.heading == "travel":
+            d = target - here
+            if np.linalg.norm(d[:2]) > self.section.tolerance:
+                yaw = float(np.arctan2(d[1], d[0]))
+            if abs(wrap_angle(yaw - self.robot.yaw_world())) > 0.5:
+                target = here  # turn first, then go
+        self.robot.send_setpoint_world(target, yaw)
+        self.feedback_message = f"waypoint {self.index + 1}/{len(points)}"
+        return Status.RUNNING
+
+    def terminate(self, new_status: Status) -> None:
+        if new_status == Status.INVALID and self.robot is not None:
+            self.robot.hold()
+
+
+def failsafe_branch(
+    behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]], land_timeout: float = 60.0
+) -> py_trees.behaviour.Behaviour:
+    """SUCCESS while no failsafe is active, then the answer to it (see the module docstring)."""
+    b = behaviours
+    answer = Sequence(
+        "Failsafe",
+        memory=True,
+        children=[
+            b["FailsafeReturn"]("FailsafeReturn"),
+            b["FailsafeLand"]("FailsafeLand", timeout=land_timeout),
+            b["FailsafeEnd"]("FailsafeEnd"),
+        ],
+    )
+    no_failsafe = Inverter("NoFailsafe", b["FailsafeTriggered"]("FailsafeTriggered"))
+    return Selector("FailsafeGuard", memory=False, children=[no_failsafe, answer])
+
+
+def build_waypoint_tree(
+    section: WaypointsSection, behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]]
+) -> py_trees.behaviour.Behaviour:
+    """Take off, fly the waypoints, land."""
+    b = behaviours
+    return Sequence(
+        "Mission",
+        memory=True,
+        children=[
+            b["TakeOff"]("TakeOff"),
+            b["FlyWaypoints"]("FlyWaypoints", section=section),
+            b["Land"]("Land"),
+        ],
+    )
+
+
+def build_mission_tree(
+    model: MissionModel,
+    behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]],
+    failsafe: bool = False,
+) -> py_trees.behaviour.Behaviour:
+    """The tree the mission's ``tree`` field selects, under the failsafe guard when asked.
+
+    The runner asks for the guard on real vehicles (``Platform.simulated`` is False).
+    """
+    from amslam.trees.exploration import build_exploration_tree
+
+    if model.tree == "waypoints":
+        mission = build_waypoint_tree(model.waypoints, behaviours)
+    else:
+        mission = build_exploration_tree(model.exploration, behaviours)
+    if not failsafe:
+        return mission
+    guard = failsafe_branch(behaviours, model.waypoints.land_timeout)
+    return Sequence("Guarded", memory=False, children=[guard, mission])
+
+
+@amslam.hookimpl
+def amslam_behaviours():
+    return {
+        "FlyWaypoints": FlyWaypoints,
+        "FailsafeTriggered": FailsafeTriggered,
+        "FailsafeReturn": FailsafeReturn,
+        "FailsafeLand": FailsafeLand,
+        "FailsafeEnd": FailsafeEnd,
+    }
