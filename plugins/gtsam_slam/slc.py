@@ -284,11 +284,17 @@ class _Candidate:
             or float(np.linalg.norm(self.t - other.t)) > params.distinct_translation
         )
 
-    def rival(self, other: _Candidate, params: SlcParams) -> bool:
+    def rival(self, other: _Candidate, params: SlcParams, by_association: bool = False) -> bool:
         """Whether ``other`` is a genuinely different alignment: transforms apart, and fewer than
-        two shared pairs (two shared pairs pin the same transform; the gap is then noise)."""
+        two shared pairs (two shared pairs pin the same transform; the gap is then noise).
+
+        ``by_association`` (used under a prior): the transform distance is not required. Within a
+        drift bound of a few decimetres, alignments a fraction of a chair pitch apart that match
+        different landmarks are different data associations, which is what the loop closure
+        fixes in the graph.
+        """
         shared = len({tuple(x) for x in self.pairs.tolist()} & {tuple(x) for x in other.pairs.tolist()})
-        return self.differs(other, params) and shared < 2
+        return shared < 2 and (by_association or self.differs(other, params))
 
 
 def _decide(
@@ -403,7 +409,7 @@ def solve_exhaustive(
         if level:
             level.sort(key=lambda c: c.residual)
             best = level[0]
-            runner = next((c for c in level[1:] if best.rival(c, p)), None)
+            runner = next((c for c in level[1:] if best.rival(c, p, prior is not None)), None)
             if runner is None:
                 # A smaller, different solution counts too (e.g. a shifted grid losing a row).
                 runner = _best_different_below(A, B, ca, cb, best, k, p, chunk, prior)
@@ -446,7 +452,7 @@ def _best_different_below(
                 err = _pair_errors(pa[idx], pb[idx], psi[idx], t[idx])
                 for i in idx[np.all(err <= p.inlier_gate, axis=1)]:
                     c = _Candidate(np.stack([sel[i], comb], axis=1), float(psi[i]), t[i], float(res[i]))
-                    if best.rival(c, p):
+                    if best.rival(c, p, prior is not None):
                         found.append(c)
         if found:
             return min(found, key=lambda c: c.residual)
@@ -788,8 +794,12 @@ def solve_scalable(
         if cand is None:
             mask_near(float(psi_all[h]), t_all[h], 0.25)
             continue
-        mask_near(cand.psi, cand.t, 1.0)
-        twin = next((i for i, q in enumerate(cands) if not cand.differs(q, p)), None)
+        # Under a prior, nearby alignments with another association are rivals: mask less.
+        mask_near(cand.psi, cand.t, 1.0 if prior is None else 0.25)
+        if prior is None:
+            twin = next((i for i, q in enumerate(cands) if not cand.differs(q, p)), None)
+        else:
+            twin = next((i for i, q in enumerate(cands) if not cand.rival(q, p, True)), None)
         if twin is None:
             cands.append(cand)
         elif (cand.k, -cand.residual) > (cands[twin].k, -cands[twin].residual):
@@ -798,5 +808,5 @@ def solve_scalable(
         return _decide(None, None, p, prior)
     cands.sort(key=lambda c: (-c.k, c.residual))
     best = _polish(A, ca, B, cb, cands[0], p, prior)
-    runner = next((c for c in cands[1:] if best.rival(c, p)), None)
+    runner = next((c for c in cands[1:] if best.rival(c, p, prior is not None)), None)
     return _decide(best, runner, p, prior)

@@ -210,6 +210,27 @@ def test_per_landmark_bounds_take_the_freshest_matched_landmark(solver) -> None:
 
 
 @pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
+def test_under_a_prior_another_association_nearby_is_a_rival(solver) -> None:  # noqa: ANN001
+    # Tiered seats on an arc, 0.18 rad apart seen from its centre (closer than distinct_yaw), each
+    # tier 0.25 m higher (so the arc read backwards does not fit), five of six seen.
+    ang = 0.55 / 3.0 * np.arange(6)
+    chairs = np.column_stack([3.0 * np.cos(ang), 3.0 * np.sin(ang), 0.45 + 0.25 * np.arange(6)])
+    A = np.vstack([chairs, [[1.0, -6.0, 0.8]]])
+    labels = ["chair"] * 6 + ["shelf"]
+    yaw, t = 0.2, np.array([0.0, 0.0, 1.0])
+    B = (A[:5] - t) @ yaw_matrix(yaw)
+    # Within a 0.3 rad bound only the turn by one seat remains: its transform is within
+    # distinct_yaw of the truth, but it is another association, so still a rival.
+    prior = SlcPrior(yaw + 0.05, t + 0.1, max_translation=0.5, max_yaw=0.3)
+    sol = solver(A, B, labels, labels[:5], prior=prior)
+    assert sol.reason == "ambiguous: another alignment matches 5 of 5 landmarks"
+    # A tight bound excludes it and the partly shifted associations (RMS 0.24 m) as well.
+    sol = solver(A, B, labels, labels[:5], prior=SlcPrior(yaw + 0.02, t + 0.02, 0.15, 0.1))
+    assert sol.accepted, sol.reason
+    assert sorted(map(tuple, sol.pairs.tolist())) == [(i, i) for i in range(5)]
+
+
+@pytest.mark.parametrize("solver", [solve_exhaustive, solve_scalable])
 def test_solution_outside_the_bound_is_refused(solver) -> None:  # noqa: ANN001
     A, B, yaw, t = seen_two_rows()
     far = SlcPrior(yaw, t + np.array([3.0, 0.0, 0.0]), max_translation=0.5, max_yaw=0.15)
