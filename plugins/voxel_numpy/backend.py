@@ -164,6 +164,7 @@ class VoxelMapBase(Mapping):
         self.area = BoundingBox.nothing()
         self.robot_radius = 0.25
         self.segment_radius = 0.25
+        self.local_radius = 0.2
         self._pending = BoundingBox.nothing()  # global updates not yet seen by the frontier tracker
         self._version = 0
         self._graph: tuple[int, FreeSpaceGraph] | None = None
@@ -193,6 +194,11 @@ class VoxelMapBase(Mapping):
         # pushed out to the full margin by the cost penalty, and straight shortcuts keep it.
         self.robot_radius = float(context.robot.radius + 0.5 * context.robot.clearance)
         self.segment_radius = float(context.robot.planning_radius)
+        # The local check catches what the coarse map missed (thin parts, odometry drift since the
+        # coarse map saw a surface). A surface the coarse plan clears by r lies at least r − one
+        # fine voxel from the fine voxel boxes, so the check uses the bare robot radius less half a
+        # fine voxel: it stops real intrusions without refusing every door the plan allows.
+        self.local_radius = float(context.robot.radius - 0.5 * p.local_voxel)
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)
@@ -342,9 +348,9 @@ class VoxelMapBase(Mapping):
         self._require()
         store = self.local_map if local else self.global_map
         samples = segment_samples(a, b, 0.5 * store.voxel)
-        # The local check guards against collision (the robot radius); global segments are
+        # The local check guards against collision (see local_radius); global segments are
         # planning shortcuts and keep the clearance margin as well.
-        radius = self.robot_radius if local else self.segment_radius
+        radius = self.local_radius if local else self.segment_radius
         return samples_clear(samples, radius, store.voxel, store.states_at_index)
 
     def explored_volume(self) -> float:
