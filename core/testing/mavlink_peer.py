@@ -117,8 +117,9 @@ class MavlinkVehiclePeer:
         land_speed: descent speed in LAND, m/s.
         rate_hz: physics and telemetry rate.
         battery: charge at start, 0–1; ``battery_drain`` per second while armed.
-        refuse: command names to answer with ``MAV_RESULT_DENIED`` (``arm``, ``takeoff``,
-            ``land``, ``return``, ``set_mode``, or ``offboard`` for set-mode to offboard only).
+        refuse: command names to answer with ``MAV_RESULT_DENIED`` (``arm``, ``disarm``,
+            ``takeoff``, ``land``, ``return``, ``set_mode``, or ``offboard`` for set-mode to
+            offboard only).
         offboard_loss_timeout: PX4 ``COM_OF_LOSS_T``: seconds without a setpoint before landing.
         disarm_after_landing: PX4 ``COM_DISARM_LAND``, s.
         yaw: initial heading (NED, rad).
@@ -140,6 +141,8 @@ class MavlinkVehiclePeer:
     params: dict[str, float] = field(default_factory=lambda: {"MIS_TAKEOFF_ALT": 2.5})
     trace: list[TracePoint] = field(default_factory=list, init=False)
     log: list[tuple[float, str]] = field(default_factory=list, init=False)
+    #: every command answered: (time, name, MAV_RESULT) — names as in ``refuse``, else the MAV_CMD id
+    commands: list[tuple[float, str, int]] = field(default_factory=list, init=False)
 
     def __post_init__(self) -> None:
         self.refuse = frozenset(self.refuse)
@@ -165,6 +168,7 @@ class MavlinkVehiclePeer:
         self._touchdown: float | None = None
         self._next = {"heartbeat": 0.0, "ext": 0.0, "sys": 0.0}
         self.setpoints_received = 0
+        self._answering = ""
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -270,10 +274,14 @@ class MavlinkVehiclePeer:
         )
 
     def _ack(self, command: int, result: int) -> None:
+        self.commands.append((round(self.now(), 3), self._answering, result))
         self._mav.command_ack_send(command, result)
 
     def _command(self, command: int, p: list[float]) -> None:
         name = COMMAND_NAMES.get(command)
+        if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and p[0] < 0.5:
+            name = "disarm"
+        self._answering = name or str(command)
         ok, denied = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
         if name in self.refuse:
             self._note(f"refused {name}")

@@ -148,6 +148,7 @@ class MavsdkPlatform(Platform):
         self._takeoff_future: Future | None = None
         self._land_future: Future | None = None
         self._landing = False
+        self._commanded = False  # this instance commanded flight (a pre-flight check never does)
         self._poses: collections.deque[tuple[float, np.ndarray]] = collections.deque(maxlen=200)
 
     # ------------------------------------------------------------------------------------------
@@ -265,7 +266,8 @@ class MavsdkPlatform(Platform):
         self._closed = True
         try:
             if self._started and self._loop is not None:
-                if self._link_alive() and self.status().airborne and not self._handed_over():
+                flying = self._link_alive() and self.status().airborne
+                if self._commanded and flying and not self._handed_over():
                     self._event("land_on_close", reason="the run ended with the vehicle in the air")
                     self.land()
                 if self._land_future is not None:
@@ -550,7 +552,7 @@ class MavsdkPlatform(Platform):
             PreflightCheck(
                 "position estimate",
                 estimate,
-                f"local position {np.round(pos, 2).tolist()} (NED)"
+                f"local position {_fmt(pos)} (NED)"
                 if estimate
                 else f"no valid local position within {p.estimate_timeout:g} s",
             )
@@ -565,7 +567,7 @@ class MavsdkPlatform(Platform):
             inside = p.geofence.contains(start, self.robot.radius) and p.geofence.contains(
                 climb, self.robot.radius
             )
-            detail = f"start {np.round(start, 2).tolist()} and take-off height {self.robot.altitude:g} m"
+            detail = f"start {_fmt(start)} and take-off height {self.robot.altitude:g} m"
             detail += " inside" if inside else f" not inside {list(p.geofence.lo)}–{list(p.geofence.hi)}"
             checks.append(PreflightCheck("geofence", inside, detail + f" (margin {self.robot.radius:g} m)"))
         battery = self._tel.battery
@@ -618,9 +620,7 @@ class MavsdkPlatform(Platform):
         if p.geofence is not None and airborne:
             here = odom.T_odom_body[:3, 3]
             if not p.geofence.contains(here):
-                self._raise(
-                    "geofence", f"the vehicle is at {np.round(here, 2).tolist()}, outside the fence", "land"
-                )
+                self._raise("geofence", f"the vehicle is at {_fmt(here)}, outside the fence", "land")
         battery = self._tel.battery
         if airborne and math.isfinite(battery):
             if battery < p.battery_land:
@@ -671,10 +671,11 @@ class MavsdkPlatform(Platform):
         if p.geofence is not None and not p.geofence.contains(position_odom):
             self._raise(
                 "geofence",
-                f"setpoint {np.round(position_odom, 2).tolist()} outside the fence: not sent",
+                f"setpoint {_fmt(position_odom)} outside the fence: not sent",
                 "land",
             )
             return
+        self._commanded = True
         n, e, d = enu_to_ned(position_odom)
         self._setpoint_ned = (float(n), float(e), float(d), math.degrees(yaw_enu_to_ned(yaw)))
         if self._loop is not None and self._setpoint_event is not None:
@@ -690,6 +691,7 @@ class MavsdkPlatform(Platform):
         if self._takeoff_future is not None and not self._takeoff_future.done():
             return
         self._landing = False
+        self._commanded = True
         self._takeoff_future = self._submit(self._takeoff_sequence(float(altitude)))
 
     def land(self) -> None:
@@ -713,6 +715,11 @@ class MavsdkPlatform(Platform):
     def failsafe(self) -> Failsafe | None:
         """The failsafe the mission tree must answer, if any (see the module docstring)."""
         return self._failsafe
+
+
+def _fmt(p: np.ndarray) -> list[float]:
+    """A position for a message: centimetres, no negative zero."""
+    return (np.round(np.asarray(p, float), 2) + 0.0).tolist()
 
 
 _logs_routed = False
