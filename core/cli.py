@@ -1,6 +1,7 @@
 """The ``amslam`` command line.
 
     amslam run MISSION [--out DIR] [--set key.path=value ...]
+    amslam fly MISSION [--out DIR] [--set key.path=value ...]   (a real vehicle, after a pre-flight check)
     amslam validate MISSION
     amslam plugins
     amslam dump-config KIND PLUGIN
@@ -65,6 +66,46 @@ def cmd_run(args) -> int:
     return 0 if result.verdict == "completed" else 1
 
 
+def cmd_fly(args) -> int:
+    """Fly a real vehicle: the pre-flight check first, refusing with every reason that failed."""
+    import tempfile
+
+    import numpy as np
+
+    from amslam.interfaces import RunContext
+
+    mission, registry = _load(args)
+    choice = mission.backends["platform"]
+    cls = registry.backend_class("platform", choice.plugin)
+    print(f"pre-flight check of {mission.name!r} ({mission.source})", flush=True)
+    plugins = ", ".join(f"{kind}={c.plugin}" for kind, c in mission.backends.items())
+    print(f"  ok    plugins loaded: {plugins}")
+    if cls.simulated:
+        raise AmslamError(f"refusing to fly: platform {choice.plugin!r} is simulated; use `amslam run`")
+    if not hasattr(cls, "connect_and_check"):
+        raise AmslamError(f"refusing to fly: platform {choice.plugin!r} offers no pre-flight check")
+    platform = cls()
+    with tempfile.TemporaryDirectory(prefix="amslam-preflight-") as tmp:
+        context = RunContext(
+            rng=np.random.default_rng(mission.model.seed),
+            run_dir=Path(tmp),
+            robot=mission.model.robot.spec(),
+            mission_dir=mission.directory,
+        )
+        try:
+            platform.configure(choice.params, context)
+            checks = platform.connect_and_check()
+        finally:
+            platform.close()
+    for check in checks:
+        print(f"  {'ok' if check.ok else 'FAIL':<5} {check.name}: {check.detail}")
+    failed = [c for c in checks if not c.ok]
+    if failed:
+        raise AmslamError("refusing to fly: " + "; ".join(f"{c.name}: {c.detail}" for c in failed))
+    print("pre-flight check passed", flush=True)
+    return cmd_run(args)
+
+
 def cmd_validate(args) -> int:
     mission, _ = _load(args)
     plugins = ", ".join(f"{kind}={choice.plugin}" for kind, choice in mission.backends.items())
@@ -124,10 +165,11 @@ def _describe_params(model, values: dict, indent: str) -> list[str]:
 def cmd_tree(args) -> int:
     import py_trees
 
-    from amslam.trees.exploration import build_exploration_tree
+    from amslam.trees.flight import build_mission_tree
 
     mission, registry = _load(args)
-    root = build_exploration_tree(mission.model.exploration, registry.behaviours)
+    real = not registry.backend_class("platform", mission.backends["platform"].plugin).simulated
+    root = build_mission_tree(mission.model, registry.behaviours, failsafe=real)
     if args.format in ("ascii", "unicode"):
         render = py_trees.display.ascii_tree if args.format == "ascii" else py_trees.display.unicode_tree
         return _write_text(render(root), args.out)
@@ -228,6 +270,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a mission value")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=cmd_run)
+    fly = sub.add_parser("fly", help="fly a mission on a real vehicle, after a pre-flight check")
+    fly.add_argument("mission", help="mission file, or the name of a packaged mission (e.g. px4_square)")
+    fly.add_argument("--out", default="runs", help="folder that receives the run folder (default: runs)")
+    fly.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a mission value")
+    fly.add_argument("--quiet", action="store_true", help="no progress bar")
+    fly.set_defaults(func=cmd_fly)
     val = sub.add_parser("validate", help="check a mission without flying it")
     val.add_argument("mission")
     val.add_argument("--set", action="append", metavar="KEY.PATH=VALUE")
