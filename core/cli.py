@@ -43,7 +43,11 @@ def _load(args):
     except yaml.YAMLError:
         pass  # load_mission reports it with the line
     registry = _registry(disabled)
-    return load_mission(args.mission, registry, getattr(args, "set", None) or []), registry
+    mission = load_mission(args.mission, registry, getattr(args, "set", None) or [])
+    for name in mission.model.plugins.optional:  # load_mission refused every other load error
+        if name in registry.load_errors:
+            print(f"warning: optional {registry.load_errors[name]}; going on without it", file=sys.stderr)
+    return mission, registry
 
 
 def cmd_run(args) -> int:
@@ -114,6 +118,8 @@ def cmd_validate(args) -> int:
 
 
 def cmd_plugins(args) -> int:
+    from amslam.hookspecs import since
+
     registry = _registry()
     for kind, names in registry.backends.items():
         print(f"{kind}:")
@@ -125,7 +131,16 @@ def cmd_plugins(args) -> int:
             print("  (none)")
     print("behaviours:")
     print("  " + ", ".join(sorted(registry.behaviours)))
-    return 0
+    print("plugins and the hooks they implement (since version):")
+    for name, plugin in sorted((n, p) for n, p in registry.pm.list_name_plugin() if p is not None):
+        hooks = sorted(c.name for c in registry.pm.get_hookcallers(plugin) or [])
+        listed = ", ".join(f"{h} ({since(h)})" for h in hooks) or "(none)"
+        print(f"  {name:<16} {registry.distributions.get(name, 'registered in-process')}: {listed}")
+    if registry.load_errors:
+        print("failed to load (left out):")
+        for name in sorted(registry.load_errors):
+            print(f"  {registry.load_errors[name]}")
+    return 1 if registry.load_errors else 0
 
 
 def cmd_dump_config(args) -> int:

@@ -7,6 +7,12 @@ Backend hooks are called once when the plugin manager is built; their results ar
 one registry per kind (a name provided twice is an error naming both plugins). Observer hooks
 are called by the runner; their return values are ignored and an exception in one is logged as
 an event and does not stop the run.
+
+Versioning: the hooks are amslam's stable plugin API. Every specification's docstring ends with
+``Since: X.Y``, the amslam version that introduced it (``amslam.hookspecs.since(name)`` reads it);
+a hook is never renamed or removed within a major version, and an argument added later says
+``(since X.Y)`` in its description. A plugin that fails to import, implements an ``amslam_*`` hook
+that is not specified here, or raises in a backend hook is reported by name and left out.
 """
 
 from __future__ import annotations
@@ -26,6 +32,18 @@ if TYPE_CHECKING:
 
 hookspec = pluggy.HookspecMarker("amslam")
 
+
+def since(hook_name: str) -> str:
+    """The amslam version that introduced a hook (the ``Since:`` line of its specification)."""
+    func = globals().get(hook_name)
+    if func is None or not hasattr(func, "amslam_spec"):
+        raise KeyError(f"no hook specification named {hook_name!r}")
+    for line in reversed((func.__doc__ or "").strip().splitlines()):
+        if line.strip().startswith("Since:"):
+            return line.split(":", 1)[1].strip()
+    raise ValueError(f"hook specification {hook_name!r} does not say since which version it exists")
+
+
 # --------------------------------------------------------------------------------------------
 # Phase 1 — discovery: backends and behaviours a plugin provides (since 0.1)
 # --------------------------------------------------------------------------------------------
@@ -35,35 +53,59 @@ hookspec = pluggy.HookspecMarker("amslam")
 def amslam_platform_backends() -> dict[str, Callable[[], Platform]]:
     """Platform backends (simulator, real vehicles) this plugin provides, by name.
 
-    Since 0.1. Called once at start-up; all results are merged.
+    Called once at start-up; the results of all plugins are merged.
+
+    Since: 0.1
     """
 
 
 @hookspec
 def amslam_mapping_backends() -> dict[str, Callable[[], Mapping]]:
-    """Volumetric mapping backends this plugin provides, by name. Since 0.1."""
+    """Volumetric mapping backends this plugin provides, by name.
+
+    Called once at start-up; the results of all plugins are merged.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_slam_backends() -> dict[str, Callable[[], Slam]]:
-    """SLAM backends this plugin provides, by name. Since 0.1."""
+    """SLAM backends this plugin provides, by name.
+
+    Called once at start-up; the results of all plugins are merged.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_planner_backends() -> dict[str, Callable[[], Planner]]:
-    """Exploration planner backends this plugin provides, by name. Since 0.1."""
+    """Exploration planner backends this plugin provides, by name.
+
+    Called once at start-up; the results of all plugins are merged.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_detector_backends() -> dict[str, Callable[[], Detector]]:
-    """Object detector backends this plugin provides, by name. Since 0.1."""
+    """Object detector backends this plugin provides, by name.
+
+    Called once at start-up; the results of all plugins are merged.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_behaviours() -> dict[str, Callable[..., py_trees.behaviour.Behaviour]]:
-    """Extra behaviour-tree leaves this plugin provides, by name. Since 0.1.
+    """Extra behaviour-tree leaves this plugin provides, by name.
 
     Tree builders look behaviours up by name, so a plugin can replace a stock one.
+
+    Since: 0.1
     """
 
 
@@ -74,29 +116,47 @@ def amslam_behaviours() -> dict[str, Callable[..., py_trees.behaviour.Behaviour]
 
 @hookspec
 def amslam_run_start(run_dir: Path, mission: dict[str, Any]) -> None:
-    """The run folder exists and the backends are configured; nothing has flown yet."""
+    """The run folder exists and the backends are configured; nothing has flown yet.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_tick(t: float, tree: py_trees.trees.BehaviourTree) -> None:
-    """After every behaviour-tree tick, with the simulated (or wall-clock) time."""
+    """After every behaviour-tree tick, with the simulated (or wall-clock) time.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_keyframe(t: float, keypose: KeyPose) -> None:
-    """The SLAM backend created a key pose."""
+    """The SLAM backend created a key pose.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_replan(t: float, tour: list[TourItem], reason: str) -> None:
-    """A new tour was adopted."""
+    """A new tour was adopted.
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_loop_closure(t: float, result: LoopClosureResult) -> None:
-    """A semantic loop closure was attempted (accepted or not)."""
+    """A semantic loop closure was attempted (accepted or not).
+
+    Since: 0.1
+    """
 
 
 @hookspec
 def amslam_run_end(run_dir: Path, verdict: str, metrics: dict[str, Any], trajectory: np.ndarray) -> None:
-    """The run ended with ``verdict``; ``metrics`` is what ``metrics.json`` holds."""
+    """The run ended with ``verdict``; ``metrics`` is what ``metrics.json`` holds.
+
+    Since: 0.1
+    """

@@ -138,9 +138,13 @@ class WaypointsSection(_Strict):
 
 
 class PluginsSection(_Strict):
-    """Plugins to leave out of this run, by entry-point name."""
+    """Plugins to leave out of this run, and plugins the run may do without, by entry-point name."""
 
-    disable: list[str] = Field(default_factory=list)
+    disable: list[str] = Field(default_factory=list, description="plugins not loaded at all for this run")
+    optional: list[str] = Field(
+        default_factory=list,
+        description="plugins whose failure to load is a warning, not an error (the run goes on without them)",
+    )
 
 
 class MissionModel(_Strict):
@@ -267,6 +271,14 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
         for err in exc.errors():
             report(err["loc"], _describe(err, MissionModel, err["loc"]))
         model = None
+
+    optional = set(model.plugins.optional) if model is not None else set()
+    for name, error in sorted(registry.load_errors.items()):
+        if name not in optional:
+            report(
+                ("plugins",),
+                f"{error} — fix or uninstall it, or list it under plugins.disable or plugins.optional",
+            )
 
     backends: dict[str, BackendChoice] = {}
     for kind in BACKEND_KINDS:

@@ -28,6 +28,8 @@ class Registry:
     providers: dict[str, dict[str, str]] = field(default_factory=dict)  # kind -> name -> plugin
     behaviours: dict[str, Callable] = field(default_factory=dict)
     distributions: dict[str, str] = field(default_factory=dict)  # plugin name -> "dist version"
+    #: plugin name -> one-line reason it was left out (failed to import, rejected hooks, raised in a hook)
+    load_errors: dict[str, str] = field(default_factory=dict)
 
     def factory(self, kind: str, name: str) -> Callable[[], Backend]:
         """The factory of backend ``name`` of ``kind``, or a PluginError listing the installed ones."""
@@ -36,7 +38,12 @@ class Registry:
         found = self.backends.get(kind, {})
         if name not in found:
             installed = ", ".join(sorted(found)) or "none"
-            raise PluginError(f"no {kind} backend named {name!r}; installed: {installed}")
+            broken = (
+                f"; plugins that failed to load: {', '.join(sorted(self.load_errors))}"
+                if self.load_errors
+                else ""
+            )
+            raise PluginError(f"no {kind} backend named {name!r}; installed: {installed}{broken}")
         return found[name]
 
     def backend_class(self, kind: str, name: str) -> type[Backend]:
@@ -51,8 +58,13 @@ def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[o
     ``extra_plugins`` are registered in-process after the entry points (for tests and for
     applications that embed amslam); everything else comes through the entry-point group.
 
+    A plugin that fails to import, whose hooks do not match the specifications, or whose backend
+    hook raises is left out and recorded in ``Registry.load_errors`` with a one-line reason; the
+    other plugins load normally. Whoever uses the registry decides what a load error means (a
+    mission refuses to fly unless it marks the plugin optional, see :func:`amslam.mission.load_mission`).
+
     Raises:
-        PluginError: a plugin failed to import, or two plugins provide the same backend name.
+        PluginError: two plugins provide the same backend name.
     """
     pm = pluggy.PluginManager("amslam")
     pm.add_hookspecs(hookspecs)
@@ -63,31 +75,72 @@ def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[o
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in disabled or pm.is_blocked(ep.name) or pm.has_plugin(ep.name):
             continue
+        dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else None
+        where = f"distribution {dist}, {ep.value}" if dist else ep.value
         try:
             plugin = ep.load()
-        except Exception as exc:  # a broken third-party plugin must not produce a traceback
-            dist = ep.dist.name if ep.dist else "?"
-            raise PluginError(
-                f"plugin {ep.name!r} (distribution {dist}, {ep.value}) failed to load: "
-                f"{type(exc).__name__}: {exc}"
-            ) from exc
-        pm.register(plugin, name=ep.name)
-        if ep.dist is not None:
-            registry.distributions[ep.name] = f"{ep.dist.name} {ep.dist.version}"
+        except BaseException as exc:  # noqa: BLE001 — a broken plugin must not produce a traceback
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            registry.load_errors[ep.name] = f"plugin {ep.name!r} ({where}) failed to load: {_one_line(exc)}"
+            continue
+        try:
+            pm.register(plugin, name=ep.name)
+        except pluggy.PluginValidationError as exc:
+            registry.load_errors[ep.name] = f"plugin {ep.name!r} ({where}) was rejected: {_one_line(exc)}"
+            continue
+        if dist is not None:
+            registry.distributions[ep.name] = dist
     for plugin in extra_plugins:
         pm.register(plugin)
-    pm.check_pending()
+    _check_pending(pm, registry)
     for kind in BACKEND_KINDS:
-        registry.backends[kind], registry.providers[kind] = _collect(pm, f"amslam_{kind}_backends")
-    registry.behaviours, _ = _collect(pm, "amslam_behaviours")
+        registry.backends[kind], registry.providers[kind] = _collect(pm, f"amslam_{kind}_backends", registry)
+    registry.behaviours, _ = _collect(pm, "amslam_behaviours", registry)
     return registry
 
 
-def _collect(pm: pluggy.PluginManager, hook_name: str) -> tuple[dict, dict]:
+def _one_line(exc: BaseException, limit: int = 300) -> str:
+    """``Type: message`` on one line: the message's lines joined with "; ", cut at ``limit`` characters."""
+    text = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    if len(text) > limit:
+        text = text[: limit - 3] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _named(registry: Registry, name: str) -> str:
+    """``plugin 'name'``, with its distribution when it came from one."""
+    dist = registry.distributions.get(name)
+    return f"plugin {name!r} (distribution {dist})" if dist else f"plugin {name!r}"
+
+
+def _check_pending(pm: pluggy.PluginManager, registry: Registry) -> None:
+    """``check_pending()``, but a plugin implementing an unknown ``amslam_*`` hook is left out, named."""
+    while True:
+        try:
+            pm.check_pending()
+            return
+        except pluggy.PluginValidationError as exc:
+            name = pm.get_name(exc.plugin) or repr(exc.plugin)
+            pm.unregister(exc.plugin)
+            registry.load_errors[name] = f"{_named(registry, name)} was rejected: {_one_line(exc)}"
+            registry.distributions.pop(name, None)
+
+
+def _collect(pm: pluggy.PluginManager, hook_name: str, registry: Registry) -> tuple[dict, dict]:
     merged: dict[str, Callable] = {}
     provider: dict[str, str] = {}
     for impl in getattr(pm.hook, hook_name).get_hookimpls():
-        result = impl.function() or {}
+        if impl.plugin_name in registry.load_errors:
+            continue  # already left out by another hook
+        try:
+            result = dict(impl.function() or {})
+        except Exception as exc:  # noqa: BLE001 — a plugin raising at load time is reported, by name
+            registry.load_errors[impl.plugin_name] = (
+                f"{_named(registry, impl.plugin_name)} raised in {hook_name}: {_one_line(exc)}"
+            )
+            _forget(registry, impl.plugin_name)
+            continue
         for name, factory in result.items():
             if name in merged:
                 raise PluginError(
@@ -97,3 +150,15 @@ def _collect(pm: pluggy.PluginManager, hook_name: str) -> tuple[dict, dict]:
             merged[name] = factory
             provider[name] = impl.plugin_name
     return merged, provider
+
+
+def _forget(registry: Registry, plugin_name: str) -> None:
+    """Drop what a plugin already contributed to earlier kinds and unregister it."""
+    for kind, providers in registry.providers.items():
+        for name in [n for n, p in providers.items() if p == plugin_name]:
+            del providers[name]
+            registry.backends[kind].pop(name, None)
+    registry.distributions.pop(plugin_name, None)
+    plugin = registry.pm.get_plugin(plugin_name)
+    if plugin is not None:
+        registry.pm.unregister(plugin)
