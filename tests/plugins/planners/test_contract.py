@@ -1,0 +1,19 @@
+"""The greedy, COP and TSP planners pass the planner contract kit."""
+
+from amslam.plugins.planners import CopPlanner, GreedyPlanner, TspPlanner
+from amslam.testing.planner import PlannerContract
+
+
+class TestGreedyContract(PlannerContract):
+    def make_backend(self) -> GreedyPlanner:
+        return GreedyPlanner()
+
+
+class TestCopContract(PlannerContract):
+    def make_backend(self) -> CopPlanner:
+        return CopPlanner()
+
+
+class TestTspContract(PlannerContract):
+    def make_backend(self) -> TspPlanner:
+        return TspPlanner()
