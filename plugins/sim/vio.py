@@ -33,7 +33,9 @@ class VioParams(BackendParams):
 
     rate_hz: float = Field(30.0, gt=0.0, description="rate at which odometry is published")
     sigma_xy: float = Field(0.05, ge=0.0, description="horizontal position random walk, m/√m travelled")
-    sigma_z: float = Field(0.035, ge=0.0, description="vertical position random walk, m/√m travelled")
+    sigma_z: float = Field(
+        0.012, ge=0.0, description="vertical position random walk, m/√m travelled (gravity + barometer aided)"
+    )
     sigma_yaw: float = Field(0.004, ge=0.0, description="yaw random walk, rad/√m travelled")
     sigma_yaw_rotation: float = Field(0.003, ge=0.0, description="yaw random walk, rad/√rad turned")
     smoothing_distance: float = Field(
