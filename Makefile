@@ -12,7 +12,7 @@ SYSTEM_LIBS := libusb-1.0.so.0:libusb-1.0-0 libgomp.so.1:libgomp1
 # them where it can (root or password-less sudo) and otherwise goes on with a warning.
 OPTIONAL_PROGRAMS := dot:graphviz chromium:chromium chromedriver:chromium-driver
 
-.PHONY: setup system-deps demo test lint clean
+.PHONY: setup system-deps demo test lint docs clean
 
 setup: $(STAMP)
 
@@ -73,6 +73,10 @@ test: setup
 
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+# API reference (Markdown) generated from the code: hookspecs, interfaces, data types, contract kits.
+docs: setup
+	$(BIN)/python docs/reference/generate.py docs/reference
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info
