@@ -466,7 +466,7 @@ class MavlinkVehiclePeer:
             self._next["ext"] = now + 0.2
             self._mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
         if now >= self._next["sys"]:
-            self._next["sys"] = now + 0.5
+            self._next["sys"] = now + 0.2
             percent = int(round(100 * self.battery))
             self._mav.sys_status_send(0, 0, 0, 500, 15800, -1, percent, 0, 0, 0, 0, 0, 0)
             cells = [4000] * 4 + [65535] * 6

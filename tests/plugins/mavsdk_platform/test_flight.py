@@ -84,12 +84,12 @@ def test_link_loss_mid_flight_ends_in_failsafe_landing(make_peer, fly):
     assert "link lost" in result.verdict
     failsafes = [e for e in events(result.run_dir) if e["event"] == "failsafe"]
     assert failsafes and failsafes[0]["kind"] == "link_lost" and failsafes[0]["action"] == "land"
-    # the vehicle's own failsafe brought it down where it was: near the second corner
+    # the vehicle's own failsafe brought it down where it was: on the far side of the square
     notes = [what for _, what in peer.log]
     assert "failsafe: offboard setpoints lost, landing" in notes
     last = peer.trace[-1]
     assert last.landed and not last.armed
-    assert np.linalg.norm(last.position[:2] - CORNERS_NED[1][:2]) < 0.6
+    assert np.linalg.norm(last.position[:2]) > 1.5 and np.all(np.abs(last.position[:2] - 1.0) < 1.3)
     assert_complete_run_folder(result.run_dir, result.verdict)
 
 
@@ -122,8 +122,11 @@ def test_low_battery_returns_over_take_off_point_and_lands(make_peer, fly):
     result = fly(url)
 
     assert "low_battery" in result.verdict and result.verdict.endswith("landed"), result.verdict
-    order = _visit_order(peer, CORNERS_NED)
-    assert order[2] == -1, "kept flying the square on a low battery"
+    found = events(result.run_dir)
+    failsafe = next(e for e in found if e["event"] == "failsafe")
+    assert failsafe["kind"] == "low_battery" and failsafe["action"] == "return_and_land"
+    reached = [e for e in found if e["event"] == "waypoint_reached"]
+    assert len(reached) < 4, "kept flying the square on a low battery"
     last = peer.trace[-1]
     assert last.landed and not last.armed and np.linalg.norm(last.position[:2]) < 0.35
     assert_complete_run_folder(result.run_dir, result.verdict)
