@@ -534,11 +534,9 @@ class GtsamSlam(Slam):
                 members = sel[labels == lab]
                 if len(members) < self.params.cluster_min_landmarks:
                     continue
-                d = np.linalg.norm(kp_pos[:, None, :] - pos[members][None], axis=2)
-                seen = np.flatnonzero((d <= sensing_range).any(axis=1))
-                if len(seen) == 0 or seen[0] == cur:
+                i = self._slc_viewpoint(lms, members, pos, kp_pos, sensing_range)
+                if i is None or i == cur:
                     continue
-                i = int(seen[0])
                 T = self._pose(i)
                 out.append((i, T[:3, 3].copy(), yaw_of(T), tuple(int(lms[j].id) for j in members)))
         if not out:
@@ -546,6 +544,42 @@ class GtsamSlam(Slam):
         here = self._pose(cur)[:3, 3]
         ig = self.information_gain([o[0] for o in out], [float(np.linalg.norm(o[1] - here)) for o in out])
         return [SlcCandidate(i, p, y, ids, float(g)) for (i, p, y, ids), g in zip(out, ig, strict=True)]
+
+    def _slc_viewpoint(
+        self,
+        lms: list[_LandmarkRec],
+        members: np.ndarray,
+        pos: np.ndarray,
+        kp_pos: np.ndarray,
+        sensing_range: float,
+    ) -> int | None:
+        """The oldest key pose a panorama from which would see enough of the cluster.
+
+        Paper 1 takes the oldest key pose within sensing range of a landmark of the cluster. An
+        SLC needs ``slc_min_matches`` landmarks in one panorama, and range alone ignores walls:
+        so prefer the oldest key pose where the landmarks actually *observed* from key poses
+        within ``slc_panorama_radius`` of it (what a panorama there would see) number enough;
+        fall back to the paper's rule when no key pose qualifies.
+        """
+        need = min(self.params.slc_min_matches, len(members))
+        observed_from: dict[int, set[int]] = {}
+        for j in members:
+            for obs in lms[j].observations:
+                observed_from.setdefault(obs.keypose, set()).add(int(j))
+        if observed_from:
+            kps = np.array(sorted(observed_from))
+            near = (
+                np.linalg.norm(kp_pos[kps][:, None] - kp_pos[kps][None], axis=2)
+                <= self.params.slc_panorama_radius
+            )
+            for row, k in enumerate(kps):
+                seen = set().union(*(observed_from[int(m)] for m in kps[near[row]]))
+                close = np.linalg.norm(pos[list(seen)] - kp_pos[k], axis=1) <= sensing_range
+                if close.sum() >= need:
+                    return int(k)
+        d = np.linalg.norm(kp_pos[:, None, :] - pos[members][None], axis=2)
+        seen_any = np.flatnonzero((d <= sensing_range).any(axis=1))
+        return int(seen_any[0]) if len(seen_any) else None
 
     # ---------------------------------------------------------------- semantic loop closure (§V-C)
 

@@ -120,12 +120,27 @@ def test_slc_candidates_cluster_landmarks_and_pick_the_oldest_keypose(looped) ->
     for c in cands:
         assert len(c.landmark_ids) >= 3
         assert c.info_gain > 0
-        near = [
-            k.id
-            for k in kps.values()
-            if min(np.linalg.norm(k.T_world_body[:3, 3] - lms[i].position) for i in c.landmark_ids) <= 5.0
-        ]
-        assert c.keypose_id == min(near)
+        # The oldest key pose from which a panorama (observations from key poses within the
+        # panorama radius) saw at least three landmarks of the cluster within sensing range.
+        radius = slam.params.slc_panorama_radius
+        observed = {}
+        for i in c.landmark_ids:
+            for obs in slam._lms[i].observations:
+                observed.setdefault(obs.keypose, set()).add(i)
+
+        def panorama_sees(k, observed=observed, radius=radius):
+            here = kps[k].T_world_body[:3, 3]
+            seen = set().union(
+                *(
+                    ids
+                    for m, ids in observed.items()
+                    if np.linalg.norm(kps[m].T_world_body[:3, 3] - here) <= radius
+                )
+            )
+            return sum(np.linalg.norm(lms[i].position - here) <= 5.0 for i in seen)
+
+        qualifying = [k for k in sorted(observed) if panorama_sees(k) >= 3]
+        assert qualifying and c.keypose_id == qualifying[0]
         np.testing.assert_allclose(c.position, kps[c.keypose_id].T_world_body[:3, 3])
         assert c.yaw == pytest.approx(yaw_of(kps[c.keypose_id].T_world_body))
 
