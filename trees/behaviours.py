@@ -57,7 +57,8 @@ class TakeOff(RobotBehaviour):
         rising, self.last_z = z - self.last_z, z
         climbed = z - self.robot.home_world[2]
         # The platform owns the meaning of "altitude" (PX4: above home); settle on its answer.
-        if self.robot.airborne() and climbed > 0.5 * self.robot.spec.altitude and abs(rising) < 1e-3:
+        # "Settled": rising less than 1 cm per tick — a real hover is never still to the millimetre.
+        if self.robot.airborne() and climbed > 0.5 * self.robot.spec.altitude and abs(rising) < 0.01:
             self.robot.cruise_z = z
             self.feedback_message = f"at {z:.2f} m"
             return Status.SUCCESS
