@@ -20,6 +20,8 @@ key                 meaning
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import py_trees
 from py_trees.common import Access, Status
@@ -349,16 +351,7 @@ class AttemptLoopClosure(RobotBehaviour):
     def update(self) -> Status:
         result = self.robot.attempt_loop_closure(self.bb.get("/goal"))
         self.bb.set("/slc", {"accepted": result.accepted, "reason": result.reason, "matched": result.matched})
-        self.robot.emit(
-            "loop_closure",
-            accepted=result.accepted,
-            reason=result.reason,
-            matched=result.matched,
-            residual=result.residual,
-            yaw_correction=result.yaw_correction,
-            translation_correction=result.translation_correction,
-            distance=self.robot.distance,
-        )
+        self.robot.emit("loop_closure", **dataclasses.asdict(result), distance=self.robot.distance)
         self.robot.plugin_hook("amslam_loop_closure", t=self.robot.time(), result=result)
         self.feedback_message = ("accepted: " if result.accepted else "rejected: ") + result.reason
         return Status.SUCCESS
