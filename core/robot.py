@@ -101,7 +101,29 @@ class Robot:
         T_odom_world = invert(self.slam.T_world_odom())
         p_odom = transform_points(T_odom_world, np.asarray(position, float)[None])[0]
         yaw_odom = yaw + float(np.arctan2(T_odom_world[1, 0], T_odom_world[0, 0]))
-        self.platform.set_setpoint(p_odom, yaw_odom)
+        self.platform.set_setpoint(self._height_guard(p_odom), yaw_odom)
+
+    def _height_guard(self, p_odom: np.ndarray) -> np.ndarray:
+        """Keep a setpoint inside the floor/ceiling band of the fresh local (odometry-frame) map.
+
+        Goals come from the world-frame map, whose floors and ceilings carry the height error the
+        estimate had when they were seen; the local map was built moments ago in the frame the
+        vehicle flies in. This is the last line of defence against flying into a slab.
+        """
+        ex = self.exploration
+        offsets = np.arange(0.1, 2.05, 0.1)
+        up = np.array([0.0, 0.0, 1.0])
+        column = np.concatenate([p_odom - np.outer(offsets, up), p_odom + np.outer(offsets, up)])
+        occupied = self.mapping.states(column, local=True) == VoxelState.OCCUPIED
+        below, above = occupied[: len(offsets)], occupied[len(offsets) :]
+        if not below.any() and not above.any():
+            return p_odom
+        z = p_odom[2]
+        floor = z - offsets[np.argmax(below)] if below.any() else -np.inf
+        ceiling = z + offsets[np.argmax(above)] if above.any() else np.inf
+        lo, hi = floor + ex.min_height, ceiling - ex.min_headroom
+        new_z = 0.5 * (floor + ceiling) if lo > hi else float(np.clip(z, lo, hi))
+        return p_odom if new_z == z else np.array([p_odom[0], p_odom[1], new_z])
 
     def hold(self) -> None:
         """Keep the current VIO position and heading."""
