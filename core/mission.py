@@ -107,10 +107,10 @@ class ExplorationSection(_Strict):
     slc: bool = Field(False, description="actively seek semantic loop closures (paper 1 §VI-C, D)")
     slc_sensing_range: float = Field(4.0, gt=0, description="range within which a landmark counts as seen, m")
     slc_min_travel: float = Field(
-        25.0,
+        30.0,
         gt=0,
-        description="distance to travel before a landmark cluster is offered for loop closure "
-        "(again), m: drift has to build up before revisiting pays",
+        description="distance to travel after take-off or the last SLC attempt before another is "
+        "offered (and before the same landmarks are offered again), m",
     )
     panorama_steps: int = Field(8, ge=3, description="headings of the panorama at an SLC viewpoint")
     viewpoint_period: float = Field(

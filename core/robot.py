@@ -273,9 +273,12 @@ class Robot:
     # -- semantic loop closure -----------------------------------------------------------------
 
     def _slc_due(self, candidate: SlcCandidate) -> bool:
-        """Offer a cluster only after enough travel, and not again until as much travel again."""
+        """Offer a cluster only after enough travel since the last SLC attempt anywhere, and not
+        the same landmarks again until as much travel again: revisits trade exploration time for
+        accuracy, and pay only once drift has built up."""
         wait = self.exploration.slc_min_travel
-        if self.distance < wait:
+        last = max((d for _, d, _ in self.slc_log), default=0.0)
+        if self.distance - last < wait:
             return False
         return all(self.distance - self.slc_tried_at.get(i, -np.inf) >= wait for i in candidate.landmark_ids)
 
