@@ -311,6 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tree.add_argument("--out", help="file to write (svg/png default: MISSION-tree.FORMAT; text: stdout)")
     tree.add_argument("--blackboard", action="store_true", help="dot/svg/png: show the blackboard keys")
+    tree.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a mission value")
     tree.set_defaults(func=cmd_tree)
     view = sub.add_parser("view", help="replay a run folder in the browser: tree, map, trajectories, events")
     view.add_argument("run", help="a run folder, or a folder of runs (the newest is shown)")
