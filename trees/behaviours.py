@@ -225,10 +225,13 @@ class GoTo(RobotBehaviour):
         self.path = self.robot.plan_path(self.goal.position)
         self.index = 1 if self.path is not None and len(self.path) > 1 else 0
         self.blocked = 0
+        self.progress = (self.index, np.inf, self.robot.time())  # (waypoint, distance, since)
 
     #: how far ahead along the path the fresh local map is checked, m
     LOOKAHEAD = 1.5
     WAYPOINT_TOLERANCE = 0.15
+    #: seconds without progress after which the goal is given up as unreachable
+    NO_PROGRESS = 20.0
     SKIP_NEAR = 0.3
     #: a viewpoint this close to the goal (m) means the goal's frontier is still there
     SAME_GOAL = 1.0
@@ -252,11 +255,26 @@ class GoTo(RobotBehaviour):
         self.feedback_message = why
         return Status.FAILURE
 
+    def _stalled(self, here: np.ndarray) -> bool:
+        """No waypoint passed and no 0.1 m gained on the current one for NO_PROGRESS seconds."""
+        now = self.robot.time()
+        dist = float(np.linalg.norm(self.path[self.index] - here))
+        if self.index > self.progress[0] or dist < self.progress[1] - 0.1:
+            self.progress = (self.index, dist, now)
+        return now - self.progress[2] > self.NO_PROGRESS
+
     def update(self) -> Status:
         if self.path is None:
             return self._fail("no path through known free space")
         here = self.robot.position_world()
         exploration = self.robot.exploration
+        if self.goal_key != "/home" and (reason := self.robot.limit_reached()):
+            self.robot.hold()
+            self.feedback_message = f"stopped: {reason}"
+            return Status.FAILURE
+        if self._stalled(here):
+            # A goal the height guard or the controller cannot reach must not hold the robot forever.
+            return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
         if self.early_exit and self.goal.kind == TourItemKind.EXPLORE:
             # Clusters are re-made as the map grows, so their ids change; the goal is still
             # worth reaching while some viewpoint remains near it.
@@ -296,6 +314,7 @@ class GoTo(RobotBehaviour):
                 return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")
             self.path = self.robot.plan_path(self.goal.position)
             self.index = 1 if self.path is not None and len(self.path) > 1 else 0
+            self.progress = (self.index, np.inf, self.robot.time())
             self.feedback_message = "blocked: new path"
             return Status.RUNNING if self.path is not None else self._fail("blocked, no other path")
         horizontal = np.linalg.norm(to_target[:2])

@@ -133,3 +133,58 @@ def test_replan_follows_the_tour_until_half_is_done():
     assert replan.feedback_message == "following the tour: 3 stops left"
     assert tick(replan) == Status.SUCCESS  # 2 of 4 done: receding horizon
     assert storage["/tour"] == [fresh] and robot.plans == []
+
+
+class StuckRobot(FakeRobot):
+    """A robot whose setpoints never move it (a goal the guard or controller cannot reach)."""
+
+    def __init__(self):
+        super().__init__([])
+        self.t = 0.0
+        self.unreachable_marked = []
+        self.platform = SimpleNamespace(camera=SimpleNamespace(hfov=1.5))
+
+    def time(self):
+        return self.t
+
+    def plan_path(self, goal):
+        return np.array([[0.0, 0.0, 1.0], goal])
+
+    def position_world(self):
+        return np.array([0.0, 0.0, 1.0])
+
+    def yaw_world(self):
+        return 0.0
+
+    def limit_reached(self):
+        return None
+
+    def candidate_viewpoints(self):
+        return []
+
+    def segment_clear_local(self, a, b):
+        return True
+
+    def send_setpoint_world(self, position, yaw):
+        pass
+
+    def mark_unreachable(self, position):
+        self.unreachable_marked.append(position)
+
+
+def test_goto_gives_up_a_goal_it_makes_no_progress_towards():
+    from amslam.trees.behaviours import GoTo
+
+    robot = StuckRobot()
+    goal = TourItem(TourItemKind.SLC, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
+    py_trees.blackboard.Blackboard.set("/goal", goal)
+    go = GoTo("GoToSLC", early_exit=False)
+    go.setup(robot=robot)
+    statuses = []
+    for _ in range(250):  # 25 s of 0.1 s ticks
+        statuses.append(tick(go))
+        robot.t += 0.1
+        if statuses[-1] != Status.RUNNING:
+            break
+    assert statuses[-1] == Status.FAILURE and "no progress for 20 s" in go.feedback_message
+    assert 19.5 < robot.t < 21.0 and robot.unreachable_marked
