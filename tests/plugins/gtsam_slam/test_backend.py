@@ -217,3 +217,26 @@ def test_loop_closure_is_held_to_the_drift_bound() -> None:
     _, events = _loop_then_panorama(slc_prior_translation_ratio=0.0, slc_prior_yaw_ratio=0.0)
     assert not events[-1][1]["accepted"]
     assert "within the drift bound" in events[-1][1]["reason"]
+
+
+def _near_duplicates(slam: GtsamSlam, radius: float = 0.4) -> int:
+    lms = slam.landmarks()
+    return sum(
+        1
+        for a in lms
+        for b in lms
+        if a.id < b.id and a.class_name == b.class_name and np.linalg.norm(a.position - b.position) <= radius
+    )
+
+
+def test_loop_closure_fuses_only_well_aligned_duplicates() -> None:
+    # Default: every matched pair aligns within half the tolerance, so the duplicates are fused.
+    fused, events = _loop_then_panorama()
+    assert events[-1][1]["accepted"], events[-1][1]
+    assert _near_duplicates(fused) == 0
+    # A fusion gate no pair passes: the loop still closes (range-bearing factors to the old
+    # landmarks), but the duplicates stay separate landmarks.
+    kept, events = _loop_then_panorama(slc_fuse_ratio=1e-6)
+    assert events[-1][1]["accepted"], events[-1][1]
+    assert _near_duplicates(kept) > 0
+    assert len(kept.landmarks()) > len(fused.landmarks())
