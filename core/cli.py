@@ -59,7 +59,8 @@ def cmd_run(args) -> int:
     def announce(run_dir: Path) -> None:
         print(f"run folder: {run_dir}  (watch it live: amslam view {run_dir} --serve)", flush=True)
 
-    result = Runner(mission, registry, Path(args.out), progress=not args.quiet, on_start=announce).run()
+    progress = not args.quiet and sys.stderr.isatty()  # a bar in a log file is noise
+    result = Runner(mission, registry, Path(args.out), progress=progress, on_start=announce).run()
     m = result.metrics
     print(f"verdict: {result.verdict}")
     if "explored_percent" in m:
