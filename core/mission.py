@@ -157,6 +157,10 @@ class MissionModel(_Strict):
     robot: RobotSection = RobotSection()
     limits: LimitsSection = LimitsSection()
     area: AreaSection | None = None
+    prior_map: str | None = Field(
+        None,
+        description="a map saved by an earlier run (its map.npz) to start from; relative to the mission file",
+    )
     exploration: ExplorationSection = ExplorationSection()
     tree: Literal["exploration", "waypoints"] = Field(
         "exploration", description="the mission tree: explore (default) or fly the waypoints section"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -122,6 +123,8 @@ def write_outputs(runner: Runner, metrics: dict[str, Any]) -> None:
     mapping, slam, platform = backends.get("mapping"), backends.get("slam"), backends.get("platform")
     if mapping is not None:
         rundir.write_ply("map.ply", mapping.occupied_points())
+        with contextlib.suppress(NotImplementedError):  # a backend may not export
+            mapping.save(rundir.path / "map.npz")  # the whole map, for a later run's prior_map
     if slam is not None:
         rundir.write_json(
             "landmarks.json",

@@ -26,7 +26,7 @@ import py_trees
 from py_trees.common import Status
 
 from amslam import __version__
-from amslam.errors import AmslamError
+from amslam.errors import AmslamError, MissionError
 from amslam.geometry import invert
 from amslam.interfaces import BACKEND_KINDS, Backend, RunContext
 from amslam.mission import Mission
@@ -104,6 +104,12 @@ class Runner:
             context = dataclasses.replace(context, rng=np.random.default_rng(seeds[i]))
             backend.configure(choice.params, context)
             self.backends[kind] = backend
+            if kind == "mapping" and model.prior_map:
+                prior = (self.mission.directory / model.prior_map).resolve()
+                if not prior.exists():
+                    raise MissionError([f"{self.mission.source}: prior_map: no such file {prior}"])
+                backend.load(prior)
+                self.rundir.event(0.0, "prior_map_loaded", path=str(prior))
             if kind == "platform":
                 backend.start()
                 world = backend.world_summary()

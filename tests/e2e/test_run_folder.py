@@ -20,6 +20,7 @@ RUN_FILES = (
     "slam.tum",
     "landmarks.json",
     "map.ply",
+    "map.npz",
     "metrics.json",
     "top_view.png",
     "report.md",
@@ -78,3 +79,16 @@ def test_backend_exception_leaves_a_readable_run_folder(tmp_path):
     assert len((result.run_dir / "ground_truth.tum").read_text().splitlines()) > 50
     last = json.loads((result.run_dir / "events.jsonl").read_text().splitlines()[-1])
     assert last == {"t": last["t"], "event": "run_end", "verdict": result.verdict}
+
+
+def test_a_later_run_starts_from_a_saved_map(small_run, tmp_path):
+    prior = small_run.run_dir / "map.npz"
+    registry = build_plugin_manager()
+    mission_file = small_mission(tmp_path, max_time=3)
+    mission_file.write_text(mission_file.read_text() + f"prior_map: {prior}\n")
+    result = Runner(load_mission(mission_file, registry), registry, tmp_path / "runs").run()
+    # Three seconds of flight see almost nothing: the explored share comes from the loaded map.
+    assert result.verdict == "completed"
+    assert result.metrics["explored_percent"] >= 90.0
+    events = (result.run_dir / "events.jsonl").read_text()
+    assert "prior_map_loaded" in events
