@@ -21,24 +21,8 @@ import time
 
 import numpy as np
 
-from amslam.plugins.gtsam_slam.slc import SlcSolution, solve_exhaustive, solve_scalable, yaw_matrix
-
-
-def instance(rng: np.random.Generator, n: int, outliers: float, sigma: float, classes: int):  # noqa: ANN201
-    A = rng.uniform([0, 0, 0], [10, 10, 2], (n, 3))
-    ca = rng.integers(0, classes, n)
-    k = n - int(round(outliers * n))
-    ia = rng.choice(n, k, replace=False)
-    yaw = float(rng.uniform(-np.pi, np.pi))
-    t = rng.uniform(-3, 3, 3)
-    b_in = (A[ia] - t) @ yaw_matrix(yaw) + rng.normal(0, sigma / np.sqrt(3), (k, 3))
-    b_out = rng.uniform([0, 0, 0], [10, 10, 2], (n - k, 3)) - t
-    B = np.vstack([b_in, b_out])
-    cb = np.concatenate([ca[ia], rng.integers(0, classes, n - k)])
-    perm = rng.permutation(n)
-    inv = np.argsort(perm)
-    truth = {(int(a), int(inv[i])) for i, a in enumerate(ia)}
-    return A, B[perm], ca, cb[perm], yaw, t, truth
+from amslam.plugins.gtsam_slam.slc import SlcSolution, solve_exhaustive, solve_scalable
+from amslam.plugins.gtsam_slam.synthetic import make_instance
 
 
 def success(sol: SlcSolution, yaw: float, t: np.ndarray, truth: set) -> bool:
@@ -88,7 +72,8 @@ def main() -> None:
         se = ss = agree = spur = 0
         run_ex = n <= args.exhaustive_max
         for i in range(args.instances):
-            A, B, ca, cb, yaw, t, truth = instance(rng, n, args.outliers, args.sigma, args.classes)
+            inst = make_instance(rng, n, args.outliers, args.sigma, args.classes)
+            A, B, ca, cb, yaw, t, truth = inst.A, inst.B, inst.ca, inst.cb, inst.yaw, inst.t, inst.truth
             t0 = time.perf_counter()
             sc = solve_scalable(A, B, ca, cb, rng=np.random.default_rng(i))
             ts += time.perf_counter() - t0

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amslam.geometry import invert, pose_from, yaw_of
+from amslam.plugins.gtsam_slam.slc import yaw_matrix
 from amslam.types import R_BODY_CAM, Detection, Odometry
 
 CLASSES = ("chair", "table", "plant")
@@ -139,3 +140,38 @@ class LoopWorld:
         n = int(np.ceil(abs(d) / step))
         for i in range(1, n + 1):
             yield pose_from(pos, yaw + d * i / n)
+
+
+@dataclass
+class SlcInstance:
+    """A semantic loop-closure problem with its known answer (tests and ``benchmarks/slc.py``)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    ca: np.ndarray
+    cb: np.ndarray
+    yaw: float
+    t: np.ndarray
+    truth: set[tuple[int, int]]  # (index in A, index in B)
+
+
+def make_instance(
+    rng: np.random.Generator, n: int, outliers: float = 0.5, sigma: float = 0.2, classes: int = 3
+) -> SlcInstance:
+    """A (n map points) and B (n observed: inliers = A subset moved by (ψ, t) + noise, rest random).
+
+    ``sigma`` is the RMS 3-D error of an observed point (per axis σ/√3).
+    """
+    A = rng.uniform([0, 0, 0], [10, 10, 2], (n, 3))
+    ca = rng.integers(0, classes, n)
+    k = n - int(round(outliers * n))
+    ia = rng.choice(n, k, replace=False)
+    yaw = float(rng.uniform(-np.pi, np.pi))
+    t = rng.uniform(-3, 3, 3)
+    b_in = (A[ia] - t) @ yaw_matrix(yaw) + rng.normal(0, sigma / np.sqrt(3), (k, 3))
+    b_out = rng.uniform([0, 0, 0], [10, 10, 2], (n - k, 3)) - t
+    B = np.vstack([b_in, b_out])
+    cb = np.concatenate([ca[ia], rng.integers(0, classes, n - k)])
+    perm = rng.permutation(n)
+    inv = np.argsort(perm)
+    return SlcInstance(A, B[perm], ca, cb[perm], yaw, t, {(int(a), int(inv[i])) for i, a in enumerate(ia)})
