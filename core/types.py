@@ -72,9 +72,20 @@ class CameraModel:
         fy = (height / 2.0) / np.tan(np.radians(vfov_deg) / 2.0)
         K = np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
         if T_body_cam is None:
-            T_body_cam = np.eye(4)
-            T_body_cam[:3, :3] = R_BODY_CAM
+            T_body_cam = CameraModel.forward_mount()
         return CameraModel(width, height, K, T_body_cam, min_range, max_range, rate_hz)
+
+    @staticmethod
+    def forward_mount(
+        pitch_deg: float = 0.0, offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ) -> np.ndarray:
+        """``T_body_cam`` of a camera looking along body +x, tilted down by ``pitch_deg``."""
+        p = np.radians(pitch_deg)
+        tilt = np.array([[np.cos(p), 0.0, np.sin(p)], [0.0, 1.0, 0.0], [-np.sin(p), 0.0, np.cos(p)]])
+        T = np.eye(4)
+        T[:3, :3] = tilt @ R_BODY_CAM
+        T[:3, 3] = offset
+        return T
 
     @property
     def hfov(self) -> float:

@@ -12,7 +12,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.errors import PlatformError
-from amslam.types import R_BODY_CAM, CameraModel
+from amslam.types import CameraModel
 
 
 @dataclass(frozen=True)
@@ -57,12 +57,7 @@ class CameraSourceParams(BaseModel):
 
     def T_body_cam(self) -> np.ndarray:
         """Pose of the optical frame in the body: forward-looking, tilted down by the pitch."""
-        p = np.radians(self.mount_pitch_deg)
-        tilt = np.array([[np.cos(p), 0.0, np.sin(p)], [0.0, 1.0, 0.0], [-np.sin(p), 0.0, np.cos(p)]])
-        T = np.eye(4)
-        T[:3, :3] = tilt @ R_BODY_CAM
-        T[:3, 3] = self.mount_xyz
-        return T
+        return CameraModel.forward_mount(self.mount_pitch_deg, self.mount_xyz)
 
     def nominal_model(self) -> CameraModel:
         """The camera model from the parameters (a source may refine K when it opens)."""

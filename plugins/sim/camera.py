@@ -44,13 +44,7 @@ class CameraParams(BackendParams):
 
     def model(self) -> CameraModel:
         """The :class:`CameraModel` these parameters describe."""
-        T = np.eye(4)
-        # optical frame → body: z forward (body x), x right (body −y), y down; then tilt down.
-        pitch = np.radians(self.pitch_deg)
-        Ry = np.array([[np.cos(pitch), 0, np.sin(pitch)], [0, 1, 0], [-np.sin(pitch), 0, np.cos(pitch)]])
-        from amslam.types import R_BODY_CAM
-
-        T[:3, :3] = Ry @ R_BODY_CAM
+        T = CameraModel.forward_mount(self.pitch_deg)
         return CameraModel.from_fov(
             self.width,
             self.height,
