@@ -263,6 +263,10 @@ class Slam(Backend):
 class Planner(Backend):
     """Exploration planning: a tour over viewpoints (and loop-closure candidates)."""
 
+    #: False for planners that plan views of known objects (``PlanRequest.landmarks``) rather than
+    #: of frontiers: the robot then asks them for a tour even when no frontier viewpoint is left.
+    needs_frontiers: bool = True
+
     @abc.abstractmethod
     def plan(self, request: PlanRequest) -> list[TourItem]:
         """An ordered tour; empty when nothing is worth visiting."""

@@ -239,10 +239,10 @@ class Robot:
         """Ask the planner for a tour over the current viewpoints (and SLC candidates)."""
         vps = self.candidate_viewpoints()
         self.planned_viewpoints = [vp.position for vp in vps]
-        if not vps:
+        if not vps and self.planner.needs_frontiers:
             return []
         start = self.position_world()
-        nodes = np.vstack([start[None], np.array([v.position for v in vps])])
+        nodes = np.vstack([start[None], np.array([v.position for v in vps]).reshape(-1, 3)])
         costs = self.mapping.path_costs(nodes, nodes)
         slc_candidates: tuple = ()
         slc_costs = np.zeros((0, len(nodes)))
@@ -267,6 +267,7 @@ class Robot:
             camera=self.platform.camera,
             slc_candidates=slc_candidates,
             slc_costs=slc_costs,
+            landmarks=tuple(self.slam.landmarks()),
         )
         return self.planner.plan(request)
 

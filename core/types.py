@@ -261,6 +261,8 @@ class PlanRequest:
         slc_candidates: loop-closure candidates with their predicted information gain.
         slc_costs: (C)×(N+1) path cost from each candidate to the robot and each viewpoint.
         camera: the camera model, for field-of-view overlap.
+        landmarks: the SLAM backend's current object map (world frame), for planners that plan
+            views of known objects (paper 2's PAMS) rather than of frontiers.
     """
 
     start: np.ndarray
@@ -270,6 +272,7 @@ class PlanRequest:
     camera: CameraModel
     slc_candidates: tuple[SlcCandidate, ...] = ()
     slc_costs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    landmarks: tuple[Landmark, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -320,3 +323,7 @@ class WorldSummary:
     #: space connected to the start. Explored % = share of these a map knows (free or occupied).
     reachable_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     reachable_cell: float = 0.25
+    #: true shape of each object id, for objects a class models as a shape (paper 2): a dict with
+    #: ``model`` ("cuboid" | "cylinder") and that model's parameters, same keys as
+    #: :attr:`Landmark.shape`.
+    object_shapes: dict[str, dict] = field(default_factory=dict)
