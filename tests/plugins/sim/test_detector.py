@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from amslam.interfaces import RunContext
 from amslam.plugins.sim import SimDetector
@@ -99,3 +100,108 @@ def test_detections_in_a_procedural_building_land_on_their_objects(tmp_path):
         # the median surface point lies on (or within a few cm of) one object's bounding box
         gap = min(np.linalg.norm(np.maximum(np.maximum(o.lo - p_world, p_world - o.hi), 0)) for o in near)
         assert gap < 0.1, (d.class_name, p_world)
+
+
+# -- perception model: confidence and noise against range and viewing angle ------------------
+
+
+def _car_world():
+    from amslam.plugins.sim.world import box_room
+
+    car = ("car_1", "car", np.array([13.75, 14.1, 0.0]), np.array([18.25, 15.9, 1.5]))
+    return box_room((32.0, 30.0, 6.0), [car], start_xy=(3.0, 3.0))
+
+
+def _look_at(target: np.ndarray, bearing: float, distance: float, height: float, T_body_cam) -> np.ndarray:
+    """``T_world_cam`` of a level body ``distance`` from ``target`` in direction ``bearing``, facing it."""
+    pos = np.array([target[0] + distance * np.cos(bearing), target[1] + distance * np.sin(bearing), height])
+    yaw = bearing + np.pi
+    T = np.eye(4)
+    T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = pos
+    return T @ T_body_cam
+
+
+def _car_frames(tmp_path, views):
+    cam = {"width": 160, "height": 120, "max_range": 20.0, "depth_noise": 0.0, "dropout": 0.0}
+    plat = make_platform(tmp_path, spec=_car_world(), camera=cam)
+    w = plat.world
+    centre = w.objects[0].centroid
+    frames = []
+    for bearing, dist in views:
+        T_wc = _look_at(centre, bearing, dist, 1.5, plat.camera.T_body_cam)
+        r = plat._renderer.render(w, T_wc, np.random.default_rng(0))
+        frames.append(
+            Frame(0.0, r.depth, plat.camera.K, T_wc, r.rgb, r.instance, r.class_id, w.class_names, T_wc)
+        )
+    return plat, frames
+
+
+def _world_detector(tmp_path, plat, seed=0, **params) -> SimDetector:
+    det = SimDetector()
+    ctx = RunContext(rng=np.random.default_rng(seed), run_dir=tmp_path, world=plat.world_summary())
+    det.configure(SimDetector.Params(max_range=20.0, false_positive_rate=0.0, **params), ctx)
+    return det
+
+
+def test_confidence_falls_with_range_and_end_on_views(tmp_path):
+    # side (bearing π/2), front (bearing 0: the car's +x), back (π); near and far
+    views = [(np.pi / 2, 5.0), (0.0, 5.0), (np.pi, 5.0), (np.pi / 2, 13.0)]
+    plat, frames = _car_frames(tmp_path, views)
+    det = _world_detector(
+        tmp_path, plat, miss_probability=0.0, miss_floor=0.0, miss_ceiling=0.0, confidence_noise=0.0
+    )
+    conf = []
+    for f in frames:
+        d = det.detect(f)
+        assert [x.class_name for x in d] == ["car"]
+        conf.append(d[0].confidence)
+    side, front, back, far = conf
+    assert front < back < side  # paper 2 Fig. 6: side best, back better than front
+    assert far < side
+    m = det.model("car")
+    assert side == pytest.approx(det.expected_confidence("car", 4.1, np.pi / 2), abs=0.05)
+    assert front == pytest.approx(side * (1 - m.front_penalty), abs=0.05)
+
+
+def test_misses_follow_low_confidence(tmp_path):
+    SimDetector.Params()  # defaults validate
+    det = _detector(tmp_path)
+    assert det.detection_probability(0.9) == pytest.approx(0.95)
+    assert det.detection_probability(0.2) == 0.0
+    assert 0.0 < det.detection_probability(0.45) < det.detection_probability(0.5) < 0.95
+    # a far car (weak confidence) is missed more often than a near one
+    plat, frames = _car_frames(tmp_path, [(np.pi / 2, 5.0), (0.0, 13.0)])
+    det = _world_detector(tmp_path, plat, seed=3)
+    near = sum(len(det.detect(frames[0])) for _ in range(100))
+    far = sum(len(det.detect(frames[1])) for _ in range(100))
+    assert near > 85 and 0 < far < near - 20
+
+
+def test_localisation_noise_grows_with_range(tmp_path):
+    plat, frames = _car_frames(tmp_path, [(np.pi / 2, 4.0), (np.pi / 2, 13.0)])
+    det = _world_detector(tmp_path, plat, seed=1, miss_probability=0.0, miss_floor=0.0, miss_ceiling=0.0)
+    spread = []
+    for f in frames:
+        c = np.array([det.detect(f)[0].centroid_cam for _ in range(150)])
+        spread.append(float(c.std(axis=0).mean()))
+    r_near, r_far = 4.0 - 0.9, 13.0 - 0.9
+    assert spread[0] == pytest.approx(det.localisation_sigma("car", r_near), rel=0.25)
+    assert spread[1] == pytest.approx(det.localisation_sigma("car", r_far), rel=0.25)
+    assert spread[1] > 2 * spread[0]
+    # the points move with their centroid: a shape fit sees the same localisation error
+    d = det.detect(frames[1])[0]
+    assert np.linalg.norm(np.median(d.points_cam, axis=0) - d.centroid_cam) < 0.3
+
+
+def test_viewing_angle_and_object_yaw():
+    from amslam.plugins.sim.detector import object_yaw, viewing_angle
+
+    assert viewing_angle(np.zeros(3), 0.0, np.array([5.0, 0.0, 1.0])) == pytest.approx(0.0)
+    assert viewing_angle(np.zeros(3), 0.0, np.array([0.0, -5.0, 1.0])) == pytest.approx(np.pi / 2)
+    assert viewing_angle(np.zeros(3), np.pi / 2, np.array([0.0, -5.0, 1.0])) == pytest.approx(np.pi)
+    assert object_yaw({"yaw": 0.3}) == pytest.approx(0.3)
+    assert object_yaw({"rotvec": [0.0, 0.0, 0.4]}) == pytest.approx(0.4)
+    c, s = np.cos(-1.0), np.sin(-1.0)
+    assert object_yaw({"rotation": [[c, -s, 0], [s, c, 0], [0, 0, 1]]}) == pytest.approx(-1.0)
+    assert object_yaw(None) == 0.0
