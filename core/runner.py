@@ -29,6 +29,8 @@ from amslam import __version__
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import invert
 from amslam.interfaces import BACKEND_KINDS, Backend, RunContext
+from amslam.measurements import FILENAME as MEASUREMENTS
+from amslam.measurements import MeasurementLog
 from amslam.mission import Mission
 from amslam.recording import TreeRecorder
 from amslam.registry import Registry
@@ -167,6 +169,8 @@ class Runner:
         tree = py_trees.trees.BehaviourTree(root)
         tree.setup(robot=self.robot)
         recorder = TreeRecorder(tree, self.rundir)
+        # what this robot would send to the base for multi-robot merging (paper 2 §IV-B4)
+        measurements = MeasurementLog(self.rundir.path / MEASUREMENTS, self.mission.name, T_body_cam)
         self._hook("amslam_run_start", run_dir=self.rundir.path, mission=self.mission.resolved())
         self.rundir.event(0.0, "run_start", mission=self.mission.name, amslam=__version__)
 
@@ -190,6 +194,7 @@ class Runner:
                 self.robot.distance += float(np.linalg.norm(odom.T_odom_body[:3, 3] - last_pos))
                 last_pos = odom.T_odom_body[:3, 3].copy()
                 if slam.add_odometry(odom):
+                    measurements.keypose(odom, truth)
                     kps = slam.keyposes()
                     if kps:
                         self._hook("amslam_keyframe", t=t, keypose=kps[-1])
@@ -207,6 +212,10 @@ class Runner:
                         detections = detector.detect(frame)
                         frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(T_body_cam))
                         slam.add_detections(frame_odom, T_body_cam, detections)
+                        T_truth = frame.T_world_cam_truth
+                        measurements.detections(
+                            frame_odom, detections, None if T_truth is None else T_truth @ invert(T_body_cam)
+                        )
                         self.robot.recent_detections.append((frame_odom, detections))
                         del self.robot.recent_detections[:-64]
                 if t >= next_traj:
@@ -255,6 +264,7 @@ class Runner:
             if bar is not None:
                 bar.close()
             recorder.close()
+            measurements.close()
 
     def _progress_bar(self, total: float):
         if not self.progress:

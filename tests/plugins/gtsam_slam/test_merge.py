@@ -1,0 +1,158 @@
+"""Multi-robot merging: two drifting robots observing overlapping objects from nearby bases."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amslam.geometry import pose_from
+from amslam.measurements import MeasurementLog, read_measurements
+from amslam.plugins.gtsam_slam.merge import (
+    MergeParams,
+    chain_from_base,
+    merge_measurements,
+    merge_runs,
+    position_errors,
+    write_landmarks,
+)
+from amslam.plugins.gtsam_slam.synthetic import LoopWorld, camera_mount
+
+WIDTH, HEIGHT = 12.0, 8.0
+
+
+def loop(start: np.ndarray, clockwise: bool, step: float = 0.2) -> Iterator[np.ndarray]:
+    """True poses around the WIDTH×HEIGHT rectangle from ``start``, turning in place at corners."""
+    corners = np.array([[0, 0], [WIDTH, 0], [WIDTH, HEIGHT], [0, HEIGHT], [0, 0]], float)
+    if clockwise:
+        corners = corners[::-1]
+    corners[0] = corners[-1] = start[:2]
+    z, yaw = start[2], None
+    for a, b in zip(corners[:-1], corners[1:], strict=True):
+        target = float(np.arctan2(b[1] - a[1], b[0] - a[0]))
+        if yaw is not None:
+            d = float(np.angle(np.exp(1j * (target - yaw))))
+            for k in range(1, int(np.ceil(abs(d) / 0.25)) + 1):
+                yield pose_from(np.array([a[0], a[1], z]), yaw + d * k / int(np.ceil(abs(d) / 0.25)))
+        yaw = target
+        n = int(np.ceil(np.linalg.norm(b - a) / step))
+        for i in range(1, n + 1):
+            xy = a + (b - a) * i / n
+            yield pose_from(np.array([xy[0], xy[1], z]), yaw)
+
+
+def fly(objects: LoopWorld, base: np.ndarray, clockwise: bool, seed: int, path: Path, bias: float) -> Path:
+    """One robot: drifting VIO around the loop from ``base``, detections every metre, logged."""
+    rng = np.random.default_rng(seed)
+    w = LoopWorld(objects.objects, objects.classes, rng, yaw_bias_per_m=bias)
+    first = next(loop(base, clockwise))
+    w.T_true = pose_from(base, float(np.arctan2(first[1, 0], first[0, 0])))
+    w.T_vio = w.T_true.copy()
+    log = MeasurementLog(path, f"robot-{seed}", camera_mount())
+    log.keypose(w.odometry(), w.T_true)
+    for k, T in enumerate(loop(base, clockwise)):
+        w.move_to(T)
+        if k % 5 == 4:
+            # a blob of surface points around each centroid, for the shape fitter
+            dets = [replace(d, points_cam=d.centroid_cam + rng.normal(0, 0.1, (40, 3))) for d in w.detect()]
+            log.detections(w.odometry(), dets, w.T_true)
+    log.close()
+    return path
+
+
+@pytest.fixture(scope="module")
+def two_robots(tmp_path_factory: pytest.TempPathFactory) -> tuple[LoopWorld, Path, Path]:
+    tmp = tmp_path_factory.mktemp("merge")
+    world = LoopWorld.rectangle(np.random.default_rng(3), width=WIDTH, height=HEIGHT)
+    a = fly(world, np.array([0.0, 0.0, 1.2]), False, 11, tmp / "a.jsonl", bias=0.006)
+    b = fly(world, np.array([0.6, -0.5, 1.2]), True, 12, tmp / "b.jsonl", bias=-0.006)
+    return world, a, b
+
+
+def truth_of(world: LoopWorld) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    ids = [str(i) for i in range(len(world.objects))]
+    return dict(zip(ids, world.objects, strict=True)), dict(zip(ids, world.classes, strict=True))
+
+
+def test_log_round_trip(two_robots: tuple[LoopWorld, Path, Path]) -> None:
+    _, a, _ = two_robots
+    log = read_measurements(a)
+    assert log.robot == "robot-11"
+    assert len(log.stamps) > 30 and log.truth is not None
+    # the relative motions chain up to the logged VIO poses
+    T = log.T_odom_body[0]
+    for rel in log.rel[1:]:
+        T = T @ rel
+    np.testing.assert_allclose(T, log.T_odom_body[-1], atol=1e-4)
+    assert {d.class_name for d in log.detections} <= {"chair", "table", "plant"}
+    # VIO drifted: its end is far from the truth
+    assert np.linalg.norm(log.T_odom_body[-1][:3, 3] - log.truth[-1][:3, 3]) > 0.3
+
+
+def test_merged_map_has_one_landmark_per_object_and_lower_error(
+    two_robots: tuple[LoopWorld, Path, Path],
+) -> None:
+    world, a, b = two_robots
+    truth, classes = truth_of(world)
+    logs = [read_measurements(a), read_measurements(b)]
+    alone = [merge_measurements([log]) for log in logs]
+    merged = merge_measurements(logs)
+    err_alone = [position_errors(r.landmarks, truth, classes)[0] for r in alone]
+    err, pairs = position_errors(merged.landmarks, truth, classes)
+    # one landmark per object: every landmark matches a distinct object (a duplicate would be left
+    # unmatched), and nearly every object is mapped (a couple are never in view of a camera)
+    assert len(pairs) == len(merged.landmarks) >= len(world.objects) - 2
+    assert len(merged.landmarks) > max(len(position_errors(r.landmarks, truth, classes)[1]) for r in alone)
+    assert merged.shared() == len(merged.landmarks)  # both robots contributed to every object
+    assert err.mean() < min(e.mean() for e in err_alone)
+    # the robots' chains were corrected: the merged trajectories beat dead reckoning
+    for r, log in enumerate(logs):
+        vio = np.linalg.norm(chain_from_base(log)[:, :3, 3] - log.truth[:, :3, 3], axis=1).mean()
+        est = np.linalg.norm(merged.trajectories[r][:, :3, 3] - log.truth[:, :3, 3], axis=1).mean()
+        assert est < vio
+
+
+def test_gate_too_tight_makes_duplicates_that_fusion_removes(
+    two_robots: tuple[LoopWorld, Path, Path],
+) -> None:
+    world, a, b = two_robots
+    logs = [read_measurements(a), read_measurements(b)]
+    # a tiny association gate: the second robot's drifted detections start new landmarks
+    loose = merge_measurements(logs, MergeParams(association_gate=0.15, fuse_gate=0.0))
+    fused = merge_measurements(logs, MergeParams(association_gate=0.15, fuse_gate=0.8))
+    assert len(loose.landmarks) > len(world.objects)
+    assert fused.fused > 0
+    assert len(fused.landmarks) < len(loose.landmarks)
+
+
+def test_merge_runs_writes_landmarks_json(two_robots: tuple[LoopWorld, Path, Path], tmp_path: Path) -> None:
+    world, a, b = two_robots
+
+    def fit(class_name: str, points: np.ndarray) -> dict:
+        return {"model": "blob", "center": points.mean(axis=0), "n": len(points)}
+
+    result = merge_runs([a, b], shape_fitter=fit)
+    out = write_landmarks(tmp_path / "landmarks.json", result.landmarks)
+    import json
+
+    records = json.loads(out.read_text())
+    assert len(records) == len(result.landmarks)
+    assert {"id", "class", "position", "covariance", "observations"} <= set(records[0])
+    cov = np.array(records[0]["covariance"], float)
+    assert cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(cov) > 0)
+    # the fitter got every detection's logged points (24 each), moved into the world frame
+    for rec, lm in zip(records, result.landmarks, strict=True):
+        assert rec["shape"]["model"] == "blob" and rec["shape"]["n"] == 24 * lm.observations
+        assert np.linalg.norm(np.array(rec["shape"]["center"]) - lm.position) < 0.1
+
+
+def test_known_base_places_the_chain(two_robots: tuple[LoopWorld, Path, Path]) -> None:
+    _, a, _ = two_robots
+    shift = np.eye(4)
+    shift[:3, 3] = [100.0, -50.0, 0.0]
+    result = merge_runs([a], bases=[shift], params=MergeParams(optimizer="isam2"))
+    start = result.trajectories[0][0][:3, 3]
+    np.testing.assert_allclose(start, [100.0, -50.0, 1.2], atol=0.05)
