@@ -8,7 +8,8 @@ within 0.3 m of the truth, and at least 90 % of the true pairs are matched. *Spu
 number of accepted pairs that are not true ones: a random point that lands within the gate of an
 unmatched map point is a geometrically valid pair no solver can refuse (at n = 50 about 1.5 are
 expected by volume). *Agree* counts instances where the scalable solver returns exactly the
-exhaustive search's verdict and pairs.
+exhaustive search's verdict and pairs. *scalable ms* is wall-clock time per instance; *cpu ms* is
+the process's CPU time, which other load on a shared machine inflates much less.
 
     .venv/bin/python benchmarks/slc.py              # the tables of docs/slam.md
     .venv/bin/python benchmarks/slc.py --instances 20 --exhaustive-max 8
@@ -61,22 +62,23 @@ def main() -> None:
         f"outliers={args.outliers:.0%}, classes={args.classes}"
     )
     head = (
-        f"{'n=m':>4} | {'exhaustive ms':>13} {'succ':>5} | {'scalable ms':>11} {'succ':>5} {'spurious':>8} "
-        f"| {'agree':>5} | {'speed-up':>8}"
+        f"{'n=m':>4} | {'exhaustive ms':>13} {'succ':>5} | {'scalable ms':>11} {'cpu ms':>6} {'succ':>5} "
+        f"{'spurious':>8} | {'agree':>5} | {'speed-up':>8}"
     )
     print(head)
     print("-" * len(head))
     for n in [5, 6, 7, 8, 9, 20, 50]:
         rng = np.random.default_rng(args.seed + n)
-        te = ts = 0.0
+        te = ts = cs = 0.0
         se = ss = agree = spur = 0
         run_ex = n <= args.exhaustive_max
         for i in range(args.instances):
             inst = make_instance(rng, n, args.outliers, args.sigma, args.classes)
             A, B, ca, cb, yaw, t, truth = inst.A, inst.B, inst.ca, inst.cb, inst.yaw, inst.t, inst.truth
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             sc = solve_scalable(A, B, ca, cb, rng=np.random.default_rng(i))
             ts += time.perf_counter() - t0
+            cs += time.process_time() - c0
             ss += success(sc, yaw, t, truth)
             spur += spurious(sc, truth)
             if run_ex:
@@ -89,7 +91,10 @@ def main() -> None:
         ex_cols = f"{1e3 * te / m:>13.2f} {se / m:>5.0%}" if run_ex else f"{'—':>13} {'—':>5}"
         ratio = f"{te / ts:>7.1f}×" if run_ex else f"{'—':>8}"
         ag = f"{agree / m:>5.0%}" if run_ex else f"{'—':>5}"
-        print(f"{n:>4} | {ex_cols} | {1e3 * ts / m:>11.2f} {ss / m:>5.0%} {spur / m:>8.2f} | {ag} | {ratio}")
+        print(
+            f"{n:>4} | {ex_cols} | {1e3 * ts / m:>11.2f} {1e3 * cs / m:>6.2f} {ss / m:>5.0%} {spur / m:>8.2f}"
+            f" | {ag} | {ratio}"
+        )
 
 
 if __name__ == "__main__":

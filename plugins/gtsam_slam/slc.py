@@ -576,17 +576,14 @@ def _polish(
     """
     best = cand
     for _ in range(len(cand.pairs)):
-        pb = B @ yaw_matrix(best.psi).T + best.t
+        b_idx = best.pairs[:, 1]
+        pb = B[b_idx] @ yaw_matrix(best.psi).T + best.t
         used = np.zeros(len(A), dtype=bool)
         used[best.pairs[:, 0]] = True
-        rows, alts = [], []
-        for i, (_, b) in enumerate(best.pairs):
-            near = np.flatnonzero(
-                (ca == cb[b]) & ~used & (np.linalg.norm(A - pb[b], axis=1) <= 2.0 * p.inlier_gate)
-            )
-            rows.extend([i] * len(near))
-            alts.extend(near.tolist())
-        if not rows:
+        d2 = np.sum((pb[:, None, :] - A[None, :, :]) ** 2, axis=2)  # matched B point × A point
+        near = (cb[b_idx][:, None] == ca[None, :]) & ~used[None, :] & (d2 <= (2.0 * p.inlier_gate) ** 2)
+        rows, alts = np.nonzero(near)
+        if len(rows) == 0:
             break
         swaps = np.broadcast_to(best.pairs, (len(rows), *best.pairs.shape)).copy()
         swaps[np.arange(len(rows)), rows, 0] = alts
