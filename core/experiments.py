@@ -183,7 +183,12 @@ def planner_comparison(
         for planner in planners:
             flags = [*overrides, f"seed={seed}", f"planner.plugin={planner}"]
             rows.append(
-                {"seed": seed, "planner": planner, **_fly(spec, registry, flags, folder / "runs", log)}
+                {
+                    "seed": seed,
+                    "planner": planner,
+                    "world": Path(spec).stem,
+                    **_fly(spec, registry, flags, folder / "runs", log),
+                }
             )
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(planner_table(rows))
@@ -191,30 +196,55 @@ def planner_comparison(
     return folder
 
 
+def progress_to(rows: list[dict], share: float = 0.9) -> list[tuple[float | None, float | None]]:
+    """Per run, the distance and time at which it had mapped ``share`` of the most volume any run of
+    the same world and seed mapped: how fast a planner explores, not counting the flight home."""
+    best: dict[Any, float] = {}
+    for row in rows:
+        key = (row.get("world"), row["seed"])
+        best[key] = max(best.get(key, 0.0), row["metrics"].get("explored_volume_m3") or 0.0)
+    out = []
+    for row in rows:
+        target = share * best[(row.get("world"), row["seed"])]
+        series = np.array(row["metrics"].get("explored_series") or np.zeros((0, 3)), dtype=float)
+        hit = np.flatnonzero(series[:, 2] >= target) if len(series) and target > 0 else []
+        out.append((float(series[hit[0], 1]), float(series[hit[0], 0])) if len(hit) else (None, None))
+    return out
+
+
 def planner_table(rows: list[dict]) -> str:
     lines = [
-        "| planner | seed | verdict | explored (%) | explored (m³) | distance (m) | time (s) | m³ per m |",
-        "|---|---|---|---|---|---|---|---|",
+        "| planner | world | seed | verdict | explored (%) | distance (m) | time (s) | m³ per m "
+        "| distance to 90 % (m) | time to 90 % (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for row in rows:
+    to90 = progress_to(rows)
+    for row, (d90, t90) in zip(rows, to90, strict=True):
         m = row["metrics"]
         vol, dist = m.get("explored_volume_m3"), m.get("distance_m")
         lines.append(
-            f"| {row['planner']} | {row['seed']} | {m.get('verdict')} | "
-            f"{_fmt(m.get('explored_percent'), 1)} | "
-            f"{_fmt(vol, 1)} | {_fmt(dist, 1)} | {_fmt(m.get('sim_duration_s'), 1)} | "
-            f"{_fmt(vol / dist if vol and dist else None, 2)} |"
+            f"| {row['planner']} | {row.get('world', '')} | {row['seed']} | {m.get('verdict')} | "
+            f"{_fmt(m.get('explored_percent'), 1)} | {_fmt(dist, 1)} | {_fmt(m.get('sim_duration_s'), 1)} | "
+            f"{_fmt(vol / dist if vol and dist else None, 2)} | {_fmt(d90, 1)} | {_fmt(t90, 1)} |"
         )
-    lines += ["", "| planner | mean explored (%) | mean distance (m) | mean time (s) |", "|---|---|---|---|"]
+    lines += [
+        "",
+        "| planner | runs | mean explored (%) | mean distance (m) | mean time (s) "
+        "| mean distance to 90 % (m) | mean time to 90 % (s) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for planner in dict.fromkeys(r["planner"] for r in rows):
         ms = [r["metrics"] for r in rows if r["planner"] == planner]
+        p90 = np.array([x for r, x in zip(rows, to90, strict=True) if r["planner"] == planner], dtype=float)
 
         def mean(key: str, ms=ms) -> float:
             return float(np.nanmean([m.get(key) if m.get(key) is not None else np.nan for m in ms]))
 
         lines.append(
-            f"| {planner} | {_fmt(mean('explored_percent'), 1)} | {_fmt(mean('distance_m'), 1)} | "
-            f"{_fmt(mean('sim_duration_s'), 1)} |"
+            f"| {planner} | {len(ms)} | {_fmt(mean('explored_percent'), 1)} | "
+            f"{_fmt(mean('distance_m'), 1)} | {_fmt(mean('sim_duration_s'), 1)} | "
+            f"{_fmt(float(np.nanmean(p90[:, 0])), 1)} | "
+            f"{_fmt(float(np.nanmean(p90[:, 1])), 1)} |"
         )
     return "\n".join(lines) + "\n"
 

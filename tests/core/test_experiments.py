@@ -49,19 +49,25 @@ def test_planner_table_and_plot(tmp_path):
         {
             "seed": 1,
             "planner": name,
+            "world": "demo",
             "metrics": {
                 "verdict": "completed",
                 "explored_percent": pct,
-                "explored_volume_m3": 500.0,
+                "explored_volume_m3": vol,
                 "distance_m": dist,
                 "sim_duration_s": 300.0,
-                "explored_series": [[0, 0, 0], [100, dist, 500]],
+                # cop maps 450 m³ (90 % of the best run's 500 m³) by 40 m, greedy only by 100 m
+                "explored_series": [[0, 0, 0], [50, 40, 0.9 * vol * d90], [100, 100, vol], [300, dist, vol]],
             },
         }
-        for name, pct, dist in (("cop", 95.0, 100.0), ("greedy", 90.0, 125.0))
+        for name, pct, vol, dist, d90 in (
+            ("cop", 95.0, 500.0, 120.0, 1.0),
+            ("greedy", 90.0, 480.0, 125.0, 0.5),
+        )
     ]
     table = planner_table(rows)
-    assert "| cop | 1 | completed | 95.0 | 500.0 | 100.0 | 300.0 | 5.00 |" in table
-    assert "| greedy | 90.0 | 125.0 | 300.0 |" in table
+    assert "| cop | demo | 1 | completed | 95.0 | 120.0 | 300.0 | 4.17 | 40.0 | 50.0 |" in table
+    assert "| greedy | demo | 1 | completed | 90.0 | 125.0 | 300.0 | 3.84 | 100.0 | 100.0 |" in table
+    assert "| greedy | 1 | 90.0 | 125.0 | 300.0 | 100.0 | 100.0 |" in table
     plot_exploration(rows, tmp_path / "p.png")
     assert (tmp_path / "p.png").exists()
