@@ -34,6 +34,42 @@ def explored_share(mapping, world: WorldSummary) -> tuple[float, list[float]]:
     return float(known.mean()), per_floor
 
 
+def landmark_accuracy(landmarks: list, world: WorldSummary, gate: float = 1.0) -> dict[str, Any]:
+    """How well the semantic map matches the world's objects.
+
+    Landmarks and objects of the same class are paired one-to-one (Hungarian on distance, pairs
+    within ``gate`` metres). ``duplicates`` are unpaired landmarks within ``gate`` of an object of
+    their class (a second landmark for a mapped object); ``spurious`` are landmarks with no object
+    of their class within ``gate``; ``off_by_more_than_0_5_m`` counts paired landmarks more than
+    0.5 m from their object.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    ids = list(world.object_positions)
+    if not landmarks or not ids:
+        return {"matched": 0, "objects": len(ids), "duplicates": 0, "spurious": len(landmarks)}
+    P = np.array([world.object_positions[i] for i in ids], dtype=float)
+    pc = np.array([world.object_classes.get(i, "") for i in ids])
+    Q = np.array([lm.position for lm in landmarks], dtype=float)
+    qc = np.array([lm.class_name for lm in landmarks])
+    d = np.linalg.norm(Q[:, None, :] - P[None, :, :], axis=2)
+    d = np.where(qc[:, None] == pc[None, :], d, np.inf)
+    r, c = linear_sum_assignment(np.where(d <= gate, d, 1e6))
+    ok = d[r, c] <= gate
+    err = d[r[ok], c[ok]]
+    paired = set(r[ok].tolist())
+    near = d.min(axis=1) <= gate
+    return {
+        "objects": len(ids),
+        "matched": int(ok.sum()),
+        "mean_error_m": round(float(err.mean()), 4) if len(err) else None,
+        "median_error_m": round(float(np.median(err)), 4) if len(err) else None,
+        "off_by_more_than_0_5_m": int((err > 0.5).sum()),
+        "duplicates": int(sum(1 for i in range(len(Q)) if i not in paired and near[i])),
+        "spurious": int((~near).sum()),
+    }
+
+
 def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
     """Everything ``metrics.json`` holds."""
     backends = runner.backends
@@ -85,6 +121,8 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
         metrics["landmarks"] = {"count": len(landmarks), "by_class": by_class}
         if world is not None:
             metrics["landmarks"]["objects_in_world"] = dict(world.objects_by_class)
+            if world.object_positions:
+                metrics["landmarks"]["accuracy"] = landmark_accuracy(landmarks, world)
         metrics["keyposes"] = len(slam.keyposes())
         series = runner.samples["uncertainty"]
         if any(p or q for _, _, p, q in series):  # a backend without covariances reports zeros
@@ -249,6 +287,14 @@ def write_report(runner: Runner, metrics: dict[str, Any], plots: list[str]) -> N
         row("landmarks (by class)", f"{lm['count']} {lm['by_class']}")
         if "objects_in_world" in lm:
             row("objects in the world", lm["objects_in_world"])
+        acc = lm.get("accuracy")
+        if acc and acc.get("matched"):
+            row(
+                "landmarks vs objects",
+                f"{acc['matched']} of {acc['objects']} objects mapped, mean error {acc['mean_error_m']} m, "
+                f"{acc['off_by_more_than_0_5_m']} off by > 0.5 m, {acc['duplicates']} duplicates, "
+                f"{acc['spurious']} spurious",
+            )
     if m.get("slc"):
         row(
             "semantic loop closures (accepted / attempts)", f"{m['slc']['accepted']} / {m['slc']['attempts']}"
