@@ -28,6 +28,7 @@ from amslam.types import (
     BoundingBox,
     CameraModel,
     Detection,
+    Failsafe,
     Frame,
     KeyPose,
     Landmark,
@@ -145,6 +146,11 @@ class Platform(Backend):
 
     def world_summary(self) -> WorldSummary | None:
         """Ground truth about the world for metrics (simulator only)."""
+        return None
+
+    def failsafe(self) -> Failsafe | None:
+        """The condition that must end the mission now (link lost, battery, geofence, ...), latched
+        once raised; None while all is well. The simulator never raises one."""
         return None
 
 

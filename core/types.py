@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
+from typing import Literal
 
 import numpy as np
 
@@ -327,3 +328,25 @@ class WorldSummary:
     #: ``model`` ("cuboid" | "cylinder") and that model's parameters, same keys as
     #: :attr:`Landmark.shape`.
     object_shapes: dict[str, dict] = field(default_factory=dict)
+
+
+FailsafeAction = Literal["land", "return_and_land", "hand_over"]
+
+
+@dataclass(frozen=True)
+class Failsafe:
+    """A condition that ends the mission, and what the tree does about it (real vehicles).
+
+    Attributes:
+        kind: ``link_lost``, ``geofence``, ``low_battery``, ``critical_battery``,
+            ``command_refused``, ``mode_changed`` (the vehicle or its pilot left offboard).
+        reason: one sentence for the operator.
+        action: ``land`` here, ``return_and_land`` over the take-off point, or ``hand_over``:
+            send nothing and wait for the vehicle (or its pilot) to land.
+        t: platform time it was raised.
+    """
+
+    kind: str
+    reason: str
+    action: FailsafeAction = "land"
+    t: float = 0.0

@@ -2,7 +2,7 @@
 
 A real vehicle can end a mission in ways a simulator does not: the radio link drops, the battery
 runs low, the vehicle leaves its geofence, refuses a command or is taken over by its pilot. A
-platform that knows of such conditions offers ``failsafe() -> Failsafe | None`` (the ``mavsdk``
+platform reports them through ``Platform.failsafe() -> Failsafe | None`` (the ``mavsdk``
 platform does; the simulator does not), and the mission tree is put under a guard that answers
 them, built from py_trees composites only::
 
@@ -35,8 +35,6 @@ key                       meaning
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import py_trees
@@ -46,35 +44,15 @@ from py_trees.decorators import Inverter
 
 import amslam
 from amslam.geometry import wrap_angle
+from amslam.interfaces import Platform
 from amslam.mission import MissionModel, WaypointsSection
 from amslam.trees.behaviours import RobotBehaviour
-
-FailsafeAction = Literal["land", "return_and_land", "hand_over"]
-
-
-@dataclass(frozen=True)
-class Failsafe:
-    """A condition that ends the mission, and what the tree does about it.
-
-    Attributes:
-        kind: ``link_lost``, ``geofence``, ``low_battery``, ``critical_battery``,
-            ``command_refused``, ``mode_changed`` (the vehicle or its pilot left offboard).
-        reason: one sentence for the operator.
-        action: ``land`` here, ``return_and_land`` over the take-off point, or ``hand_over``:
-            send nothing and wait for the vehicle (or its pilot) to land.
-        t: platform time it was raised.
-    """
-
-    kind: str
-    reason: str
-    action: FailsafeAction = "land"
-    t: float = 0.0
+from amslam.types import Failsafe
 
 
-def active_failsafe(platform) -> Failsafe | None:
-    """The platform's failsafe, if it reports failsafes at all (the simulator does not)."""
-    query = getattr(platform, "failsafe", None)
-    return query() if callable(query) else None
+def active_failsafe(platform: Platform) -> Failsafe | None:
+    """The platform's failsafe, if any (:meth:`amslam.interfaces.Platform.failsafe`)."""
+    return platform.failsafe()
 
 
 class FailsafeTriggered(RobotBehaviour):

@@ -44,8 +44,7 @@ from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Platform, RunContext
 from amslam.plugins.camera_sources import CameraSource, CameraSourceParams, make_camera_source
 from amslam.plugins.mavsdk_platform.frames import enu_to_ned, pose_enu_from_ned, yaw_enu_to_ned
-from amslam.trees.flight import Failsafe
-from amslam.types import CameraModel, Frame, Odometry, RobotSpec, VehicleStatus
+from amslam.types import CameraModel, Failsafe, Frame, Odometry, RobotSpec, VehicleStatus
 
 log = logging.getLogger("amslam.mavsdk")
 
