@@ -8,6 +8,7 @@
     amslam tree MISSION [--format ascii|unicode|dot|svg|png] [--out FILE]
     amslam view RUN_DIR [--out FILE] [--screenshot PNG [--time T]] [--serve [--port N]] [--at T]
     amslam experiment {slc-ablation,planners} MISSION [--seeds N]
+    amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous] [--seeds N]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
 are printed as ``error: ...`` lines with exit status 2, never as a traceback.
@@ -268,6 +269,13 @@ def cmd_experiment(args) -> int:
     print(f"experiment {args.name} on {args.mission}, seeds {seeds}", flush=True)
     if args.name == "slc-ablation":
         folder = experiments.slc_ablation(args.mission, registry, seeds, Path(args.out), args.set or [])
+    elif args.name == "multi-robot":
+        from amslam import multirobot
+
+        robots = [int(n) for n in args.robots.split(",")]
+        folder = multirobot.multi_robot(
+            args.mission, registry, seeds, Path(args.out), robots, args.mode, args.set or [], args.schedule
+        )
     else:
         folder = experiments.planner_comparison(
             args.mission, registry, seeds, Path(args.out), overrides=args.set or []
@@ -326,12 +334,25 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--time", type=float, metavar="T", help="the page's initial time (s), for --screenshot")
     view.set_defaults(func=cmd_view)
     exp = sub.add_parser("experiment", help="fly a mission several ways over several seeds and compare")
-    exp.add_argument("name", choices=["slc-ablation", "planners"], help="which comparison")
+    exp.add_argument("name", choices=["slc-ablation", "planners", "multi-robot"], help="which comparison")
     exp.add_argument("mission")
     exp.add_argument("--seeds", type=int, default=5, help="number of seeds (default 5)")
     exp.add_argument("--first-seed", type=int, default=1)
     exp.add_argument("--out", default="runs", help="folder that receives the experiment folder")
     exp.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override for every run")
+    exp.add_argument("--robots", default="1,2,3", help="multi-robot: team sizes (default 1,2,3)")
+    exp.add_argument(
+        "--mode",
+        choices=["homogeneous", "heterogeneous"],
+        default="homogeneous",
+        help="multi-robot: same robots on split areas, or low-altitude + overhead robots on one area",
+    )
+    exp.add_argument(
+        "--schedule",
+        choices=["simultaneous", "sequential"],
+        default="simultaneous",
+        help="multi-robot: team time = longest robot's (simultaneous) or the sum (sequential)",
+    )
     exp.set_defaults(func=cmd_experiment)
     return parser
 
