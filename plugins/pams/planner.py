@@ -1,0 +1,638 @@
+"""The ``pams`` planner (paper 2 §IV-D) and the ``prior_visit`` baseline (paper 2 §V-A).
+
+**Targets.** The objects of a prior map: ``prior_objects`` names a ``landmarks.json`` of an earlier
+run (or ``world``: the simulated world's ground truth); without one, the objects the SLAM backend
+has mapped so far (``PlanRequest.landmarks``). Only ``target_classes`` (default: every class the
+uncertainty models know) are targets. Their visiting order is an open travelling-salesman tour
+from the robot (exact below 13 targets, 2-opt beyond: :mod:`amslam.plugins.planners.common`).
+
+**Viewpoints per target.** Around the current target a polar grid of candidate positions (horizontal
+distance × bearing, at the flight height) is scored with the fitted models
+(:mod:`amslam.plugins.pams.uncertainty`): predicted confidence ``f^s(range, angle)`` and predicted
+measurement variances ``f^g(range, angle)``. The valid set ``X^visible`` is the intersection of the
+high-confidence region (confidence ≥ ``min_confidence``) and the low-uncertainty region (predicted
+std ≤ ``max_position_std`` for positions, ≤ ``max_dimension_std`` for dimensions), minus cells
+too close to other objects or outside the area. Samples are drawn from it either uniformly
+(``sampling: uniform``, ``samples`` cells at random) or as the centroids of its connected regions
+(``sampling: centroid``), paper 2 Fig. 6. Each faces the object.
+
+**Information gain.** With horizon ``T``, every ordered choice of ``T`` of the ``a`` remaining
+samples is a candidate path: ``P(a, T) = a!/(a−T)!`` of them. A target's geometric covariance is
+updated recursively in information form, ``Σ_{t+1} = (Σ_t⁻¹ + R_{t+1}⁻¹)⁻¹`` with ``R`` the
+models' predicted measurement covariance at that viewpoint, and the gain of a path is the drop
+of differential entropy ``I = ½ ln det Σ_t − ½ ln det Σ_{t+τ}``. The path with the largest gain
+wins (the information sum does not depend on the order, so ``cost_weight``·path length breaks
+ties between orders of the same set). A target is done when its entropy falls below
+``entropy_threshold`` (default: every component's std at ``target_std``) or its samples run out;
+a path stops early at the viewpoint where the threshold is reached.
+
+**Bookkeeping.** A planner only sees the robot's position at each request, so a planned viewpoint
+counts as *taken* (its information is added to the target) when the robot is found within
+``reach_tolerance`` of it at a later request, as are the viewpoints planned before it on the same
+path; a viewpoint the robot has not reached after ``max_attempts`` requests is dropped
+(unreachable). Requests therefore never double-count information or retry a blocked place forever.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+from scipy import ndimage
+
+from amslam.errors import PlanningError
+from amslam.interfaces import BackendParams, Planner, RunContext
+from amslam.plugins.pams.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
+from amslam.plugins.planners.common import exact_open_tour, nearest_neighbour_tour, two_opt
+from amslam.types import BoundingBox, PlanRequest, TourItem, TourItemKind
+
+# -- targets -----------------------------------------------------------------------------------
+
+
+@dataclass
+class Target:
+    """One object to map: its class, reference position, heading and half-size."""
+
+    id: int
+    class_name: str
+    position: np.ndarray
+    yaw: float = 0.0
+    radius: float = 0.5  # horizontal half-diagonal, for clearance
+
+
+def _shape_radius_yaw(shape: dict | None, default_radius: float) -> tuple[float, float]:
+    from amslam.plugins.sim.detector import object_yaw
+
+    if not shape:
+        return default_radius, 0.0
+    if shape.get("model") == "cuboid" and "dims" in shape:
+        length, width = float(shape["dims"][0]), float(shape["dims"][1])
+        return 0.5 * math.hypot(length, width), object_yaw(shape)
+    if shape.get("model") == "cylinder":
+        return float(shape.get("radius", default_radius)), 0.0
+    return default_radius, object_yaw(shape)
+
+
+def _shape_position(shape: dict | None, position: np.ndarray) -> np.ndarray:
+    if shape and shape.get("model") == "cuboid" and "center" in shape:
+        return np.asarray(shape["center"], float)
+    if shape and shape.get("model") == "cylinder" and "root" in shape:
+        return np.asarray(shape["root"], float)
+    return np.asarray(position, float)
+
+
+def load_prior_objects(path: Path, default_radius: float = 0.5) -> list[Target]:
+    """Targets from a run's ``landmarks.json`` (list of ``{id, class, position, shape?}``)."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PlanningError(f"prior_objects: cannot read {path}: {exc}") from None
+    out = []
+    for i, lm in enumerate(data):
+        shape = lm.get("shape")
+        radius, yaw = _shape_radius_yaw(shape, default_radius)
+        out.append(
+            Target(
+                int(lm.get("id", i)),
+                str(lm["class"]),
+                _shape_position(shape, np.asarray(lm["position"], float)),
+                yaw,
+                radius,
+            )
+        )
+    return out
+
+
+def world_objects(world, default_radius: float = 0.5) -> list[Target]:
+    """Targets from a simulated world's ground truth (:class:`~amslam.types.WorldSummary`)."""
+    out = []
+    for i, (name, pos) in enumerate(sorted(world.object_positions.items())):
+        shape = world.object_shapes.get(name)
+        radius, yaw = _shape_radius_yaw(shape, default_radius)
+        out.append(Target(i, world.object_classes[name], _shape_position(shape, pos), yaw, radius))
+    return out
+
+
+def target_order(start: np.ndarray, positions: np.ndarray, exact_max: int = 12) -> list[int]:
+    """Open TSP tour from ``start`` over ``positions`` (Euclidean), as indices into ``positions``."""
+    if len(positions) == 0:
+        return []
+    nodes = np.vstack([np.asarray(start, float)[None, :2], np.asarray(positions, float)[:, :2]])
+    costs = np.linalg.norm(nodes[:, None] - nodes[None], axis=2)
+    idx = list(range(1, len(nodes)))
+    tour = (
+        exact_open_tour(costs, idx)
+        if len(idx) <= exact_max
+        else two_opt(costs, nearest_neighbour_tour(costs, idx))
+    )
+    return [k - 1 for k in tour]
+
+
+# -- entropy and information gain ------------------------------------------------------------------
+
+
+def entropy(cov: np.ndarray) -> float:
+    """Differential entropy up to a constant: ½ ln det Σ (paper 2 §IV-D)."""
+    sign, logdet = np.linalg.slogdet(np.asarray(cov, float))
+    if sign <= 0:
+        raise ValueError("covariance is not positive definite")
+    return 0.5 * float(logdet)
+
+
+def fuse(cov: np.ndarray, measurement_covs: list[np.ndarray]) -> np.ndarray:
+    """Recursive covariance update in information form: ``Σ⁻¹ ← Σ⁻¹ + Σ R_k⁻¹``."""
+    info = np.linalg.inv(cov)
+    for R in measurement_covs:
+        info = info + np.linalg.inv(R)
+    return np.linalg.inv(info)
+
+
+def information_gain(cov: np.ndarray, measurement_covs: list[np.ndarray]) -> float:
+    """``I = ½ ln det Σ_t − ½ ln det Σ_{t+τ}`` after fusing the measurements."""
+    return entropy(cov) - entropy(fuse(cov, measurement_covs))
+
+
+def count_paths(a: int, T: int) -> int:
+    """Number of ordered paths of ``T`` of ``a`` samples: ``a!/(a−T)!`` (0 if T > a)."""
+    return math.perm(a, T)
+
+
+# -- parameters ----------------------------------------------------------------------------------
+
+
+class PamsParams(BackendParams):
+    """Parameters of the ``pams`` planner."""
+
+    models: str | None = Field(
+        None, description="uncertainty models (.npz from `amslam characterise`); None = the packaged ones"
+    )
+    prior_objects: str | None = Field(
+        None,
+        description="landmarks.json of an earlier run (relative to the mission file), or 'world' for the "
+        "simulated world's truth; None = the objects SLAM has mapped so far",
+    )
+    target_classes: list[str] | None = Field(None, description="classes to map; None = every modelled class")
+    horizon: int = Field(3, ge=1, le=5, description="planning horizon T (viewpoints per path)")
+    sampling: Literal["uniform", "centroid"] = Field("centroid", description="how samples are drawn (Fig. 6)")
+    samples: int = Field(8, ge=1, description="uniform sampling: samples per target")
+    min_confidence: float = Field(0.8, ge=0.0, le=1.0, description="high-confidence region threshold")
+    max_position_std: float = Field(0.1, gt=0.0, description="low-uncertainty region: position std limit, m")
+    max_dimension_std: float = Field(
+        0.2, gt=0.0, description="low-uncertainty region: dimension std limit, m"
+    )
+    min_region_share: float = Field(
+        0.1,
+        gt=0.0,
+        le=1.0,
+        description="if the intersection is empty, the lowest-entropy share of the confident cells instead",
+    )
+    range_step: float = Field(0.5, gt=0.0, description="grid step of the horizontal distance, m")
+    bearing_step_deg: float = Field(10.0, gt=0.0, description="grid step of the bearing, degrees")
+    max_distance: float = Field(12.0, gt=0.0, description="farthest candidate from a target, m")
+    height: float | None = Field(
+        None, description="flight height of the viewpoints (world z); None = the robot's"
+    )
+    clearance: float = Field(
+        1.0, ge=0.0, description="viewpoints keep this far from every object's footprint, m"
+    )
+    prior_std: float = Field(0.5, gt=0.0, description="std of every component before any look, m")
+    target_std: float = Field(
+        0.05, gt=0.0, description="stop when the entropy is that of this std per component"
+    )
+    entropy_threshold: float | None = Field(None, description="explicit stop threshold on ½ ln det Σ")
+    cost_weight: float = Field(0.01, ge=0.0, description="nats per metre of path: breaks ties between orders")
+    reach_tolerance: float = Field(1.0, gt=0.0, description="a viewpoint counts as taken within this, m")
+    max_attempts: int = Field(
+        3, ge=1, description="requests a viewpoint may stay unreached before it is dropped"
+    )
+    default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
+
+
+class PriorVisitParams(BackendParams):
+    """Parameters of the ``prior_visit`` baseline."""
+
+    prior_objects: str | None = Field(
+        None, description="landmarks.json of an earlier run (relative to the mission file), or 'world'"
+    )
+    target_classes: list[str] | None = Field(None, description="classes to visit; None = every class")
+    standoff: float = Field(
+        3.0, gt=0.0, description="horizontal distance from an object's edge to look from, m"
+    )
+    height: float | None = Field(None, description="flight height (world z); None = the robot's")
+    clearance: float = Field(
+        1.0, ge=0.0, description="the look-from place keeps this far from other objects, m"
+    )
+    reach_tolerance: float = Field(1.0, gt=0.0, description="a stop counts as visited within this, m")
+    max_attempts: int = Field(3, ge=1, description="requests a stop may stay unreached before it is dropped")
+    default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
+
+
+# -- shared bookkeeping ---------------------------------------------------------------------------
+
+
+@dataclass
+class _Pending:
+    """A planned stop: target id, sample index, position, requests it has stayed unreached."""
+
+    target: int
+    sample: int
+    position: np.ndarray
+    attempts: int = 0
+
+
+class _TargetPlanner(Planner):
+    """Targets from a prior map, a TSP order over them, and the taken/dropped bookkeeping."""
+
+    needs_frontiers = False
+
+    def __init__(self) -> None:
+        self.params = None
+        self.context: RunContext | None = None
+        self.targets: dict[int, Target] = {}
+        self.order: list[int] = []  # target ids in visiting order
+        self.pending: list[_Pending] = []
+        self._loaded = False
+
+    def configure(self, params, context: RunContext) -> None:
+        """Keep the parameters and the context (the prior map is read at the first request)."""
+        self.params = params
+        self.context = context
+        self._loaded = False
+        self.targets, self.order, self.pending = {}, [], []
+
+    def _classes(self) -> set[str] | None:
+        return None if self.params.target_classes is None else set(self.params.target_classes)
+
+    def _load_targets(self, request: PlanRequest) -> None:
+        """Read the prior map once; without one, take SLAM's current map at every request."""
+        p, ctx = self.params, self.context
+        if p.prior_objects == "world":
+            if ctx is None or ctx.world is None:
+                raise PlanningError("prior_objects: world needs a simulated world")
+            found = world_objects(ctx.world, p.default_radius)
+        elif p.prior_objects is not None:
+            base = ctx.mission_dir if ctx is not None else Path.cwd()
+            found = load_prior_objects((base / p.prior_objects).resolve(), p.default_radius)
+        else:
+            found = [
+                Target(lm.id, lm.class_name, *_lm_pose(lm, p.default_radius)) for lm in request.landmarks
+            ]
+        wanted = self._classes()
+        new = {t.id: t for t in found if wanted is None or t.class_name in wanted}
+        if set(new) != set(self.targets):
+            ids = list(new)
+            order = target_order(request.start, np.array([new[i].position for i in ids]).reshape(-1, 3))
+            self.order = [ids[j] for j in order]
+        self.targets = new
+        self._loaded = p.prior_objects is not None
+
+    def _height(self, request: PlanRequest) -> float:
+        return float(self.params.height if self.params.height is not None else request.start[2])
+
+    def _free(self, xy: np.ndarray, skip: int | None = None) -> np.ndarray:
+        """Cells (N×2) clear of every other object's footprint (plus clearance) and inside the area."""
+        ok = np.ones(len(xy), dtype=bool)
+        for tid, t in self.targets_all.items():
+            if tid == skip:
+                continue
+            ok &= np.linalg.norm(xy - t.position[:2], axis=1) > t.radius + self.params.clearance
+        area: BoundingBox | None = self.context.area if self.context is not None else None
+        if area is not None and not area.empty:
+            ok &= np.all((xy >= area.lo[:2] + 0.5) & (xy <= area.hi[:2] - 0.5), axis=1)
+        return ok
+
+    @property
+    def targets_all(self) -> dict[int, Target]:
+        """Every object to keep clear of (the targets; subclasses may add others)."""
+        return self.targets
+
+    def _settle(self, here: np.ndarray) -> tuple[list[_Pending], list[_Pending], list[_Pending]]:
+        """Sort the previous path's stops into taken, dropped and still open.
+
+        Taken: the stop nearest the robot within ``reach_tolerance`` and every stop planned before
+        it (the tree flies a tour in order). The others have stayed unreached for one more request;
+        those that reached ``max_attempts`` are dropped. ``self.pending`` is emptied.
+        """
+        tol = self.params.reach_tolerance
+        reached = [k for k, it in enumerate(self.pending) if np.linalg.norm(it.position[:2] - here[:2]) < tol]
+        cut = max(reached) + 1 if reached else 0
+        taken, rest = self.pending[:cut], self.pending[cut:]
+        for it in rest:
+            it.attempts += 1
+        dropped = [it for it in rest if it.attempts >= self.params.max_attempts]
+        still = [it for it in rest if it.attempts < self.params.max_attempts]
+        self.pending = []
+        return taken, dropped, still
+
+
+def _lm_pose(lm, default_radius: float) -> tuple[np.ndarray, float, float]:
+    radius, yaw = _shape_radius_yaw(lm.shape, default_radius)
+    return _shape_position(lm.shape, lm.position), yaw, radius
+
+
+def _item(position: np.ndarray, yaw: float, gain: float, ref: int) -> TourItem:
+    return TourItem(TourItemKind.EXPLORE, np.asarray(position, float), float(yaw), float(gain), int(ref))
+
+
+def _facing(position: np.ndarray, target: np.ndarray) -> float:
+    d = np.asarray(target, float)[:2] - np.asarray(position, float)[:2]
+    return float(math.atan2(d[1], d[0]))
+
+
+# -- the baseline ----------------------------------------------------------------------------------
+
+
+class PriorVisitPlanner(_TargetPlanner):
+    """``prior_visit``: look once at every prior object, in TSP order (paper 2's baseline)."""
+
+    Params = PriorVisitParams
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.params = PriorVisitParams()
+        self.done: set[int] = set()
+        self.attempts: dict[int, int] = {}
+
+    def configure(self, params: PriorVisitParams, context: RunContext) -> None:
+        super().configure(params, context)
+        self.done, self.attempts = set(), {}
+
+    def stop_for(self, tid: int, request: PlanRequest, came_from: np.ndarray) -> np.ndarray:
+        """Where to look at target ``tid`` from: ``standoff`` beyond its edge on the side facing
+        ``came_from`` (the approach), turned around the object while that place is blocked."""
+        t = self.targets[tid]
+        d = np.asarray(came_from, float)[:2] - t.position[:2]
+        base = math.atan2(d[1], d[0]) if np.linalg.norm(d) > 1e-6 else 0.0
+        dist = t.radius + self.params.standoff
+        offsets = np.radians(np.arange(15, 181, 15))
+        bearings = base + np.concatenate([[0.0], np.ravel(np.column_stack([offsets, -offsets]))])
+        xy = t.position[:2] + dist * np.column_stack([np.cos(bearings), np.sin(bearings)])
+        ok = self._free(xy, skip=tid)
+        j = int(np.argmax(ok)) if ok.any() else 0
+        return np.array([xy[j, 0], xy[j, 1], self._height(request)])
+
+    def plan(self, request: PlanRequest) -> list[TourItem]:
+        """The prior objects not yet looked at, one stop each, in TSP order from the robot."""
+        if not self._loaded:
+            self._load_targets(request)
+        taken, dropped, still = self._settle(request.start)
+        for it in taken + dropped:
+            self.done.add(it.target)  # a dropped stop is given up, like a failed look
+        for it in still:
+            self.attempts[it.target] = it.attempts
+        here, items = request.start, []
+        for tid in self.order:
+            if tid in self.done or tid not in self.targets:
+                continue
+            pos = self.stop_for(tid, request, here)
+            self.pending.append(_Pending(tid, 0, pos, self.attempts.get(tid, 0)))
+            items.append(_item(pos, _facing(pos, self.targets[tid].position), 1.0, tid))
+            here = pos
+        return items
+
+
+# -- PAMS ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class _TargetState:
+    model: ClassModel
+    cov: np.ndarray
+    samples: np.ndarray  # (S, 3) positions
+    sample_covs: list[np.ndarray]
+    used: np.ndarray  # (S,) bool: taken, dropped or on the current path
+    attempts: np.ndarray  # (S,) requests each sample stayed unreached
+    done: bool = False
+    looks: int = 0
+    history: list[float] = field(default_factory=list)  # entropy after each taken look
+
+
+class PamsPlanner(_TargetPlanner):
+    """``pams``: viewpoints where the models predict confident, accurate looks (paper 2 §IV-D)."""
+
+    Params = PamsParams
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.params = PamsParams()
+        self.models: UncertaintyModels | None = None
+        self.states: dict[int, _TargetState] = {}
+        self.rng = np.random.default_rng(0)
+        self._emit = None
+
+    def configure(self, params: PamsParams, context: RunContext) -> None:
+        """Load the uncertainty models; the prior map is read at the first request.
+
+        Raises:
+            PlanningError: the models file cannot be read.
+        """
+        super().configure(params, context)
+        path = None
+        if params.models is not None:
+            path = Path(params.models)
+            if not path.is_absolute():
+                path = (context.mission_dir / path).resolve()
+        try:
+            self.models = UncertaintyModels.load(path)
+        except (OSError, ValueError, KeyError) as exc:
+            raise PlanningError(f"pams: cannot load uncertainty models {path or 'default'}: {exc}") from None
+        self.rng = context.rng
+        self.states = {}
+        self._emit = context.emit
+
+    def _classes(self) -> set[str] | None:
+        wanted = super()._classes()
+        known = set(self.models.classes) if self.models is not None else set()
+        return known if wanted is None else wanted & known
+
+    def threshold(self, model: ClassModel) -> float:
+        """Entropy below which a target is done: ``entropy_threshold``, or ``c · ln(target_std)``."""
+        p = self.params
+        if p.entropy_threshold is not None:
+            return p.entropy_threshold
+        return len(model.components) * math.log(p.target_std)
+
+    # -- viewpoint sampling ------------------------------------------------------------------
+    def candidate_grid(self, tid: int, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+        """Polar grid around a target: positions (N×3), range, viewing angle, grid shape (dist, bearing)."""
+        p, t = self.params, self.targets[tid]
+        m = self.models[t.class_name]
+        dists = np.arange(t.radius + p.clearance, p.max_distance + 1e-9, p.range_step)
+        bearings = np.radians(np.arange(0.0, 360.0, p.bearing_step_deg))
+        D, B = np.meshgrid(dists, bearings, indexing="ij")
+        xy = t.position[:2] + np.column_stack([(D * np.cos(B)).ravel(), (D * np.sin(B)).ravel()])
+        pos = np.column_stack([xy, np.full(len(xy), height)])
+        rng = np.linalg.norm(pos - t.position, axis=1)
+        if m.angle_dependent:
+            angle = np.abs((B.ravel() - t.yaw + np.pi) % (2 * np.pi) - np.pi)
+        else:
+            angle = np.zeros(len(xy))
+        return pos, rng, angle, D.shape
+
+    def good_region(self, tid: int, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+        """Grid cells in the high-confidence ∩ low-uncertainty region (paper 2 Fig. 6).
+
+        Returns:
+            (positions N×3, mask over the cells, predicted variances N×c, grid shape).
+        """
+        p, t = self.params, self.targets[tid]
+        m = self.models[t.class_name]
+        pos, rng, angle, shape = self.candidate_grid(tid, height)
+        conf = m.confidence(rng, angle)
+        var = m.variances(rng, angle)
+        limits = np.array(
+            [p.max_position_std if c in POSITION_COMPONENTS else p.max_dimension_std for c in m.components]
+        )
+        confident = (conf >= p.min_confidence) & self._free(pos[:, :2], skip=tid)
+        good = confident & np.all(np.sqrt(var) <= limits, axis=1)
+        if not good.any() and confident.any():
+            # nothing meets both limits: the best-predicted share of the confident cells instead
+            ent = 0.5 * np.log(var).sum(axis=1)
+            good = confident & (ent <= np.quantile(ent[confident], p.min_region_share))
+        return pos, good, var, shape
+
+    def sample_viewpoints(self, tid: int, height: float) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Sampled viewpoints of a target and their predicted measurement covariances."""
+        p = self.params
+        pos, good, var, shape = self.good_region(tid, height)
+        idx = np.flatnonzero(good)
+        if len(idx) == 0:
+            return np.zeros((0, 3)), []
+        if p.sampling == "uniform":
+            pick = np.sort(self.rng.choice(idx, size=min(p.samples, len(idx)), replace=False))
+        else:
+            labels, _ = ndimage.label(good.reshape(shape))
+            # regions wrap around in bearing: join labels that touch across 360° → 0°
+            for a, b in zip(labels[:, 0].tolist(), labels[:, -1].tolist(), strict=True):
+                if a and b and a != b:
+                    labels[labels == b] = a
+            flat = labels.ravel()
+            pick_list = []
+            for lab in np.unique(flat[flat > 0]):
+                cells = np.flatnonzero(flat == lab)
+                c = pos[cells].mean(axis=0)
+                # the region's cell nearest its centroid (the centroid may fall outside a curved region)
+                pick_list.append(int(cells[np.argmin(np.linalg.norm(pos[cells] - c, axis=1))]))
+            pick = np.array(pick_list, dtype=int)
+        return pos[pick], [np.diag(var[i]) for i in pick]
+
+    def state(self, tid: int, height: float) -> _TargetState:
+        """A target's belief and samples (made at its first request)."""
+        if tid not in self.states:
+            m = self.models[self.targets[tid].class_name]
+            samples, covs = self.sample_viewpoints(tid, height)
+            n = len(samples)
+            self.states[tid] = _TargetState(
+                m,
+                np.eye(len(m.components)) * self.params.prior_std**2,
+                samples,
+                covs,
+                np.zeros(n, dtype=bool),
+                np.zeros(n, dtype=int),
+            )
+        return self.states[tid]
+
+    # -- path choice --------------------------------------------------------------------------
+    def best_path(self, st: _TargetState, start: np.ndarray, threshold: float) -> tuple[list[int], float]:
+        """The ordered samples (at most ``horizon``) of largest gain and that gain.
+
+        Every one of the ``P(a, T)`` orders of the ``a`` free samples is evaluated; a path is cut
+        at the viewpoint where the entropy reaches ``threshold`` (the target is done there).
+        """
+        left = np.flatnonzero(~st.used).tolist()
+        T = min(self.params.horizon, len(left))
+        if T == 0:
+            return [], 0.0
+        h0 = entropy(st.cov)
+        info0 = np.linalg.inv(st.cov)
+        meas = {i: np.linalg.inv(st.sample_covs[i]) for i in left}
+        best: tuple[float, list[int], float] | None = None
+        for path in itertools.permutations(left, T):
+            info, here, length, h = info0, start, 0.0, h0
+            taken: list[int] = []
+            for i in path:
+                info = info + meas[i]
+                length += float(np.linalg.norm(st.samples[i] - here))
+                here = st.samples[i]
+                taken.append(i)
+                h = -0.5 * float(np.linalg.slogdet(info)[1])  # entropy of Σ = info⁻¹
+                if h <= threshold:
+                    break
+            gain = h0 - h
+            utility = gain - self.params.cost_weight * length
+            if best is None or utility > best[0] + 1e-12:
+                best = (utility, taken, gain)
+        assert best is not None
+        return best[1], best[2]
+
+    def plan(self, request: PlanRequest) -> list[TourItem]:
+        """The best path of views of the current target (empty when every target is done).
+
+        Raises:
+            PlanningError: called before configure, or the prior map cannot be read.
+        """
+        if self.models is None:
+            raise PlanningError("pams: plan() before configure()")
+        if not self._loaded:
+            self._load_targets(request)
+        height = self._height(request)
+        taken, dropped, still = self._settle(request.start)
+        for it in taken:
+            st = self.states[it.target]
+            st.cov = fuse(st.cov, [st.sample_covs[it.sample]])
+            st.looks += 1
+            st.history.append(entropy(st.cov))
+        for it in still:  # back into the pool, remembering how often they were not reached
+            st = self.states[it.target]
+            st.used[it.sample] = False
+            st.attempts[it.sample] = it.attempts
+        del dropped  # their samples stay used: unreachable, no information
+        for tid in self.order:
+            if tid not in self.targets:
+                continue
+            st = self.state(tid, height)
+            if st.done:
+                continue
+            threshold = self.threshold(st.model)
+            h = entropy(st.cov)
+            if h <= threshold or st.used.all():
+                st.done = True
+                self._event(
+                    "pams_target_done",
+                    tid,
+                    looks=st.looks,
+                    entropy=round(h, 3),
+                    reason="entropy below threshold" if h <= threshold else "samples exhausted",
+                )
+                continue
+            free = int((~st.used).sum())
+            path, gain = self.best_path(st, request.start, threshold)
+            st.used[path] = True
+            target = self.targets[tid]
+            items = []
+            for i in path:
+                pos = st.samples[i]
+                self.pending.append(_Pending(tid, i, pos, int(st.attempts[i])))
+                items.append(_item(pos, _facing(pos, target.position), gain, tid))
+            self._event(
+                "pams_path",
+                tid,
+                samples=len(st.samples),
+                free=free,
+                candidates=count_paths(free, min(self.params.horizon, free)),
+                chosen=len(path),
+                gain=round(gain, 4),
+                entropy=round(h, 4),
+            )
+            return items
+        return []
+
+    def _event(self, name: str, tid: int, **fields) -> None:
+        if self._emit is not None:
+            self._emit(name, target=tid, cls=self.targets[tid].class_name, **fields)

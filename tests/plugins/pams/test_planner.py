@@ -1,0 +1,293 @@
+"""PAMS: entropy and information gain, path enumeration, viewpoints in the good region, stopping;
+and the prior-visit baseline."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from amslam.errors import PlanningError
+from amslam.interfaces import RunContext
+from amslam.plugins.pams import PamsPlanner, PriorVisitPlanner
+from amslam.plugins.pams import planner as pams_planner
+from amslam.plugins.pams.planner import count_paths, entropy, fuse, information_gain, target_order
+from amslam.testing.contract import CAMERA
+from amslam.types import BoundingBox, Landmark, PlanRequest, TourItemKind
+
+
+def _request(start=(0.0, 0.0, 2.0), landmarks=()) -> PlanRequest:
+    return PlanRequest(
+        np.asarray(start, float), 0.0, (), np.zeros((1, 1)), CAMERA, landmarks=tuple(landmarks)
+    )
+
+
+def _prior(tmp_path, objects) -> str:
+    data = [
+        {
+            "id": i,
+            "class": c,
+            "position": list(p),
+            "covariance": np.eye(3).tolist(),
+            "observations": 5,
+            **({"shape": s} if s else {}),
+        }
+        for i, (c, p, s) in enumerate(objects)
+    ]
+    (tmp_path / "landmarks.json").write_text(json.dumps(data))
+    return "landmarks.json"
+
+
+CAR = {"model": "cuboid", "center": [10.0, 0.0, 0.75], "dims": [4.6, 1.9, 1.5], "yaw": 0.0}
+
+
+def _pams(tmp_path, models_path, events=None, **params) -> PamsPlanner:
+    planner = PamsPlanner()
+    ctx = RunContext(
+        rng=np.random.default_rng(0),
+        run_dir=tmp_path,
+        mission_dir=tmp_path,
+        emit=(lambda name, **f: events.append((name, f))) if events is not None else (lambda *a, **k: None),
+    )
+    planner.configure(PamsPlanner.Params(models=str(models_path), **params), ctx)
+    return planner
+
+
+# -- entropy and information gain --------------------------------------------------------------
+
+
+def test_entropy_and_information_gain_by_hand():
+    prior = np.diag([0.25, 0.25])
+    R1, R2 = np.diag([0.01, 0.04]), np.diag([0.04, 0.01])
+    assert entropy(prior) == pytest.approx(0.5 * math.log(0.0625))
+    # Σ⁻¹ = diag(4, 4) + diag(100, 25) + diag(25, 100) = diag(129, 129)
+    fused = fuse(prior, [R1, R2])
+    np.testing.assert_allclose(fused, np.diag([1 / 129, 1 / 129]))
+    assert information_gain(prior, [R1, R2]) == pytest.approx(
+        0.5 * math.log(0.0625) - 0.5 * math.log(1 / 129**2)
+    )
+    # one look after the other equals both at once (the recursion of paper 2 §IV-D)
+    np.testing.assert_allclose(fuse(fuse(prior, [R1]), [R2]), fused)
+    # a correlated prior: ½ ln det by hand
+    S = np.array([[0.5, 0.2], [0.2, 0.3]])
+    assert entropy(S) == pytest.approx(0.5 * math.log(0.5 * 0.3 - 0.04))
+    with pytest.raises(ValueError):
+        entropy(np.diag([1.0, -1.0]))
+
+
+def test_number_of_candidate_paths_is_a_permutation_count(tmp_path, models_path, monkeypatch):
+    assert count_paths(8, 3) == 336 and count_paths(5, 5) == 120 and count_paths(2, 3) == 0
+    planner = _pams(
+        tmp_path,
+        models_path,
+        prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
+        sampling="uniform",
+        samples=7,
+        horizon=3,
+        target_std=1e-4,
+        max_position_std=0.3,
+        max_dimension_std=0.5,
+    )
+    seen = []
+    real = pams_planner.itertools.permutations
+
+    def counting(items, T):
+        out = list(real(items, T))
+        seen.append(len(out))
+        return iter(out)
+
+    monkeypatch.setattr(pams_planner.itertools, "permutations", counting)
+    tour = planner.plan(_request())
+    assert seen == [count_paths(7, 3)] == [210]
+    assert len(tour) == 3
+
+
+# -- viewpoints --------------------------------------------------------------------------------
+
+
+def test_viewpoints_lie_in_the_predicted_good_region_and_face_the_object(tmp_path, models_path, models):
+    planner = _pams(
+        tmp_path,
+        models_path,
+        prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
+        min_confidence=0.8,
+        max_position_std=0.1,
+        max_dimension_std=0.2,
+    )
+    tour = planner.plan(_request())
+    assert tour and all(item.kind == TourItemKind.EXPLORE for item in tour)
+    car = models["car"]
+    centre = np.array(CAR["center"])
+    st = planner.states[0]
+    assert len(st.samples) >= 2
+    for p in [*st.samples, *(item.position for item in tour)]:
+        rng = float(np.linalg.norm(p - centre))
+        angle = abs(math.atan2(p[1] - centre[1], p[0] - centre[0]))
+        assert car.confidence(rng, angle)[0] >= 0.8
+        assert np.all(np.sqrt(car.variances(rng, angle)[0]) <= [0.1, 0.1, 0.2, 0.2])
+        assert p[2] == pytest.approx(2.0)  # the robot's height
+        # outside the car's footprint plus clearance
+        assert np.linalg.norm(p[:2] - centre[:2]) >= 0.5 * math.hypot(4.6, 1.9) + 1.0 - 1e-9
+    for item in tour:
+        d = centre[:2] - item.position[:2]
+        assert abs(math.remainder(item.yaw - math.atan2(d[1], d[0]), 2 * math.pi)) < 1e-9
+        assert item.ref == 0
+    # synthetic truth: oblique views are best, so centroid sampling finds the four oblique regions
+    bearings = sorted(round(math.degrees(math.atan2(p[1], p[0] - 10.0))) % 360 for p in st.samples)
+    assert len(bearings) == 4
+    for b, expected in zip(bearings, (45, 135, 225, 315), strict=True):
+        assert abs(b - expected) <= 20
+
+
+def test_viewpoints_avoid_other_objects_and_leave_the_area_alone(tmp_path, models_path):
+    # a pole right where the best oblique views of the car would be
+    objects = [("car", CAR["center"], CAR), ("pole", [13.5, 3.5, 0.0], None)]
+    area = BoundingBox(np.array([-5.0, -20.0, 0.0]), np.array([40.0, 3.0, 6.0]))
+    planner = PamsPlanner()
+    ctx = RunContext(rng=np.random.default_rng(0), run_dir=tmp_path, mission_dir=tmp_path, area=area)
+    planner.configure(
+        PamsPlanner.Params(
+            models=str(models_path),
+            prior_objects=_prior(tmp_path, objects),
+            sampling="uniform",
+            samples=30,
+            target_classes=["car"],
+            max_position_std=0.3,
+            max_dimension_std=0.5,
+        ),
+        ctx,
+    )
+    planner.plan(_request())
+    st = planner.states[0]
+    assert len(st.samples) > 5
+    assert np.all(np.linalg.norm(st.samples[:, :2] - [13.5, 3.5], axis=1) > 0.5 + 1.0)
+    assert np.all(st.samples[:, 1] <= 2.5)
+
+
+# -- stopping and bookkeeping ------------------------------------------------------------------------
+
+
+def test_stops_when_entropy_falls_below_the_threshold(tmp_path, models_path):
+    events = []
+    planner = _pams(
+        tmp_path,
+        models_path,
+        events,
+        prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
+        sampling="uniform",
+        samples=8,
+        horizon=2,
+        target_std=0.12,
+    )
+    here = np.array([0.0, 0.0, 2.0])
+    flown = 0
+    for _ in range(10):
+        tour = planner.plan(_request(here))
+        if not tour:
+            break
+        here = tour[-1].position  # the robot flew the whole path
+        flown += len(tour)
+    assert tour == []
+    st = planner.states[0]
+    assert st.done and st.looks == flown
+    assert entropy(st.cov) <= planner.threshold(st.model)
+    before_last = st.history[-2] if len(st.history) > 1 else entropy(np.eye(4) * 0.5**2)
+    assert before_last > planner.threshold(st.model)  # it did not look more than needed
+    assert (~st.used).sum() > 0  # samples were left: the entropy, not the samples, ended it
+    done = [f for name, f in events if name == "pams_target_done"]
+    assert done and done[0]["reason"] == "entropy below threshold"
+
+
+def test_stops_when_samples_run_out_then_moves_to_the_next_target(tmp_path, models_path):
+    car2 = dict(CAR, center=[30.0, 0.0, 0.75])
+    planner = _pams(
+        tmp_path,
+        models_path,
+        prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR), ("car", car2["center"], car2)]),
+        sampling="centroid",
+        horizon=3,
+        target_std=1e-6,
+    )
+    here = np.array([0.0, 0.0, 2.0])
+    refs = []
+    for _ in range(12):
+        tour = planner.plan(_request(here))
+        if not tour:
+            break
+        refs.append(tour[0].ref)
+        here = tour[-1].position
+    assert refs[0] == 0 and refs[-1] == 1 and sorted(set(refs)) == [0, 1]
+    assert all(st.done and st.used.all() for st in planner.states.values())
+    # the TSP visited the nearer car first
+    assert target_order(np.zeros(3), np.array([[30.0, 0, 0], [10.0, 0, 0]])) == [1, 0]
+
+
+def test_unreached_viewpoints_return_to_the_pool_then_get_dropped(tmp_path, models_path):
+    planner = _pams(
+        tmp_path,
+        models_path,
+        prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
+        sampling="uniform",
+        samples=6,
+        horizon=2,
+        target_std=1e-6,
+        max_attempts=2,
+    )
+    start = _request()
+    first = planner.plan(start)
+    # the robot did not get anywhere: nothing was taken, the samples are free again (1 attempt)
+    second = planner.plan(start)
+    st = planner.states[0]
+    assert st.looks == 0 and len(second) == 2
+    # it reached the first stop of the second path: exactly that one is taken
+    planner.plan(_request(second[0].position))
+    assert st.looks == 1
+    # samples unreached max_attempts times are dropped, without information
+    assert np.isclose(len(st.history), 1)
+    assert first  # (the first path was planned)
+
+
+def test_targets_from_slam_landmarks_and_errors(tmp_path, models_path):
+    planner = _pams(tmp_path, models_path)
+    lm = Landmark(7, "car", np.array(CAR["center"]), np.eye(3) * 0.01, 5, shape=CAR)
+    chair = Landmark(8, "sofa", np.array([3.0, 3.0, 0.5]), np.eye(3) * 0.01, 5)  # not modelled
+    tour = planner.plan(_request(landmarks=[lm, chair]))
+    assert tour and {item.ref for item in tour} == {7}
+    assert planner.plan(_request()) == []  # the objects are gone from the map: nothing to do
+    with pytest.raises(PlanningError, match="cannot load"):
+        PamsPlanner().configure(
+            PamsPlanner.Params(models="missing.npz"),
+            RunContext(rng=np.random.default_rng(0), run_dir=tmp_path),
+        )
+    bad = _pams(tmp_path, models_path, prior_objects="nope.json")
+    with pytest.raises(PlanningError, match="cannot read"):
+        bad.plan(_request())
+
+
+# -- the baseline ----------------------------------------------------------------------------------
+
+
+def test_prior_visit_looks_once_at_each_object_in_tsp_order(tmp_path):
+    objects = [
+        ("car", [20.0, 0.0, 0.75], None),
+        ("car", [10.0, 0.0, 0.75], CAR),
+        ("pole", [30.0, 5.0, 0.0], None),
+    ]
+    planner = PriorVisitPlanner()
+    planner.configure(
+        PriorVisitPlanner.Params(prior_objects=_prior(tmp_path, objects), standoff=3.0),
+        RunContext(rng=np.random.default_rng(0), run_dir=tmp_path, mission_dir=tmp_path),
+    )
+    assert planner.needs_frontiers is False
+    tour = planner.plan(_request())
+    assert [t.ref for t in tour] == [1, 0, 2]
+    # the first stop: 3 m beyond the car's edge, on the robot's side, facing it
+    assert np.linalg.norm(tour[0].position[:2] - [10.0, 0.0]) == pytest.approx(
+        0.5 * math.hypot(4.6, 1.9) + 3.0
+    )
+    assert tour[0].position[0] < 10.0 and tour[0].yaw == pytest.approx(0.0)
+    # after the first two looks only the third object is left; after it, nothing
+    assert [t.ref for t in planner.plan(_request(tour[1].position))] == [2]
+    assert planner.plan(_request(tour[2].position)) == []
