@@ -8,6 +8,7 @@
     amslam tree MISSION [--format ascii|unicode|dot|svg|png] [--out FILE]
     amslam view RUN_DIR [--out FILE] [--screenshot PNG [--time T]] [--serve [--port N]] [--at T]
     amslam experiment {slc-ablation,planners} MISSION [--seeds N]
+    amslam characterise [MISSION] --out MODELS.npz [--poses N] [--seed S]
     amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous] [--seeds N]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
@@ -285,6 +286,14 @@ def cmd_experiment(args) -> int:
     return 0
 
 
+def cmd_characterise(args) -> int:
+    from amslam.plugins.pams.uncertainty import characterise
+
+    mission = _load(args)[0] if args.mission else None
+    characterise(Path(args.out), mission=mission, poses_per_spiral=args.poses, seed=args.seed)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="amslam", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -333,6 +342,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     view.add_argument("--time", type=float, metavar="T", help="the page's initial time (s), for --screenshot")
     view.set_defaults(func=cmd_view)
+    char = sub.add_parser("characterise", help="fit confidence and geometric-error models (paper 2 §IV-C)")
+    char.add_argument("mission", nargs="?", help="mission whose simulated camera and detector to use")
+    char.add_argument("--out", required=True, help="models file to write (.npz; samples and plot beside it)")
+    char.add_argument("--poses", type=int, help="frames per spiral (default 240)")
+    char.add_argument("--seed", type=int, default=0)
+    char.set_defaults(func=cmd_characterise)
     exp = sub.add_parser("experiment", help="fly a mission several ways over several seeds and compare")
     exp.add_argument("name", choices=["slc-ablation", "planners", "multi-robot"], help="which comparison")
     exp.add_argument("mission")

@@ -513,16 +513,13 @@ def characterise(
     if mission is not None:
         platform, detector = mission.backends.get("platform"), mission.backends.get("detector")
         if platform is not None and hasattr(platform.params, "camera"):
-            cam = platform.params.camera
-            # the spirals reach 16 m: keep the mission's sensor model, extend its reach
-            config.camera = cam.model_copy(update={"max_range": max(cam.max_range, config.range_max + 4.0)})
+            config.camera = platform.params.camera.model_copy(update={"rgb": False})
         if detector is not None and detector.plugin == "sim":
-            config.detector = detector.params.model_copy(
-                update={
-                    "max_range": max(detector.params.max_range, config.range_max + 4.0),
-                    "false_positive_rate": 0.0,
-                }
-            )
+            config.detector = detector.params.model_copy(update={"false_positive_rate": 0.0})
+        # the mission's sensor as it is: spirals reach a little beyond what it can detect
+        reach = min(config.camera.max_range, config.detector.max_range)
+        config.range_max = min(config.range_max, reach + 1.0)
+        config.targets = [t.model_copy(update={"range_max": None}) for t in config.targets]
     if poses_per_spiral is not None:
         config.poses_per_spiral = poses_per_spiral
     if samples_in is not None:
