@@ -394,7 +394,7 @@ def fit_cylinder(
     points: np.ndarray,
     ground: GroundPlane | None = None,
     *,
-    axis: str = "ground",
+    axis: str = "vertical",
     percentile: float = 1.0,
     min_points: int = 15,
 ) -> dict | None:
@@ -404,7 +404,8 @@ def fit_cylinder(
         points: N×3 points of the instance (gravity-aligned frame).
         ground: local ground plane; the root is where the axis meets it. ``None``: a level
             ground under the lowest points.
-        axis: ``"ground"`` — the axis is the ground normal (z without a plane); ``"pca"`` — the
+        axis: ``"vertical"`` — gravity (z; poles and trunks stand upright even on a slope, and
+            the IMU gives gravity); ``"ground"`` — the local ground normal; ``"pca"`` — the
             first principal direction of the points (leaning trunks), oriented up.
         percentile: the top of the cylinder is the ``(100−p)``-th percentile of heights along the
             axis, extrapolated to the edge.
@@ -416,13 +417,15 @@ def fit_cylinder(
     p = np.asarray(points, float).reshape(-1, 3)
     if len(p) < min_points:
         return None
-    if axis == "ground":
+    if axis == "vertical":
+        n = UP
+    elif axis == "ground":
         n = ground.normal if ground is not None else UP
     elif axis == "pca":
         _, _, vt = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)
         n = vt[0] if vt[0, 2] >= 0 else -vt[0]
     else:
-        raise ValueError(f"axis must be 'ground' or 'pca', not {axis!r}")
+        raise ValueError(f"axis must be 'vertical', 'ground' or 'pca', not {axis!r}")
     basis = _plane_basis(n)
     xy = p @ basis.T
     c2, r = _circle_fit(xy)
@@ -520,7 +523,8 @@ def shape_errors(est: dict, true: dict) -> dict[str, float]:
 
     Returns:
         ``dims`` — mean absolute dimension error (paper 2 Fig. 9: |d_est − d_true| averaged over
-        the dimensions: l, w, h for a cuboid; diameter and height for a cylinder); ``position``
+        the dimensions: l, w, h for a cuboid; the diameter for a cylinder, whose height is
+        reported apart as ``height``, since the paper's cylinder has none); ``position``
         — distance between the reference points (:func:`shape_center`); ``yaw`` — heading error
         of a cuboid modulo π (a box is symmetric under a half turn), ``axis`` — angle between
         cylinder axes (rad).
@@ -538,8 +542,8 @@ def shape_errors(est: dict, true: dict) -> dict[str, float]:
         out["yaw"] = float(err)
         out["dims"] = float(np.mean(np.abs(dims - dt)))
     else:
-        de = np.array([2 * est["radius"], est["height"]])
-        dt = np.array([2 * true["radius"], true["height"]])
-        out["dims"] = float(np.mean(np.abs(de - dt)))
+        # the paper's cylinder state has no height (the top of a pole is rarely in view)
+        out["dims"] = float(abs(2 * est["radius"] - 2 * true["radius"]))
+        out["height"] = float(abs(est["height"] - true["height"]))
         out["axis"] = float(np.arccos(np.clip(np.dot(est["axis"], true["axis"]), -1.0, 1.0)))
     return out

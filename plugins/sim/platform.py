@@ -12,6 +12,7 @@ from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Platform, RunContext
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
+from amslam.plugins.sim.outdoor import OutdoorWorldParams, generate_outdoor
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
 from amslam.plugins.sim.vio import VioParams, VioState, wrap_angle
 from amslam.plugins.sim.world import World, WorldSpec
@@ -26,7 +27,9 @@ def _world_kind(v: Any) -> str:
 
 
 WorldParams = Annotated[
-    Annotated[ProceduralWorldParams, Tag("procedural")] | Annotated[MeshWorldParams, Tag("mesh")],
+    Annotated[ProceduralWorldParams, Tag("procedural")]
+    | Annotated[MeshWorldParams, Tag("mesh")]
+    | Annotated[OutdoorWorldParams, Tag("outdoor")],
     Discriminator(_world_kind),
 ]
 
@@ -47,7 +50,8 @@ class SimPlatform(Platform):
 
         world: WorldParams = Field(
             default_factory=ProceduralWorldParams,
-            description="kind: procedural (seeded building) or kind: mesh (a mesh file + objects file)",
+            description="kind: procedural (seeded building), mesh (a mesh file + objects file) or outdoor"
+            " (seeded parking lot / street)",
         )
         start: tuple[float, float] | None = Field(
             None,
@@ -178,6 +182,8 @@ class SimPlatform(Platform):
             return self._custom_spec
         if isinstance(p.world, MeshWorldParams):
             return load_mesh_world(p.world, Path(self.context.mission_dir))
+        if isinstance(p.world, OutdoorWorldParams):
+            return generate_outdoor(p.world, np.random.default_rng(self._world_seed))
         return generate_building(p.world, np.random.default_rng(self._world_seed))
 
     def _open_spot(self, world: World, spec: WorldSpec) -> np.ndarray:

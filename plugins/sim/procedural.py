@@ -160,7 +160,19 @@ class _Builder:
         albedo = np.clip(class_colour(cls) * self.rng.uniform(0.8, 1.15) + self.rng.normal(0, 0.03, 3), 0, 1)
         self.parts.append(MeshPart.uniform(name, v, t, inst, albedo))
         lo, hi = v.min(axis=0), v.max(axis=0)
-        self.objects.append(WorldObject(name, cls, inst, (lo + hi) / 2.0, lo, hi))
+        # the true cuboid (paper 2): the bounds of the boxes in the object's own frame
+        blo = np.min([b[0] for b in boxes], axis=0)
+        bhi = np.max([b[1] for b in boxes], axis=0)
+        R = rot_z(yaw)
+        centre = R @ ((blo + bhi) / 2.0) + np.array([x, y, z])
+        shape = {
+            "model": "cuboid",
+            "center": centre.tolist(),
+            "yaw": float(np.arctan2(R[1, 0], R[0, 0])),
+            "dims": (bhi - blo).tolist(),
+            "rotation": R.tolist(),
+        }
+        self.objects.append(WorldObject(name, cls, inst, (lo + hi) / 2.0, lo, hi, shape))
 
     def furnish(self, room: _Rect, z: float, keep_out: list[_Rect]) -> None:
         """Place one arrangement (and maybe loose pieces) in a room, avoiding keep-out zones."""

@@ -88,6 +88,8 @@ class WorldObject:
     centroid: np.ndarray  # centre of the axis-aligned bounds
     lo: np.ndarray
     hi: np.ndarray
+    #: true shape model (paper 2): a cuboid or cylinder dict, see amslam.plugins.gtsam_slam.shapes
+    shape: dict | None = None
 
 
 @dataclass
@@ -255,6 +257,7 @@ class World:
             objects_by_class=by_class,
             object_positions={o.name: o.centroid.copy() for o in self.objects},
             object_classes={o.name: o.class_name for o in self.objects},
+            object_shapes={o.name: dict(o.shape) for o in self.objects if o.shape is not None},
             reachable_points=points,
             reachable_cell=cell,
         )

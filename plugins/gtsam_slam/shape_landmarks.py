@@ -1,0 +1,247 @@
+"""Shape landmarks for :class:`~amslam.plugins.gtsam_slam.backend.GtsamSlam` (paper 2, §IV-A/B).
+
+A class declares its landmark model in the backend's ``landmark_models`` (class → ``centroid`` |
+``cuboid`` | ``cylinder`` | ``plane``). This module holds the front end of the shape classes:
+
+* ``plane`` classes (the ground) make no landmarks: their points (odometry frame) fill a
+  voxel-thinned buffer from which the local ground plane of each object is fitted.
+* ``cuboid`` / ``cylinder`` classes are associated by **overlap**: a detection belongs to the
+  landmark of its class whose current shape (inflated by ``association_margin``) holds most of
+  its points (at least ``association_overlap``) — a car's visible-surface centroid moves by
+  metres with the view, its box does not. Each landmark keeps its points in the odometry frame
+  with their stamps; a **measurement** is the shape fitted (:mod:`.shapes`) to the points of the
+  last ``window`` seconds (the paper accumulates 1–3 s of LIDAR scans with LIDAR odometry; VIO
+  is locally exact in the same way), expressed in the key pose's body frame with VIO. It yields
+  the eq. 1 / eq. 2 factor (:mod:`.shape_factors`) and, for the point landmark ``L(j)`` the rest
+  of the backend uses (association, loop closure, covariances), the shape's reference point
+  (cuboid centre, cylinder root) as a range-bearing measurement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from amslam.plugins.gtsam_slam import shapes
+from amslam.plugins.gtsam_slam.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
+
+__all__ = ["ShapeLandmarks", "ShapeParams"]
+
+MODELS = ("centroid", "cuboid", "cylinder", "plane")
+
+
+class ShapeParams(BaseModel):
+    """Parameters of the shape landmarks (``shapes:`` under the gtsam SLAM section)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    window: float = Field(6.0, gt=0, description="seconds of a landmark's points in one measurement")
+    min_points: int = Field(80, ge=10, description="fewest window points for a measurement")
+    max_points: int = Field(6000, ge=100, description="window points kept per landmark (random thinning)")
+    voxel: float = Field(0.04, gt=0, description="ground buffer voxel size, m")
+    ground_radius: float = Field(4.0, gt=0, description="ground points within this of an object count, m")
+    ground_window: float = Field(60.0, gt=0, description="seconds of ground points kept")
+    percentile: float = Field(2.5, ge=0, lt=25, description="cuboid extent percentiles (shapes.fit_cuboid)")
+    extrapolate: bool = Field(
+        False, description="extrapolate the percentiles to the edges (low-noise sensors)"
+    )
+    cylinder_axis: str = Field("vertical", description="vertical | ground | pca (shapes.fit_cylinder)")
+    association_margin: float = Field(0.4, ge=0, description="shape inflation for overlap association, m")
+    association_overlap: float = Field(0.4, gt=0, le=1, description="share of points inside to associate")
+    sigma_rotation: float = Field(0.05, gt=0, description="cuboid pose rotation std, rad")
+    sigma_translation: float = Field(0.15, gt=0, description="cuboid / root translation std, m")
+    sigma_dims: float = Field(0.15, gt=0, description="cuboid dimension std, m")
+    sigma_axis: float = Field(0.05, gt=0, description="cylinder axis std (per component)")
+    sigma_radius: float = Field(0.03, gt=0, description="cylinder radius std, m")
+
+
+@dataclass
+class _ShapeRec:
+    model: str
+    points: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (stamp, odom-frame points)
+    last_world: dict | None = None  # latest shape in the world frame (for association)
+    height: float = float("nan")  # latest cylinder height (not a graph variable)
+    pending: list[tuple[int, dict]] = field(default_factory=list)  # (key pose, body-frame shape)
+    in_graph: bool = False
+
+
+class ShapeLandmarks:
+    """Point buffers, measurements and factors of the shape landmarks of one backend."""
+
+    def __init__(self, models: dict[str, str], params: ShapeParams, rng: np.random.Generator):
+        bad = {c: m for c, m in models.items() if m not in MODELS}
+        if bad:
+            raise ValueError(f"landmark_models: unknown model(s) {bad}; expected one of {MODELS}")
+        self.models = dict(models)
+        self.p = params
+        self.rng = rng
+        self.recs: dict[int, _ShapeRec] = {}
+        self._ground: list[tuple[float, np.ndarray]] = []
+
+    def model(self, class_name: str) -> str:
+        """The landmark model of a class (``centroid`` unless declared)."""
+        return self.models.get(class_name, "centroid")
+
+    # ------------------------------------------------------------------ ground
+    def add_ground(self, stamp: float, points_odom: np.ndarray) -> None:
+        """Add ground points (odometry frame), thinned to one per ``voxel``."""
+        if len(points_odom) == 0:
+            return
+        keys = np.floor(points_odom / self.p.voxel).astype(np.int64)
+        _, idx = np.unique(keys, axis=0, return_index=True)
+        self._ground.append((stamp, points_odom[idx]))
+        self._ground = [(t, g) for t, g in self._ground if stamp - t <= self.p.ground_window]
+
+    def ground_near(self, centre_odom: np.ndarray) -> shapes.GroundPlane | None:
+        """The local ground plane (odometry frame) around a point, if ground points are known."""
+        if not self._ground:
+            return None
+        g = np.concatenate([q for _, q in self._ground])
+        return shapes.local_ground(g, centre_odom, self.p.ground_radius)
+
+    # ------------------------------------------------------------------ association
+    def associate(self, class_name: str, points_world: np.ndarray, candidates: dict[int, str]) -> int:
+        """The landmark (of ``candidates``: id → class) whose inflated shape holds most points, or -1."""
+        best, best_share = -1, self.p.association_overlap
+        for lm_id, cls in candidates.items():
+            rec = self.recs.get(lm_id)
+            if cls != class_name or rec is None or rec.last_world is None:
+                continue
+            share = float(np.mean(self._inside(rec.last_world, points_world)))
+            if share >= best_share:
+                best, best_share = lm_id, share
+        return best
+
+    def _inside(self, shape: dict, pts: np.ndarray) -> np.ndarray:
+        m = self.p.association_margin
+        if shape["model"] == "cuboid":
+            T = shapes.cuboid_pose(shape)
+            local = (pts - T[:3, 3]) @ T[:3, :3]
+            return np.all(np.abs(local) <= np.asarray(shape["dims"]) / 2 + m, axis=1)
+        root, n = np.asarray(shape["root"]), np.asarray(shape["axis"])
+        v = pts - root
+        along = v @ n
+        radial = np.linalg.norm(v - np.outer(along, n), axis=1)
+        return (radial <= shape["radius"] + m) & (along >= -m)
+
+    # ------------------------------------------------------------------ measurements
+    def measure(
+        self, lm_id: int, class_name: str, stamp: float, points_odom: np.ndarray, T_odom_kp: np.ndarray
+    ) -> dict | None:
+        """Add a detection's points to landmark ``lm_id`` and fit its shape over the window.
+
+        Returns:
+            The measured shape in the key pose's body frame, or ``None`` (too few points).
+        """
+        rec = self.recs.setdefault(lm_id, _ShapeRec(self.model(class_name)))
+        rec.points.append((stamp, np.asarray(points_odom, float)))
+        rec.points = [(t, q) for t, q in rec.points if stamp - t <= self.p.window]
+        pts = np.concatenate([q for _, q in rec.points])
+        if len(pts) < self.p.min_points:
+            return None
+        if len(pts) > self.p.max_points:
+            pts = pts[self.rng.choice(len(pts), self.p.max_points, replace=False)]
+        ground = self.ground_near(np.median(pts, axis=0))
+        if rec.model == "cuboid":
+            s = shapes.fit_cuboid(pts, ground, percentile=self.p.percentile, extrapolate=self.p.extrapolate)
+        else:
+            s = shapes.fit_cylinder(pts, ground, axis=self.p.cylinder_axis)
+        if s is None:
+            return None
+        if rec.model == "cylinder":
+            rec.height = s["height"]
+        return shapes.transform_shape(s, np.linalg.inv(T_odom_kp))
+
+    def set_world(self, lm_id: int, shape_world: dict) -> None:
+        """Record the latest world-frame shape of a landmark (for association)."""
+        self.recs[lm_id].last_world = shape_world
+
+    # ------------------------------------------------------------------ factors
+    def noise(self, model: str) -> gtsam.noiseModel.Base:
+        p = self.p
+        if model == "cuboid":
+            s = [p.sigma_rotation] * 3 + [p.sigma_translation] * 3 + [p.sigma_dims] * 3
+        else:
+            s = [p.sigma_translation] * 3 + [p.sigma_axis] * 3 + [p.sigma_radius]
+        return gtsam.noiseModel.Diagonal.Sigmas(np.array(s))
+
+    def initial_values(self, lm_id: int, shape_world: dict, values: gtsam.Values) -> None:
+        """Insert the variables of a landmark entering the graph, from a world-frame shape."""
+        if shape_world["model"] == "cuboid":
+            o, d = cuboid_keys(lm_id)
+            values.insert(o, gtsam.Pose3(shapes.cuboid_pose(shape_world)))
+            values.insert(d, np.asarray(shape_world["dims"], float))
+        else:
+            b, n, r = cylinder_keys(lm_id)
+            values.insert(b, np.asarray(shape_world["root"], float))
+            values.insert(n, gtsam.Unit3(np.asarray(shape_world["axis"], float)))
+            values.insert(r, np.array([shape_world["radius"]]))
+        self.recs[lm_id].in_graph = True
+
+    def factor(
+        self,
+        pose_key: int,
+        lm_id: int,
+        shape_body: dict,
+        T_world_body: np.ndarray,
+        estimate: dict | None,
+        robust,  # noqa: ANN001 — the backend's M-estimator wrapper
+    ) -> gtsam.NonlinearFactor:
+        """The eq. 1 / eq. 2 factor of one measurement (body frame) of landmark ``lm_id``.
+
+        A box looks the same after a half turn (and after a quarter turn with length and width
+        swapped): the measured pose is replaced by the equivalent closest to the current estimate
+        (``estimate``, world frame), so that the SE(3) log of eq. 1 stays small.
+        """
+        noise = robust(self.noise(shape_body["model"]))
+        if shape_body["model"] == "cuboid":
+            o, d = cuboid_keys(lm_id)
+            Z = shapes.cuboid_pose(shape_body)
+            dims = np.asarray(shape_body["dims"], float)
+            if estimate is not None:
+                Z, dims = _closest_equivalent(
+                    Z, dims, np.linalg.inv(T_world_body) @ shapes.cuboid_pose(estimate)
+                )
+            return cuboid_factor(pose_key, o, d, Z, dims, noise)
+        b, n, r = cylinder_keys(lm_id)
+        return cylinder_factor(
+            pose_key, b, n, r, shape_body["root"], shape_body["axis"], shape_body["radius"], noise
+        )
+
+    def estimate(self, lm_id: int, values: gtsam.Values) -> dict | None:
+        """The optimised shape of a landmark (world frame), or ``None`` if it has no variables."""
+        rec = self.recs.get(lm_id)
+        if rec is None or not rec.in_graph:
+            return None
+        if rec.model == "cuboid":
+            o, d = cuboid_keys(lm_id)
+            if not values.exists(o):
+                return None
+            T = values.atPose3(o).matrix()
+            return shapes.cuboid_shape(T[:3, :3], T[:3, 3], values.atPoint3(d))
+        b, n, r = cylinder_keys(lm_id)
+        if not values.exists(b):
+            return None
+        return shapes.cylinder_shape(
+            values.atPoint3(b), values.atUnit3(n).point3(), float(values.atVector(r)[0]), rec.height
+        )
+
+
+def _closest_equivalent(Z: np.ndarray, dims: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Among the box's symmetric poses (turns by k·90° about b3), the one closest to ``E``."""
+    best, best_err = (Z, dims), np.inf
+    for k in range(4):
+        c, s = np.cos(k * np.pi / 2), np.sin(k * np.pi / 2)
+        Rk = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        Zk = Z.copy()
+        Zk[:3, :3] = Z[:3, :3] @ Rk
+        dk = dims[[1, 0, 2]] if k % 2 else dims
+        err = np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(Zk[:3, :3].T @ E[:3, :3])))
+        # a quarter turn only if the box is nearly square (else the dims disagree with E's)
+        err += 0.0 if k % 2 == 0 else 2.0 * abs(dims[0] - dims[1])
+        if err < best_err:
+            best, best_err = (Zk, dk), err
+    return best
