@@ -8,6 +8,7 @@
     amslam tree MISSION [--format ascii|unicode|dot|svg|png] [--out FILE]
     amslam view RUN_DIR [--out FILE] [--screenshot PNG [--time T]] [--serve [--port N]] [--at T]
     amslam experiment {slc-ablation,planners} MISSION [--seeds N]
+    amslam experiment pams MISSION [MISSION ...] [--seeds N]
     amslam characterise [MISSION] --out MODELS.npz [--poses N] [--seed S]
     amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous] [--seeds N]
 
@@ -270,6 +271,11 @@ def cmd_experiment(args) -> int:
     print(f"experiment {args.name} on {args.mission}, seeds {seeds}", flush=True)
     if args.name == "slc-ablation":
         folder = experiments.slc_ablation(args.mission, registry, seeds, Path(args.out), args.set or [])
+    elif args.name == "pams":
+        missions = [args.mission, *args.more]
+        folder = experiments.pams_comparison(
+            missions, registry, seeds, Path(args.out), overrides=args.set or []
+        )
     elif args.name == "multi-robot":
         from amslam import multirobot
 
@@ -349,8 +355,11 @@ def build_parser() -> argparse.ArgumentParser:
     char.add_argument("--seed", type=int, default=0)
     char.set_defaults(func=cmd_characterise)
     exp = sub.add_parser("experiment", help="fly a mission several ways over several seeds and compare")
-    exp.add_argument("name", choices=["slc-ablation", "planners", "multi-robot"], help="which comparison")
+    exp.add_argument(
+        "name", choices=["slc-ablation", "planners", "multi-robot", "pams"], help="which comparison"
+    )
     exp.add_argument("mission")
+    exp.add_argument("more", nargs="*", help="pams: further missions (one world each)")
     exp.add_argument("--seeds", type=int, default=5, help="number of seeds (default 5)")
     exp.add_argument("--first-seed", type=int, default=1)
     exp.add_argument("--out", default="runs", help="folder that receives the experiment folder")

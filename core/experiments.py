@@ -276,3 +276,105 @@ def plot_exploration(rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+# -- PAMS vs the prior-visit baseline (paper 2 Fig. 9) ----------------------------------------
+
+
+def pams_comparison(
+    specs: list[str],
+    registry: Registry,
+    seeds: list[int],
+    out: Path,
+    planners: tuple[str, ...] = ("pams", "prior_visit"),
+    overrides: list[str] = (),
+    log: Callable[[str], None] = print,
+) -> Path:
+    """Fly every mission (one simulated world each) with PAMS and the baseline for each seed.
+
+    The missions name a prior map of objects (``planner.prior_objects``); the ``objects`` block
+    of each run's metrics (shape landmarks against the world's true shapes) fills a table like
+    paper 2 Fig. 9: dimension error mean and standard deviation and the share of objects mapped,
+    per world, per class and over all data.
+    """
+    folder = _folder(out, "pams", specs[0] if len(specs) == 1 else "worlds")
+    rows = []
+    for spec in specs:
+        for seed in seeds:
+            for planner in planners:
+                flags = [*overrides, f"seed={seed}", f"planner.plugin={planner}"]
+                rows.append(
+                    {
+                        "world": Path(spec).stem,
+                        "seed": seed,
+                        "planner": planner,
+                        **_fly(spec, registry, flags, folder / "runs", log),
+                    }
+                )
+    (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
+    (folder / "table.md").write_text(pams_table(rows, planners))
+    return folder
+
+
+def pool_errors(blocks: list[dict]) -> dict[str, float]:
+    """Pool per-run ``{mapped, objects, dims_error_mean_m, dims_error_std_m}`` over runs.
+
+    Means weight each run by its mapped objects; the pooled std comes from the pooled second
+    moment (``E[e²] = σ² + μ²`` per run), so it equals the std over all objects together.
+    """
+    n = np.array([b.get("mapped", 0) for b in blocks], float)
+    objects = float(sum(b.get("objects", 0) for b in blocks))
+    has = [b for b in blocks if "dims_error_mean_m" in b and b.get("mapped", 0) > 0]
+    out = {"mapped": float(n.sum()), "objects": objects}
+    if has:
+        w = np.array([b["mapped"] for b in has], float)
+        m = np.array([b["dims_error_mean_m"] for b in has])
+        s = np.array([b["dims_error_std_m"] for b in has])
+        mean = float(np.sum(w * m) / w.sum())
+        second = float(np.sum(w * (s**2 + m**2)) / w.sum())
+        out["mean"], out["std"] = mean, float(np.sqrt(max(second - mean**2, 0.0)))
+    return out
+
+
+def pams_table(rows: list[dict], planners: tuple[str, ...] = ("pams", "prior_visit")) -> str:
+    """Markdown like paper 2 Fig. 9: one column per world and one for all data; ``a / b`` cells
+    compare the planners in the order given."""
+    worlds = list(dict.fromkeys(r["world"] for r in rows))
+    classes = sorted({c for r in rows for c in (r["metrics"].get("objects") or {}) if c != "overall"})
+
+    def pooled(world: str | None, planner: str, cls: str) -> dict[str, float]:
+        blocks = [
+            (r["metrics"].get("objects") or {}).get(cls, {})
+            for r in rows
+            if r["planner"] == planner and (world is None or r["world"] == world)
+        ]
+        return pool_errors(blocks)
+
+    def cell(world: str | None, cls: str, what: str) -> str:
+        vals = []
+        for p in planners:
+            d = pooled(world, p, cls)
+            if what == "mapped":
+                vals.append(f"{100 * d['mapped'] / d['objects']:.0f} %" if d["objects"] else "—")
+            else:
+                vals.append(f"{d[what]:.2f} m" if what in d else "—")
+        return " / ".join(vals)
+
+    cols = [*worlds, None]
+    head = " / ".join(planners)
+    lines = [
+        f"Object dimension error and objects mapped ({head}), like paper 2 Fig. 9",
+        "",
+        "| measure | " + " | ".join(w or "all data" for w in cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
+    for cls in ["overall", *classes]:
+        label = "" if cls == "overall" else f" — {cls}"
+        for what, name in (("mean", "Err. mean"), ("std", "Err. std. dev."), ("mapped", "Obj. mapped")):
+            lines.append(f"| {name}{label} | " + " | ".join(cell(w, cls, what) for w in cols) + " |")
+    dist = {
+        p: np.nanmean([r["metrics"].get("distance_m") or np.nan for r in rows if r["planner"] == p])
+        for p in planners
+    }
+    lines += ["", "Mean path length: " + ", ".join(f"{p} {_fmt(float(d), 1)} m" for p, d in dist.items()), ""]
+    return "\n".join(lines)
