@@ -33,8 +33,9 @@ from scipy.optimize import linear_sum_assignment
 
 from amslam.geometry import invert, wrap_angle, yaw_of
 from amslam.interfaces import BackendParams, RunContext, Slam
-from amslam.plugins.gtsam_slam import slc
+from amslam.plugins.gtsam_slam import shapes, slc
 from amslam.plugins.gtsam_slam.information import LinearizedGraph, virtual_factor
+from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
 from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
 
 __all__ = ["GtsamSlam"]
@@ -102,6 +103,12 @@ class GtsamSlam(Slam):
         robust_k: float = Field(1.345, gt=0, description="robust kernel width (whitened units)")
         association_gate: float = Field(0.8, gt=0, description="nearest-neighbour gate, m")
         min_observations: int = Field(3, ge=1, description="observations before a landmark is trusted")
+        landmark_models: dict[str, Literal["centroid", "cuboid", "cylinder", "plane"]] = Field(
+            default_factory=dict,
+            description="landmark model per class (default centroid); cuboid / cylinder: paper 2's shape"
+            " landmarks (eqs. 1-2); plane: ground points for the local ground planes, no landmarks",
+        )
+        shapes: ShapeParams = Field(default_factory=ShapeParams, description="shape landmark parameters")
         tentative_timeout: int = Field(40, ge=1, description="key poses a tentative landmark may go unseen")
         min_confidence: float = Field(0.3, ge=0, le=1, description="ignore weaker detections")
         max_range: float = Field(8.0, gt=0, description="ignore detections farther than this, m")
@@ -172,6 +179,9 @@ class GtsamSlam(Slam):
         self._distance = 0.0
         self._version = 0
         self._cache: dict[str, tuple[int, object]] = {}
+        self._shapes = ShapeLandmarks({}, ShapeParams(), np.random.default_rng(0))
+        self._shape_assoc: dict[int, int] = {}  # detection index → shape landmark (this call)
+        self._shape_meas: dict[int, dict] = {}  # detection index → measured shape, body frame
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -179,6 +189,7 @@ class GtsamSlam(Slam):
         """Set parameters and start an empty graph."""
         self.params = params
         self._context = context
+        self._shapes = ShapeLandmarks(params.landmark_models, params.shapes, context.rng)
         isam_params = gtsam.ISAM2Params()
         isam_params.setFactorization(params.factorization)
         isam_params.setRelinearizeThreshold(params.relinearize_threshold)
@@ -324,10 +335,18 @@ class GtsamSlam(Slam):
         T_kp_cam = invert(T_odom_kp) @ odom.T_odom_body @ T_body_cam
         p_body = np.array([T_kp_cam[:3, :3] @ pts_cam[i] + T_kp_cam[:3, 3] for i in keep])
         T_world_kp = self._pose(kp)
+        if self.params.landmark_models:  # paper 2's shape landmarks: their own front end
+            dets, p_body = self._shape_detections(odom.stamp, kp, T_kp_cam, dets, p_body)
+            if not dets:
+                self._expire_tentative()
+                self._flush()
+                return
         p_world = p_body @ T_world_kp[:3, :3].T + T_world_kp[:3, 3]
         p_odom = p_body @ T_odom_kp[:3, :3].T + T_odom_kp[:3, 3]
         assoc = self._associate([d.class_name for d in dets], p_world)
-        for d, pb, pw, po, lm_id in zip(dets, p_body, p_world, p_odom, assoc, strict=True):
+        for i, lm_id in self._shape_assoc.items():
+            assoc[i] = lm_id
+        for k, (d, pb, pw, po, lm_id) in enumerate(zip(dets, p_body, p_world, p_odom, assoc, strict=True)):
             if lm_id < 0:
                 lm_id = self._new_landmark_id()
                 self._lms[lm_id] = _LandmarkRec(lm_id, d.class_name, kp, self._kps[kp].distance, np.zeros(3))
@@ -335,8 +354,86 @@ class GtsamSlam(Slam):
             ob = _Observation(kp, odom.stamp, d.class_name, pb, po, lm_id)
             self._obs.append(ob)
             self._observe(lm, ob, pw)
+            if k in self._shape_meas:
+                self._shape_observe(lm, kp, self._shape_meas[k])
         self._expire_tentative()
         self._flush()
+
+    # ---------------------------------------------------------------- shape landmarks (paper 2)
+
+    def _shape_detections(
+        self, stamp: float, kp: int, T_kp_cam: np.ndarray, dets: list[Detection], p_body: np.ndarray
+    ) -> tuple[list[Detection], np.ndarray]:
+        """The shape-class front end (:mod:`.shape_landmarks`), before centroid association.
+
+        ``plane`` detections feed the ground buffer and leave. A ``cuboid`` / ``cylinder``
+        detection is associated by overlap, its points join its landmark's window and the
+        window's fitted shape becomes the measurement: its reference point (box centre, cylinder
+        root) replaces the visible-surface centroid as the detection's point, so ``L(j)`` is the
+        shape's reference point. A detection that yields no shape is dropped.
+
+        Returns:
+            The detections and body-frame points that go on to :meth:`_associate`;
+            ``self._shape_assoc`` / ``self._shape_meas`` hold, by their new index, the landmark
+            and the measured shape of the shape-class ones.
+        """
+        sh = self._shapes
+        T_odom_kp = self._kps[kp].T_odom_body
+        T_odom_cam = T_odom_kp @ T_kp_cam
+        T_world_kp = self._pose(kp)
+        T_world_odom = T_world_kp @ invert(T_odom_kp)
+        live = {lm.id: lm.class_name for lm in self._lms.values() if lm.alias_of is None}
+        out_d: list[Detection] = []
+        out_p: list[np.ndarray] = []
+        self._shape_assoc, self._shape_meas = {}, {}
+        for d, pb in zip(dets, p_body, strict=True):
+            model = sh.model(d.class_name)
+            if model == "centroid":
+                out_d.append(d)
+                out_p.append(pb)
+                continue
+            pts = np.asarray(d.points_cam, float).reshape(-1, 3) @ T_odom_cam[:3, :3].T + T_odom_cam[:3, 3]
+            if model == "plane":
+                sh.add_ground(stamp, pts)
+                continue
+            if len(pts) == 0:
+                continue
+            pts_world = pts @ T_world_odom[:3, :3].T + T_world_odom[:3, 3]
+            lm_id = sh.associate(d.class_name, pts_world, live)
+            new = lm_id < 0
+            if new:
+                lm_id = max(self._new_landmark_id(), max(sh.recs, default=-1) + 1)
+            shape_body = sh.measure(lm_id, d.class_name, stamp, pts, T_odom_kp)
+            if shape_body is None:
+                if new:
+                    sh.recs.pop(lm_id, None)
+                continue
+            if new:
+                self._lms[lm_id] = _LandmarkRec(lm_id, d.class_name, kp, self._kps[kp].distance, np.zeros(3))
+                live[lm_id] = d.class_name
+            sh.set_world(lm_id, shapes.transform_shape(shape_body, T_world_kp))
+            k = len(out_d)
+            self._shape_assoc[k] = lm_id
+            self._shape_meas[k] = shape_body
+            out_d.append(d)
+            out_p.append(shapes.shape_center(shape_body))
+        return out_d, np.array(out_p).reshape(-1, 3)
+
+    def _shape_observe(self, lm: _LandmarkRec, kp: int, shape_body: dict) -> None:
+        """Queue or add the eq. 1 / eq. 2 factor of one measurement of a shape landmark."""
+        sh = self._shapes
+        rec = sh.recs[lm.id]
+        rec.pending.append((kp, shape_body))
+        if not lm.in_graph:
+            return
+        if not rec.in_graph:
+            T = self._pose(kp)
+            sh.initial_values(lm.id, shapes.transform_shape(shape_body, T), self._new_values)
+        est = sh.estimate(lm.id, self._new_values) or sh.estimate(lm.id, self._estimate)
+        for k, s in rec.pending:
+            T = self._pose(k)
+            self._add_factor(sh.factor(X(k), lm.id, s, T, est, self._robust))
+        rec.pending = []
 
     def _new_landmark_id(self) -> int:
         return max(self._lms, default=-1) + 1
@@ -466,6 +563,7 @@ class GtsamSlam(Slam):
                     cov.get(L(lm.id), np.full((3, 3), np.nan)),
                     n,
                     lm.first_keypose,
+                    self._shapes.estimate(lm.id, self._estimate),
                 )
             )
         return out
