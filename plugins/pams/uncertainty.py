@@ -76,7 +76,7 @@ class Mlp:
             hidden_layer_sizes=hidden,
             activation="tanh",
             solver="lbfgs",
-            alpha=1e-2,
+            alpha=0.3,
             max_iter=1000,
             random_state=seed,
         )
@@ -338,7 +338,8 @@ def fit_log_variance(
     # by its own cell's variance
     kappa = _pooled_kurtosis(rng, angle, errors, range_bin, angle_bin, rc, ac, var)
     w = np.sqrt(np.maximum(n, 2) / max(kappa - 1.0, 2.0))
-    lo, hi = range_bounds
+    # cell centres may lie just outside the samples' span: the spline's interval covers both
+    lo, hi = min(range_bounds[0], float(rc.min())), max(range_bounds[1], float(rc.max()))
     bounds_r = (float(rc.min()), float(rc.max()))
     bounds_z = (float(z.min()), float(z.max()))
     if angle is None:
@@ -400,6 +401,8 @@ def fit_models(
     )
     for name in sorted(samples.models):
         s = samples.of(name)
+        if s.detected.sum() < 10:
+            continue  # never (or hardly ever) detected: nothing to model
         kind = s.models[name]
         angle_dependent = kind == "cuboid"
         angle = s.angle if angle_dependent else np.zeros_like(s.range)
@@ -516,6 +519,8 @@ def characterise(
             config.camera = platform.params.camera.model_copy(update={"rgb": False})
         if detector is not None and detector.plugin == "sim":
             config.detector = detector.params.model_copy(update={"false_positive_rate": 0.0})
+            if config.detector.classes is not None:  # only what the mission's detector reports
+                config.targets = [t for t in config.targets if t.class_name in config.detector.classes]
         # the mission's sensor as it is: spirals reach a little beyond what it can detect
         reach = min(config.camera.max_range, config.detector.max_range)
         config.range_max = min(config.range_max, reach + 1.0)

@@ -22,7 +22,7 @@ def test_mlp_forward_pass_matches_sklearn():
         hidden_layer_sizes=(8, 8),
         activation="tanh",
         solver="lbfgs",
-        alpha=1e-2,
+        alpha=0.3,
         max_iter=1000,
         random_state=0,
     )
