@@ -201,6 +201,11 @@ class Robot:
             out.append(vp)
         return out
 
+    @property
+    def plans_frontiers(self) -> bool:
+        """Whether the planner tours frontier viewpoints (False: views of known objects, PAMS)."""
+        return self.planner.needs_frontiers
+
     def frontier_change(self) -> float:
         """Share of viewpoints that appeared or vanished (by position) since the last plan."""
         now = [vp.position for vp in self.candidate_viewpoints()]

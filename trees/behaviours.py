@@ -120,7 +120,8 @@ class Replan(RobotBehaviour):
             return "receding horizon"
         if self.robot.time() - self.bb.get("/tour_time") > ex.replan_period:
             return "tour stale"
-        if self.robot.frontier_change() >= ex.frontier_change:
+        # A planner of views of known objects (PAMS) does not care how the frontiers moved.
+        if self.robot.plans_frontiers and self.robot.frontier_change() >= ex.frontier_change:
             return "frontiers changed"
         return None
 
@@ -275,7 +276,7 @@ class GoTo(RobotBehaviour):
         if self._stalled(here):
             # A goal the height guard or the controller cannot reach must not hold the robot forever.
             return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
-        if self.early_exit and self.goal.kind == TourItemKind.EXPLORE:
+        if self.early_exit and self.goal.kind == TourItemKind.EXPLORE and self.robot.plans_frontiers:
             # Clusters are re-made as the map grows, so their ids change; the goal is still
             # worth reaching while some viewpoint remains near it.
             remaining = self.robot.candidate_viewpoints()

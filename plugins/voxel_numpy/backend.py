@@ -19,6 +19,7 @@ from pydantic import Field
 from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.plugins.voxel_numpy.frontiers import FrontierConfig, FrontierTracker
 from amslam.plugins.voxel_numpy.grid import (
+    FREE,
     OCCUPIED,
     UNKNOWN,
     DenseGrid,
@@ -120,6 +121,12 @@ class VoxelMapParams(BackendParams):
         0.6,
         ge=0,
         description="Path start/goal off the free graph connect to the nearest free voxel within this.",
+    )
+    plan_through_unknown: bool = Field(
+        False,
+        description="Plan paths through unknown voxels inside the mission area too (open outdoor areas,"
+        " where a robot must cross ground it has not mapped to reach a known object); the local map"
+        " still checks every step. Off: paths stay in known free space (buildings).",
     )
 
 
@@ -304,10 +311,21 @@ class VoxelMapBase(Mapping):
             return self._graph[1]
         lo, hi = self.global_map.extent()
         lo, hi = lo - 1, hi + 1
+        unknown_free = self.params.plan_through_unknown
+        if unknown_free:
+            a, b = index_box(self.area, self.global_map.voxel)
+            lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
-        passable = traversable(states, self.robot_radius, self.global_map.voxel)
-        roomy = traversable(states, self.segment_radius, self.global_map.voxel)
+        passable = traversable(states, self.robot_radius, self.global_map.voxel, unknown_free=unknown_free)
+        roomy = traversable(states, self.segment_radius, self.global_map.voxel, unknown_free=unknown_free)
+        if unknown_free:
+            # Unknown space is free only inside the mission area (not under the ground, say).
+            a, b = index_box(self.area, self.global_map.voxel)
+            inside = np.zeros(shape, dtype=bool)
+            inside[tuple(slice(int(i), int(j)) for i, j in zip(a - lo, b - lo, strict=True))] = True
+            passable &= inside | (states == FREE)
+            roomy &= inside | (states == FREE)
         graph = FreeSpaceGraph(
             passable,
             lo,
@@ -338,6 +356,8 @@ class VoxelMapBase(Mapping):
             samples = segment_samples(a, b, 0.5 * v)
             idx = to_index(samples, v)
             at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
+            if self.params.plan_through_unknown:
+                return self.segment_free(a, b)
             known = known_along(samples, v, self.global_map.states_at_index)
             return bool(np.all(known | at_end)) and self.segment_free(a, b)
 

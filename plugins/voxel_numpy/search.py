@@ -31,12 +31,13 @@ def clearance_kernel(radius: float, voxel: float) -> np.ndarray:
     return np.sqrt((gap**2).sum(-1)) < radius
 
 
-def traversable(states: np.ndarray, radius: float, voxel: float) -> np.ndarray:
-    """Known-free voxels with no occupied voxel within ``radius`` of their centre."""
+def traversable(states: np.ndarray, radius: float, voxel: float, unknown_free: bool = False) -> np.ndarray:
+    """Known-free (or, with ``unknown_free``, not occupied) voxels with no occupied voxel within
+    ``radius`` of their centre."""
     occ = states == OCCUPIED
     if radius > 0 and occ.any():
         occ = ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
-    return (states == FREE) & ~occ
+    return ((states != OCCUPIED) if unknown_free else (states == FREE)) & ~occ
 
 
 def segment_samples(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:

@@ -51,6 +51,8 @@ class FakeRobot(SimpleNamespace):
             future.set_exception(exc)
         return future
 
+    plans_frontiers = True
+
     def frontier_change(self):
         return 0.0
 
@@ -133,6 +135,25 @@ def test_replan_follows_the_tour_until_half_is_done():
     assert replan.feedback_message == "following the tour: 3 stops left"
     assert tick(replan) == Status.SUCCESS  # 2 of 4 done: receding horizon
     assert storage["/tour"] == [fresh] and robot.plans == []
+
+
+def test_a_planner_of_known_objects_is_not_replanned_for_moving_frontiers():
+    items = [TourItem(TourItemKind.EXPLORE, np.array([float(i), 0.0, 1.0]), 0.0, 5.0, i) for i in range(4)]
+    fresh = TourItem(TourItemKind.EXPLORE, np.array([9.0, 9.0, 1.0]), 0.0, 5.0, 9)
+    frontiers = FakeRobot([list(items), [fresh]])
+    frontiers.frontier_change = lambda: 1.0  # every frontier changed since the tour was planned
+    replan = Replan()
+    replan.setup(robot=frontiers)
+    storage = py_trees.blackboard.Blackboard.storage
+    assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[0]
+    assert tick(replan) == Status.SUCCESS and storage["/tour"] == [fresh]  # replanned at once
+    objects = FakeRobot([list(items), [fresh]])
+    objects.frontier_change = lambda: 1.0
+    objects.plans_frontiers = False  # PAMS: views of known objects
+    replan = Replan()
+    replan.setup(robot=objects)
+    assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[0]
+    assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[1]  # keeps following
 
 
 class StuckRobot(FakeRobot):
