@@ -242,13 +242,16 @@ class Robot:
 
     def plan(self) -> list[TourItem]:
         """Ask the planner for a tour over the current viewpoints (and SLC candidates)."""
-        vps = self.candidate_viewpoints()
+        # A planner of views of known objects (PAMS) never reads the frontier viewpoints; their
+        # all-pairs path costs (one Dijkstra per viewpoint over the whole free-space graph, which
+        # with plan_through_unknown spans the mission area) were 90 % of such a run's time.
+        vps = self.candidate_viewpoints() if self.planner.needs_frontiers else []
         self.planned_viewpoints = [vp.position for vp in vps]
         if not vps and self.planner.needs_frontiers:
             return []
         start = self.position_world()
         nodes = np.vstack([start[None], np.array([v.position for v in vps]).reshape(-1, 3)])
-        costs = self.mapping.path_costs(nodes, nodes)
+        costs = self.mapping.path_costs(nodes, nodes) if vps else np.zeros((1, 1))
         slc_candidates: tuple = ()
         slc_costs = np.zeros((0, len(nodes)))
         if self.exploration.slc:
