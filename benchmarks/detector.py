@@ -1,0 +1,172 @@
+"""Detector benchmark: ms per frame of the ``onnx`` detector next to the ``sim`` detector.
+
+One frame of the default procedural building is rendered from a furnished room's doorway side
+(640×480 by default, the D435i's resolution; 320×240 is the demo camera), then each detector's
+``detect()`` is timed (best of ``--repeats``). The ``onnx`` detector's time is split into its
+stages: letterbox (resize + blob), the network (onnxruntime, ``threads`` intra-op threads), the
+decoding (threshold, NMS, masks) and the 3-D step (depth clustering, back-projection, centroid).
+The reference is the ``sim`` detector on the same frame, measured in the same run: it reads the
+simulator's masks and performs the same 3-D step, so the ratio is what running a network costs.
+The last column is the share of one CPU core the detector takes at its rate (2 Hz, paper 1).
+
+Run: ``.venv/bin/python benchmarks/detector.py [--size 640x480] [--repeats 20] [--model FILE]``.
+
+``--compare RUN_DIR...`` instead prints the semantic maps of finished simulator runs next to each
+other (e.g. ``amslam run demo`` and ``amslam run missions/demo_onnx.yaml``): landmark count, and
+for chairs and for all classes the landmarks paired one-to-one with the world's objects within
+1 m (``amslam.report.landmark_accuracy``), their mean distance to the true object centres, the
+matched fraction (paired / landmarks) and the objects mapped (paired / objects in the world). The
+world is rebuilt from the run's ``mission.yaml`` and seed, as the runner built it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from amslam.interfaces import BACKEND_KINDS, RunContext
+from amslam.plugins.onnx_detector import OnnxDetector
+from amslam.plugins.onnx_detector.decoder import decode, letterbox
+from amslam.plugins.sim import SimDetector, SimPlatform
+from amslam.plugins.sim.camera import viewing_pose
+from amslam.report import landmark_accuracy
+from amslam.types import Frame, Landmark, RobotSpec, WorldSummary
+
+
+def _best_ms(fn, repeats: int) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best * 1e3
+
+
+def _frame(width: int, height: int) -> Frame:
+    plat = SimPlatform()
+    params = SimPlatform.Params(camera={"width": width, "height": height})
+    plat.configure(params, RunContext(rng=np.random.default_rng(7), run_dir=Path(".")))
+    plat.start()
+    world = plat.world
+    chairs = [o for o in world.objects if o.class_name == "chair"]
+    target = max(chairs, key=lambda o: sum(np.linalg.norm(o.centroid - p.centroid) < 3 for p in chairs))
+    T_wc = viewing_pose(world, target.centroid, plat.camera.T_body_cam, distance=2.5)
+    r = plat._renderer.render(world, T_wc, np.random.default_rng(0))
+    cam = plat.camera
+    return Frame(1.0, r.depth, cam.K.copy(), T_wc, r.rgb, r.instance, r.class_id, world.class_names, T_wc)
+
+
+def _run_world(run_dir: Path) -> WorldSummary:
+    """The world of a simulator run, rebuilt from its mission and seed as the runner does."""
+    mission = yaml.safe_load((run_dir / "mission.yaml").read_text())
+    section = {k: v for k, v in mission["platform"].items() if k != "plugin"}
+    seed = np.random.SeedSequence(mission["seed"]).spawn(len(BACKEND_KINDS))[0]
+    plat = SimPlatform()
+    robot = RobotSpec(**mission["robot"])
+    plat.configure(
+        SimPlatform.Params.model_validate(section),
+        RunContext(rng=np.random.default_rng(seed), run_dir=run_dir, robot=robot),
+    )
+    plat.start()
+    return plat.world_summary()
+
+
+def compare(run_dirs: list[Path]) -> None:
+    """Print the semantic maps of finished runs side by side (see the module docstring)."""
+    print(
+        "| run | detector | verdict | landmarks | classes | objects | paired ≤ 1 m | mean distance, m "
+        "| matched fraction | objects mapped |"
+    )
+    print("|---|---|---|---:|---|---:|---:|---:|---:|---:|")
+    for run in run_dirs:
+        metrics = json.loads((run / "metrics.json").read_text())
+        raw = json.loads((run / "landmarks.json").read_text())
+        lms = [
+            Landmark(
+                d["id"], d["class"], np.asarray(d["position"]), np.asarray(d["covariance"]), d["observations"]
+            )
+            for d in raw
+        ]
+        world = _run_world(run)
+        assert world.objects_by_class == metrics["landmarks"]["objects_in_world"], "world rebuilt differently"
+        for label, classes in (("chair", {"chair"}), ("all", None)):
+            keep = [k for k, c in world.object_classes.items() if classes is None or c in classes]
+            sub = WorldSummary(
+                world.name, world.bounds_lo, world.bounds_hi, 0.0, world.floor_heights, (), {},
+                object_positions={k: world.object_positions[k] for k in keep},
+                object_classes={k: world.object_classes[k] for k in keep},
+            )  # fmt: skip
+            mine = [lm for lm in lms if classes is None or lm.class_name in classes]
+            acc = landmark_accuracy(mine, sub)
+            err = acc.get("mean_error_m")
+            det = metrics["plugins"]["detector"]
+            print(
+                f"| {run.name} | {det} | {metrics['verdict']} | {len(mine)} | {label} | {len(keep)}"
+                f" | {acc['matched']} | {err if err is not None else float('nan'):.3f} "
+                f"| {acc['matched'] / max(len(mine), 1):.2f} | {acc['matched'] / max(len(keep), 1):.2f} |"
+            )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", default="640x480", help="image WxH")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    ap.add_argument("--compare", type=Path, nargs="+", help="run folders to compare instead")
+    args = ap.parse_args()
+    if args.compare:
+        compare(args.compare)
+        return
+    w, h = (int(v) for v in args.size.split("x"))
+    frame = _frame(w, h)
+    ctx = RunContext(rng=np.random.default_rng(0), run_dir=Path("."))
+
+    sim = SimDetector()
+    sim.configure(SimDetector.Params(miss_probability=0.0, false_positive_rate=0.0), ctx)
+    ref = _best_ms(lambda: sim.detect(frame), args.repeats)
+
+    print(f"frame {w}×{h}, {len(np.unique(frame.instance)) - 1} objects in view; best of {args.repeats}")
+    print()
+    print("| figure | ms | reference: sim detector, ms | ratio | CPU share at 2 Hz |")
+    print("|---|---:|---:|---:|---:|")
+    for threads in (1, 2):
+        n, rows, input_hw = _onnx_rows(frame, ctx, args.model, threads, args.repeats)
+        plural = "s" if threads > 1 else ""
+        for name, ms, share in rows:
+            label = f"onnx {name}, {input_hw[1]}×{input_hw[0]} input, {threads} thread{plural}"
+            share_s = f"{100 * share:.1f} %" if share is not None else ""
+            print(f"| {label} | {ms:.2f} | {ref:.2f} | {ms / ref:.1f} | {share_s} |")
+        print(f"| onnx detections in the frame ({threads} thread{plural}) | {n} | | | |")
+
+
+def _onnx_rows(frame: Frame, ctx: RunContext, model_path: str | None, threads: int, repeats: int):
+    """(detections, [(stage, ms, CPU share or None)], input size) of the onnx detector."""
+    det = OnnxDetector()
+    det.configure(OnnxDetector.Params(model=model_path, threads=threads), ctx)
+    model, p = det.model, det.params
+    n = len(det.detect(frame))
+    blob, lb = letterbox(frame.rgb, model.info.input_hw)
+    feeds = {model.info.input_name: blob}
+    out0, out1 = model.session.run(None, feeds)[:2]
+    total = _best_ms(lambda: det.detect(frame), repeats)
+    rows = [
+        ("letterbox", _best_ms(lambda: letterbox(frame.rgb, model.info.input_hw), repeats), None),
+        ("network (onnxruntime)", _best_ms(lambda: model.session.run(None, feeds), repeats), None),
+        (
+            "decode (NMS + masks)",
+            _best_ms(lambda: decode(out0, out1, lb, conf=p.confidence, iou=p.iou), repeats),
+            None,
+        ),
+        ("detect() total", total, total * det.rate_hz / 1e3),
+    ]
+    det.close()
+    return n, rows, model.info.input_hw
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,206 @@
+"""Detector plugin ``onnx``: a YOLOv8-seg ONNX model on the RGB image, lifted to 3-D with depth.
+
+Paper 1 (§IV, §VII) segments chair instances with YOLOv8 on the RGB image of the D435i at 2 Hz
+and takes each object's centroid from the depth pixels under its mask. This backend does that
+with any model in the YOLOv8-seg ONNX layout (see :mod:`.decoder`): by default the small model
+the project trains on the simulator's images (``models/sim_yolov8seg.onnx``, see ``train.py``),
+or an ultralytics export named in the mission.
+
+The 3-D step is the ``sim`` detector's: the masked depth pixels are back-projected and the
+median of the points is the centroid; the points (subsampled) go to shape fitting. A network's
+mask, unlike the simulator's exact one, bleeds over the object's outline and through its gaps (a
+chair's legs) onto the wall behind, so before that the mask's depths are split at gaps larger
+than ``depth_gap`` and only the largest depth cluster (the nearest one on ties) is kept.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field, ValidationInfo, field_validator, model_validator
+
+from amslam.errors import AmslamError
+from amslam.interfaces import BackendParams, Detector, RunContext
+from amslam.plugins.onnx_detector.decoder import ModelError, SegmentationModel, inspect_model
+from amslam.plugins.sim.detector import _backproject as backproject
+from amslam.types import Detection, Frame
+
+#: File name of the shipped model, inside this package's ``models`` folder.
+SHIPPED_MODEL = "sim_yolov8seg.onnx"
+
+
+def shipped_model() -> Path:
+    """Path of the model the project ships (trained on simulator images)."""
+    return Path(str(importlib.resources.files("amslam.plugins.onnx_detector") / "models" / SHIPPED_MODEL))
+
+
+def resolve_model(model: str | None, mission_dir: Path | None) -> Path:
+    """The model file a mission names: the shipped one by default, else relative to the mission."""
+    if model is None:
+        return shipped_model()
+    path = Path(model).expanduser()
+    if not path.is_absolute() and mission_dir is not None:
+        path = Path(mission_dir) / path
+    return path
+
+
+class OnnxDetector(Detector):
+    """Detector plugin ``onnx``: YOLOv8-seg instance segmentation with onnxruntime on the CPU."""
+
+    class Params(BackendParams):
+        """Parameters of the ONNX instance-segmentation detector."""
+
+        model: str | None = Field(
+            None,
+            description="ONNX model in the YOLOv8-seg layout, relative to the mission file; "
+            "default: the shipped model trained on simulator images (chair, table, shelf, sofa)",
+        )
+        rate_hz: float = Field(2.0, gt=0.0, description="how often the runner calls detect() (paper 1: 2 Hz)")
+        confidence: float = Field(0.4, gt=0.0, lt=1.0, description="minimum class score of a detection")
+        iou: float = Field(
+            0.5, gt=0.0, le=1.0, description="NMS: same-class boxes overlapping more are merged"
+        )
+        max_detections: int = Field(50, ge=1, description="most detections per image")
+        mask_threshold: float = Field(0.5, gt=0.0, lt=1.0, description="mask probability of an object pixel")
+        class_names: list[str] | None = Field(
+            None, description="class names by class index; default: the model's 'names' metadata"
+        )
+        classes: list[str] | None = Field(None, description="classes to report; None = every class")
+        max_range: float = Field(5.0, gt=0.0, description="depth pixels farther than this are ignored (m)")
+        min_pixels: int = Field(
+            60, ge=1, description="fewest valid depth pixels under a mask at 640×480 (scaled with image area)"
+        )
+        depth_gap: float = Field(
+            0.3, ge=0.0, description="split the mask's depths at gaps larger than this (m); 0 = keep all"
+        )
+        max_points: int = Field(400, ge=0, description="points_cam is subsampled to at most this many")
+        threads: int = Field(1, ge=1, le=16, description="onnxruntime intra-op threads")
+
+        @field_validator("model")
+        @classmethod
+        def _model_file(cls, value: str | None, info: ValidationInfo) -> str | None:
+            # The mission directory comes with the validation context; without it a relative
+            # path cannot be located yet and is checked at configure time instead.
+            mission_dir = (info.context or {}).get("mission_dir")
+            path = resolve_model(value, mission_dir)
+            if value is None or path.is_absolute():
+                try:
+                    inspect_model(path)
+                except ModelError as exc:
+                    raise ValueError(f"{exc}: {path}") from None
+            return value
+
+        @model_validator(mode="after")
+        def _names_match(self, info: ValidationInfo) -> OnnxDetector.Params:
+            if self.class_names is None:
+                return self
+            path = resolve_model(self.model, (info.context or {}).get("mission_dir"))
+            if path.is_absolute() and path.is_file():
+                n = inspect_model(path).num_classes
+                if len(self.class_names) != n:
+                    raise ValueError(f"class_names lists {len(self.class_names)} classes, the model has {n}")
+            return self
+
+    def __init__(self) -> None:
+        self.params: OnnxDetector.Params | None = None
+        self.rate_hz = 2.0
+        self._model: SegmentationModel | None = None
+
+    def configure(self, params: BackendParams, context: RunContext) -> None:
+        assert isinstance(params, OnnxDetector.Params), type(params)
+        self.params = params
+        self.rate_hz = params.rate_hz
+        self.rng = context.rng
+        path = resolve_model(params.model, context.mission_dir)
+        try:
+            self._model = SegmentationModel(path, threads=params.threads)
+        except ModelError as exc:
+            raise AmslamError(f"detector.model: {exc}: {path}") from None
+        names = tuple(params.class_names) if params.class_names else self._model.info.names
+        if not names:
+            names = tuple(f"class{i}" for i in range(self._model.info.num_classes))
+        n = self._model.info.num_classes
+        if len(names) != n:
+            raise AmslamError(f"detector.class_names: {len(names)} names for a model with {n} classes")
+        self.names = names
+        context.emit(
+            "onnx_detector_model", path=str(path), input=list(self._model.info.input_hw), names=list(names)
+        )
+
+    @property
+    def model(self) -> SegmentationModel:
+        """The loaded model (after configure)."""
+        if self._model is None:
+            raise RuntimeError("OnnxDetector used before configure()")
+        return self._model
+
+    def detect(self, frame: Frame) -> list[Detection]:
+        """Objects segmented in the frame's RGB image, lifted to the camera frame with its depth."""
+        p = self.params
+        if p is None:
+            raise RuntimeError("OnnxDetector.detect() called before configure()")
+        if frame.rgb is None:
+            raise ValueError("the onnx detector needs RGB frames (the platform renders no image)")
+        instances = self.model(
+            frame.rgb, conf=p.confidence, iou=p.iou, max_det=p.max_detections, mask_threshold=p.mask_threshold
+        )
+        H, W = frame.depth.shape
+        if frame.rgb.shape[:2] != (H, W):
+            raise ValueError(f"RGB {frame.rgb.shape[:2]} and depth {(H, W)} images must be registered")
+        min_px = max(1, int(round(p.min_pixels * (H * W) / (640 * 480))))
+        depth = frame.depth
+        valid = (depth > 0) & (depth <= p.max_range)
+        Kinv = np.linalg.inv(frame.K)
+        wanted = None if p.classes is None else set(p.classes)
+        out: list[Detection] = []
+        for inst in instances:
+            name = self.names[inst.class_id]
+            if wanted is not None and name not in wanted:
+                continue
+            mask = inst.mask & valid
+            if p.depth_gap > 0:
+                mask = largest_depth_cluster(mask, depth, p.depth_gap)
+            if np.count_nonzero(mask) < min_px:
+                continue
+            pts = backproject(mask, depth, Kinv)
+            centroid = np.median(pts, axis=0)
+            out.append(Detection(name, float(inst.score), centroid, self._subsample(pts)))
+        return out
+
+    def _subsample(self, pts: np.ndarray) -> np.ndarray:
+        assert self.params is not None
+        m = self.params.max_points
+        if len(pts) <= m:
+            return pts
+        idx = self.rng.choice(len(pts), size=m, replace=False)
+        return pts[np.sort(idx)]
+
+    def close(self) -> None:
+        self._model = None
+
+
+def largest_depth_cluster(mask: np.ndarray, depth: np.ndarray, gap: float) -> np.ndarray:
+    """The pixels of ``mask`` in its largest depth cluster (nearest on ties).
+
+    Depths are sorted and cut wherever two consecutive values differ by more than ``gap``: a
+    surface seen at a slant spans depths continuously, the wall behind a chair does not join it.
+    """
+    v, u = np.nonzero(mask)
+    if len(v) == 0:
+        return mask
+    z = depth[v, u]
+    order = np.argsort(z, kind="stable")
+    zs = z[order]
+    cuts = np.flatnonzero(np.diff(zs) > gap) + 1
+    if len(cuts) == 0:
+        return mask
+    bounds = np.concatenate([[0], cuts, [len(zs)]])
+    sizes = np.diff(bounds)
+    k = int(np.argmax(sizes))  # argmax takes the first (nearest) of equal sizes
+    lo, hi = zs[bounds[k]], zs[bounds[k + 1] - 1]
+    out = np.zeros_like(mask)
+    keep = (z >= lo) & (z <= hi)
+    out[v[keep], u[keep]] = True
+    return out

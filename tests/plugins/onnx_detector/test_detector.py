@@ -1,0 +1,139 @@
+"""The ``onnx`` detector: model validation, the 3-D step, and the shipped model on a rendered frame."""
+
+from __future__ import annotations
+
+import functools
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from amslam.errors import AmslamError, MissionError
+from amslam.interfaces import RunContext
+from amslam.mission import load_mission
+from amslam.plugins.onnx_detector import OnnxDetector
+from amslam.plugins.onnx_detector.detector import largest_depth_cluster, shipped_model
+from amslam.plugins.sim import SimPlatform
+from amslam.plugins.sim.camera import viewing_pose
+from amslam.testing.detector import DetectorContract
+from amslam.types import Frame
+from tests.plugins.onnx_detector.graphs import candidates, constant_model
+
+
+@functools.cache
+def chair_frame() -> tuple[Frame, list[tuple[str, np.ndarray]]]:
+    """A 320×240 frame (the demo camera) of a chair of the seed-7 building, and its mask centroid."""
+    plat = SimPlatform()
+    plat.configure(
+        SimPlatform.Params(camera={"width": 320, "height": 240}),
+        RunContext(rng=np.random.default_rng(7), run_dir=Path(".")),
+    )
+    plat.start()
+    world = plat.world
+    chair = next(o for o in world.objects if o.class_name == "chair")
+    T_wc = viewing_pose(world, chair.centroid, plat.camera.T_body_cam, distance=2.0)
+    r = plat._renderer.render(world, T_wc, np.random.default_rng(0))
+    cam = plat.camera
+    frame = Frame(1.0, r.depth, cam.K.copy(), T_wc, r.rgb, r.instance, r.class_id, world.class_names, T_wc)
+    mask = (r.instance == chair.instance_id) & (r.depth > 0)
+    v, u = np.nonzero(mask)
+    z = r.depth[v, u]
+    pts = np.stack([(u - cam.K[0, 2]) / cam.K[0, 0] * z, (v - cam.K[1, 2]) / cam.K[1, 1] * z, z], 1)
+    return frame, [("chair", np.median(pts, axis=0))]
+
+
+class TestOnnxDetectorContract(DetectorContract):
+    def make_backend(self) -> OnnxDetector:
+        return OnnxDetector()
+
+    def scene(self):
+        return chair_frame()
+
+
+def test_registered_as_onnx(registry) -> None:
+    assert registry.backend_class("detector", "onnx") is OnnxDetector
+
+
+def test_shipped_model_finds_the_chair(tmp_path: Path) -> None:
+    det = OnnxDetector()
+    det.configure(OnnxDetector.Params(), RunContext(rng=np.random.default_rng(0), run_dir=tmp_path))
+    assert det.names == ("chair", "table", "shelf", "sofa")
+    frame, [(_, centroid)] = chair_frame()
+    chairs = [d for d in det.detect(frame) if d.class_name == "chair"]
+    best = min(chairs, key=lambda d: np.linalg.norm(d.centroid_cam - centroid))
+    assert np.linalg.norm(best.centroid_cam - centroid) < 0.15
+    assert best.confidence >= 0.4 and 50 <= len(best.points_cam) <= 400
+
+
+# ------------------------------------------------------------------------- validation of the model
+
+
+def _write_mission(tmp_path: Path, detector: str) -> Path:
+    path = tmp_path / "mission.yaml"
+    path.write_text(f"name: m\ndetector:\n{textwrap.indent(textwrap.dedent(detector), '  ')}")
+    return path
+
+
+def test_default_params_point_at_the_shipped_model() -> None:
+    assert shipped_model().is_file()
+    assert OnnxDetector.Params().model is None
+
+
+def test_missing_model_fails_mission_validation_with_its_location(tmp_path: Path, registry) -> None:
+    missing = tmp_path / "nowhere" / "model.onnx"
+    path = _write_mission(tmp_path, f"plugin: onnx\nmodel: {missing}\n")
+    with pytest.raises(MissionError) as info:
+        load_mission(path, registry)
+    (problem,) = info.value.problems
+    assert problem.startswith(f"{path}:4: detector.model:"), problem
+    assert "model file not found" in problem and str(missing) in problem
+
+
+def test_corrupt_model_fails_mission_validation(tmp_path: Path, registry) -> None:
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"this is not an ONNX file")
+    path = _write_mission(tmp_path, f"plugin: onnx\nmodel: {bad}\n")
+    with pytest.raises(MissionError) as info:
+        load_mission(path, registry)
+    assert "detector.model:" in info.value.problems[0]
+    assert "not a readable onnx model" in info.value.problems[0].lower()
+
+
+def test_relative_model_is_resolved_against_the_mission_directory(tmp_path: Path) -> None:
+    (tmp_path / "models").mkdir()
+    out0 = candidates([((10.0, 10.0, 4.0, 4.0), [0.5], [1.0])])
+    protos = np.zeros((1, 32, 80, 80), np.float32)
+    constant_model(tmp_path / "models" / "m.onnx", out0, protos, metadata={"names": "{0: 'chair'}"})
+    ok = OnnxDetector.Params.model_validate({"model": "models/m.onnx"}, context={"mission_dir": tmp_path})
+    assert ok.model == "models/m.onnx"
+    with pytest.raises(ValidationError, match="model file not found"):
+        OnnxDetector.Params.model_validate({"model": "models/x.onnx"}, context={"mission_dir": tmp_path})
+    # configure resolves against the run context's mission_dir, and fails before the flight
+    det = OnnxDetector()
+    ctx = RunContext(rng=np.random.default_rng(0), run_dir=tmp_path, mission_dir=tmp_path)
+    det.configure(ok, ctx)
+    assert det.names == ("chair",)
+    with pytest.raises(AmslamError, match="model file not found"):
+        OnnxDetector().configure(OnnxDetector.Params(model="models/x.onnx"), ctx)
+
+
+def test_class_names_must_match_the_model(tmp_path: Path) -> None:
+    with pytest.raises(ValidationError, match="class_names lists 1 classes, the model has 4"):
+        OnnxDetector.Params(model=str(shipped_model()), class_names=["chair"])
+
+
+# ------------------------------------------------------------------------------------ 3-D step
+
+
+def test_largest_depth_cluster_drops_the_wall_behind() -> None:
+    depth = np.full((10, 10), 4.0, np.float32)  # wall
+    depth[2:8, 2:8] = 2.0 + np.linspace(0, 0.4, 6)[None]  # a slanted object face, 36 pixels
+    mask = np.zeros((10, 10), bool)
+    mask[1:9, 1:9] = True  # the mask bleeds one pixel around the object: 28 wall pixels
+    kept = largest_depth_cluster(mask, depth, gap=0.3)
+    expected = np.zeros_like(mask)
+    expected[2:8, 2:8] = True
+    np.testing.assert_array_equal(kept, expected)
+    np.testing.assert_array_equal(largest_depth_cluster(mask, depth, gap=5.0), mask)
