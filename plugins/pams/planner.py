@@ -29,8 +29,9 @@ a path stops early at the viewpoint where the threshold is reached.
 **Bookkeeping.** A planner only sees the robot's position at each request, so a planned viewpoint
 counts as *taken* (its information is added to the target) when the robot is found within
 ``reach_tolerance`` of it at a later request, as are the viewpoints planned before it on the same
-path; a viewpoint the robot has not reached after ``max_attempts`` requests is dropped
-(unreachable). Requests therefore never double-count information or retry a blocked place forever.
+path; when the robot is at none of them it gave up the first, which is dropped (unreachable)
+after ``max_attempts`` such requests. Requests therefore never double-count information or retry a
+blocked place forever.
 """
 
 from __future__ import annotations
@@ -209,7 +210,9 @@ class PamsParams(BackendParams):
     cost_weight: float = Field(0.01, ge=0.0, description="nats per metre of path: breaks ties between orders")
     reach_tolerance: float = Field(1.0, gt=0.0, description="a viewpoint counts as taken within this, m")
     max_attempts: int = Field(
-        3, ge=1, description="requests a viewpoint may stay unreached before it is dropped"
+        3,
+        ge=1,
+        description="times a viewpoint may be given up (the robot's first open stop) before it is dropped",
     )
     default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
 
@@ -229,7 +232,9 @@ class PriorVisitParams(BackendParams):
         1.0, ge=0.0, description="the look-from place keeps this far from other objects, m"
     )
     reach_tolerance: float = Field(1.0, gt=0.0, description="a stop counts as visited within this, m")
-    max_attempts: int = Field(3, ge=1, description="requests a stop may stay unreached before it is dropped")
+    max_attempts: int = Field(
+        3, ge=1, description="times a stop may be given up (the robot's first open stop) before it is dropped"
+    )
     default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
 
 
@@ -315,20 +320,25 @@ class _TargetPlanner(Planner):
     def _settle(self, here: np.ndarray) -> tuple[list[_Pending], list[_Pending], list[_Pending]]:
         """Sort the previous path's stops into taken, dropped and still open.
 
-        Taken: the stop nearest the robot within ``reach_tolerance`` and every stop planned before
-        it (the tree flies a tour in order). The others have stayed unreached for one more request;
-        those that reached ``max_attempts`` are dropped. ``self.pending`` is emptied.
+        The tree flies a tour in order and asks again after arriving at a stop or giving one up.
+        Taken: the first stop within ``reach_tolerance`` of the robot and every stop planned before
+        it (the first, not the last: a later stop of a long tour may lie near this one, and the
+        stops between were not flown). When the robot is at none of them it gave up the first open
+        stop: only that one counts an attempt (the stops behind it were never tried — counting
+        them made a 20-stop baseline tour drop every stop after three replans); it is dropped after
+        ``max_attempts``. ``self.pending`` is emptied.
         """
         tol = self.params.reach_tolerance
         reached = [k for k, it in enumerate(self.pending) if np.linalg.norm(it.position[:2] - here[:2]) < tol]
-        cut = max(reached) + 1 if reached else 0
+        cut = min(reached) + 1 if reached else 0
         taken, rest = self.pending[:cut], self.pending[cut:]
-        for it in rest:
-            it.attempts += 1
-        dropped = [it for it in rest if it.attempts >= self.params.max_attempts]
-        still = [it for it in rest if it.attempts < self.params.max_attempts]
+        dropped: list[_Pending] = []
+        if not reached and rest:
+            rest[0].attempts += 1
+            if rest[0].attempts >= self.params.max_attempts:
+                dropped, rest = [rest[0]], rest[1:]
         self.pending = []
-        return taken, dropped, still
+        return taken, dropped, rest
 
 
 def _lm_pose(lm, default_radius: float) -> tuple[np.ndarray, float, float]:

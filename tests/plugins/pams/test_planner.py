@@ -237,16 +237,54 @@ def test_unreached_viewpoints_return_to_the_pool_then_get_dropped(tmp_path, mode
     )
     start = _request()
     first = planner.plan(start)
-    # the robot did not get anywhere: nothing was taken, the samples are free again (1 attempt)
+    # the robot did not get anywhere: nothing was taken, the samples are free again; only the
+    # stop it was flying to (the first) counts an attempt
     second = planner.plan(start)
     st = planner.states[0]
     assert st.looks == 0 and len(second) == 2
+    assert sorted(st.attempts[st.attempts > 0].tolist()) == [1]
     # it reached the first stop of the second path: exactly that one is taken
     planner.plan(_request(second[0].position))
-    assert st.looks == 1
-    # samples unreached max_attempts times are dropped, without information
-    assert np.isclose(len(st.history), 1)
-    assert first  # (the first path was planned)
+    assert st.looks == 1 and len(st.history) == 1
+    # a stop given up max_attempts times is dropped, without information
+    before = int(st.used.sum())
+    here = _request(second[0].position + np.array([0.0, 3.0, 0.0]))
+    tried = planner.plan(here)[0].position
+    planner.plan(here)
+    again = planner.plan(here)
+    assert st.looks == 1 and int(st.used.sum()) > before
+    assert first and not any(np.allclose(item.position, tried) for item in again)
+
+
+def test_settle_takes_the_first_reached_stop_and_blames_only_the_one_flown_to(tmp_path):
+    objects = [("car", [10.0 * i, 0.0, 0.75], None) for i in range(1, 8)]
+    planner = PriorVisitPlanner()
+    planner.configure(
+        PriorVisitPlanner.Params(prior_objects=_prior(tmp_path, objects), standoff=3.0, max_attempts=2),
+        RunContext(rng=np.random.default_rng(0), run_dir=tmp_path, mission_dir=tmp_path),
+    )
+    tour = planner.plan(_request())
+    assert len(tour) == 7
+    # a long tour flown one stop per replan: the far stops, never tried, are never dropped
+    for k in range(7):
+        tour = planner.plan(_request(tour[0].position))
+        assert len(tour) == 6 - k
+    assert planner.done == set(range(7))
+    # a stop near the robot late in the tour does not count the stops before it as seen
+    objects = [("car", [10.0 * i, 0.0, 0.75], None) for i in range(1, 4)]
+    planner.configure(
+        PriorVisitPlanner.Params(prior_objects=_prior(tmp_path, objects), standoff=3.0),
+        RunContext(rng=np.random.default_rng(0), run_dir=tmp_path, mission_dir=tmp_path),
+    )
+    planner.plan(_request())
+    here = np.array([0.0, 5.0, 2.0])
+    planner.pending = [
+        pams_planner._Pending(0, 0, here.copy()),
+        pams_planner._Pending(1, 0, np.array([20.0, 5.0, 2.0])),
+        pams_planner._Pending(2, 0, here + [0.5, 0.0, 0.0]),
+    ]
+    assert [t.ref for t in planner.plan(_request(here))] == [1, 2]
+    assert planner.done == {0}
 
 
 def test_targets_from_slam_landmarks_and_errors(tmp_path, models_path):
