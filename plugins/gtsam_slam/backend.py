@@ -70,6 +70,7 @@ class _LandmarkRec:
     in_graph: bool = False
     alias_of: int | None = None  # merged into this landmark by a loop closure
     last_keypose: int = 0
+    var_sum: float = 0.0  # sum of the observations' isotropic position variances, m²
 
     @property
     def count(self) -> int:
@@ -88,9 +89,13 @@ class GtsamSlam(Slam):
         detection_keypose_yaw: float = Field(
             0.1, ge=0, description="detections turned more than this from the last key pose get their own"
         )
-        odom_sigma_translation_per_m: float = Field(0.02, gt=0, description="VIO translation std per metre")
+        # VIO drifts as a random walk in the distance travelled (variance ∝ distance), so the std of
+        # a relative pose grows with the square root of its length; these match the simulator's VIO.
+        odom_sigma_translation: float = Field(
+            0.05, gt=0, description="VIO translation random walk per axis, m/√m travelled"
+        )
         odom_sigma_translation_min: float = Field(0.005, gt=0, description="VIO translation std floor, m")
-        odom_sigma_yaw_per_m: float = Field(0.005, ge=0, description="VIO yaw std per metre, rad/m")
+        odom_sigma_yaw: float = Field(0.004, ge=0, description="VIO yaw random walk, rad/√m travelled")
         odom_sigma_yaw_per_rad: float = Field(0.01, ge=0, description="VIO yaw std per radian turned")
         odom_sigma_yaw_min: float = Field(0.002, gt=0, description="VIO yaw std floor, rad")
         odom_sigma_roll_pitch: float = Field(0.002, gt=0, description="roll/pitch std (IMU), rad")
@@ -101,7 +106,25 @@ class GtsamSlam(Slam):
         range_sigma_per_m: float = Field(0.03, ge=0, description="range std growth per metre")
         robust: Literal["huber", "cauchy", "none"] = Field("huber", description="robust kernel")
         robust_k: float = Field(1.345, gt=0, description="robust kernel width (whitened units)")
-        association_gate: float = Field(0.8, gt=0, description="nearest-neighbour gate, m")
+        association_gate: float = Field(0.6, gt=0, description="largest association distance, m")
+        association_chi2: float = Field(
+            11.34, gt=0, description="Mahalanobis gate (χ², 3 dof; 11.34 = 99 %) on detection − landmark"
+        )
+        association_ambiguity: float = Field(
+            4.6,
+            ge=0,
+            description="a detection whose second-best landmark is within this many χ² units of the best"
+            " is ambiguous and starts a new landmark (4.6 ≈ likelihood ratio 10)",
+        )
+        association_object_sigma: float = Field(
+            0.15,
+            ge=0,
+            description="spread of an object's detected centroid across viewpoints (the visible part"
+            " moves with the view), per axis, m",
+        )
+        association_track_distance: float = Field(
+            3.0, ge=0, description="landmarks seen within this much travel are matched first, m"
+        )
         min_observations: int = Field(3, ge=1, description="observations before a landmark is trusted")
         landmark_models: dict[str, Literal["centroid", "cuboid", "cylinder", "plane"]] = Field(
             default_factory=dict,
@@ -204,8 +227,8 @@ class GtsamSlam(Slam):
 
     def _odometry_noise(self, distance: float, dyaw: float) -> gtsam.noiseModel.Base:
         p = self.params
-        st = max(p.odom_sigma_translation_min, p.odom_sigma_translation_per_m * distance)
-        sy = p.odom_sigma_yaw_per_m * distance + p.odom_sigma_yaw_per_rad * abs(dyaw)
+        st = max(p.odom_sigma_translation_min, p.odom_sigma_translation * math.sqrt(distance))
+        sy = p.odom_sigma_yaw * math.sqrt(distance) + p.odom_sigma_yaw_per_rad * abs(dyaw)
         sy = max(p.odom_sigma_yaw_min, sy)
         sr = p.odom_sigma_roll_pitch
         return gtsam.noiseModel.Diagonal.Sigmas(np.array([sr, sr, sy, st, st, st]))
@@ -343,7 +366,7 @@ class GtsamSlam(Slam):
                 return
         p_world = p_body @ T_world_kp[:3, :3].T + T_world_kp[:3, 3]
         p_odom = p_body @ T_odom_kp[:3, :3].T + T_odom_kp[:3, 3]
-        assoc = self._associate([d.class_name for d in dets], p_world)
+        assoc = self._associate([d.class_name for d in dets], p_world, p_body, self._kps[kp].distance)
         for i, lm_id in self._shape_assoc.items():
             assoc[i] = lm_id
         for k, (d, pb, pw, po, lm_id) in enumerate(zip(dets, p_body, p_world, p_odom, assoc, strict=True)):
@@ -399,7 +422,7 @@ class GtsamSlam(Slam):
             if len(pts) == 0:
                 continue
             pts_world = pts @ T_world_odom[:3, :3].T + T_world_odom[:3, 3]
-            lm_id = sh.associate(d.class_name, pts_world, live)
+            lm_id = sh.associate(d.class_name, pts, pts_world, live, stamp)
             new = lm_id < 0
             if new:
                 lm_id = max(self._new_landmark_id(), max(sh.recs, default=-1) + 1)
@@ -412,6 +435,7 @@ class GtsamSlam(Slam):
                 self._lms[lm_id] = _LandmarkRec(lm_id, d.class_name, kp, self._kps[kp].distance, np.zeros(3))
                 live[lm_id] = d.class_name
             sh.set_world(lm_id, shapes.transform_shape(shape_body, T_world_kp))
+            sh.record_slack(lm_id, kp, shape_body)
             k = len(out_d)
             self._shape_assoc[k] = lm_id
             self._shape_meas[k] = shape_body
@@ -430,9 +454,15 @@ class GtsamSlam(Slam):
             T = self._pose(kp)
             sh.initial_values(lm.id, shapes.transform_shape(shape_body, T), self._new_values)
         est = sh.estimate(lm.id, self._new_values) or sh.estimate(lm.id, self._estimate)
+        if not sh.p.factors:  # shapes are reported, not optimised: keep the variables anchored
+            if not self._estimate.exists(gtsam.symbol("o" if rec.model == "cuboid" else "b", lm.id)):
+                k, s = rec.pending[0]
+                self._add_factor(sh.factor(X(k), k, lm.id, s, self._pose(k), est, lambda n: n))
+            rec.pending = []
+            return
         for k, s in rec.pending:
             T = self._pose(k)
-            self._add_factor(sh.factor(X(k), lm.id, s, T, est, self._robust))
+            self._add_factor(sh.factor(X(k), k, lm.id, s, T, est, self._robust))
         rec.pending = []
 
     def _new_landmark_id(self) -> int:
@@ -441,36 +471,99 @@ class GtsamSlam(Slam):
     def _landmark_position(self, lm: _LandmarkRec) -> np.ndarray:
         return self._point(lm.id) if lm.in_graph else lm.sum_world / max(lm.count, 1)
 
-    def _associate(self, classes: list[str], p_world: np.ndarray) -> list[int]:
-        """Nearest neighbour per class within the gate, one-to-one (Hungarian)."""
-        live = [lm for lm in self._lms.values() if lm.alias_of is None]
+    def _detection_variance(self, p_body: np.ndarray) -> float:
+        """Isotropic variance (m²) of a detected centroid: the largest axis of its range-bearing noise."""
+        p = self.params
+        rng = float(np.linalg.norm(p_body))
+        return max(p.range_sigma + p.range_sigma_per_m * rng, p.bearing_sigma * rng) ** 2
+
+    def _associate(
+        self, classes: list[str], p_world: np.ndarray, p_body: np.ndarray, distance: float
+    ) -> list[int]:
+        """Per class, one-to-one (Hungarian) on Mahalanobis distance, tracked landmarks first.
+
+        A metric nearest-neighbour gate wider than the spacing of similar objects (chairs 0.75 m
+        apart) makes the estimate lock onto the neighbouring object and slide along a row of them.
+        So the gate is statistical: the innovation variance is the detection's range-bearing noise,
+        plus the spread of an object's centroid across viewpoints (the visible part moves with the
+        view), plus the landmark's own estimate noise, plus the drift the robot may have accumulated
+        relative to the landmark since it last saw it (VIO's random walk over that travel, in
+        position and, through yaw, at the detection's range), capped by ``association_gate``.
+
+        Landmarks seen within the last ``association_track_distance`` metres of travel are matched
+        first (tracking: drift is negligible, the gate is tight); only detections none of them
+        explains are matched against older landmarks. A detection that two candidates explain
+        nearly equally well (χ² within ``association_ambiguity``) is not matched to either: it
+        starts a new tentative landmark, which semantic loop closure fuses with its old twin later.
+        A duplicate costs little; a wrong association corrupts the map.
+
+        Returns, per detection, a landmark id or ``-1`` for a new landmark.
+        """
+        p = self.params
         out = [-1] * len(classes)
+        live = [lm for lm in self._lms.values() if lm.alias_of is None]
         if not live:
             return out
-        pos = np.array([self._landmark_position(lm) for lm in live])
-        cls = np.array([lm.class_name for lm in live])
-        d = np.linalg.norm(p_world[:, None, :] - pos[None, :, :], axis=2)
-        bad = (np.array(classes)[:, None] != cls[None, :]) | (d > self.params.association_gate)
-        if bad.all():
-            return out
-        cost = np.where(bad, 1e9, d)
-        r, c = linear_sum_assignment(cost)
-        for i, j in zip(r, c, strict=True):
-            if not bad[i, j]:
-                out[i] = live[j].id
+        travel = np.array([max(0.0, distance - self._kps[lm.last_keypose].distance) for lm in live])
+        recent = travel <= p.association_track_distance
+        for stage in (recent, ~recent):
+            todo = [i for i in range(len(classes)) if out[i] == -1]
+            cands = [lm for lm, keep in zip(live, stage, strict=True) if keep]
+            if not todo or not cands:
+                continue
+            m2, gated = self._innovations(
+                [classes[i] for i in todo], p_world[todo], p_body[todo], cands, travel[stage]
+            )
+            if not gated.any():
+                continue
+            r, c = linear_sum_assignment(np.where(gated, m2, 1e9))
+            for i, j in zip(r, c, strict=True):
+                rivals = np.flatnonzero(gated[i])
+                rivals = rivals[rivals != j]
+                if gated[i, j] and not np.any(m2[i, rivals] - m2[i, j] < p.association_ambiguity):
+                    out[todo[i]] = cands[j].id
         return out
+
+    def _innovations(
+        self,
+        classes: list[str],
+        p_world: np.ndarray,
+        p_body: np.ndarray,
+        cands: list[_LandmarkRec],
+        travel: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Squared Mahalanobis distances detections × landmarks, and which pairs pass the gates."""
+        p = self.params
+        pos = np.array([self._landmark_position(lm) for lm in cands])
+        lm_var = np.array([lm.var_sum / max(lm.count, 1) ** 2 for lm in cands])
+        rng = np.linalg.norm(p_body, axis=1)
+        det_var = np.array([self._detection_variance(pb) for pb in p_body])
+        drift_var = travel[None, :] * (p.odom_sigma_translation**2 + p.odom_sigma_yaw**2 * rng[:, None] ** 2)
+        d2 = np.sum((p_world[:, None, :] - pos[None, :, :]) ** 2, axis=2)
+        m2 = d2 / (det_var[:, None] + p.association_object_sigma**2 + lm_var[None, :] + drift_var)
+        same_class = np.array(classes)[:, None] == np.array([lm.class_name for lm in cands])[None, :]
+        gated = same_class & (d2 <= p.association_gate**2) & (m2 <= p.association_chi2)
+        return m2, gated
 
     def _bearing_range(
         self, kp: int, lm_id: int, p_body: np.ndarray, robust: bool = True
     ) -> gtsam.NonlinearFactor:
         rng = float(np.linalg.norm(p_body))
-        return gtsam.BearingRangeFactor3D(
-            X(kp), L(lm_id), gtsam.Unit3(p_body), rng, self._measurement_noise(rng, robust)
-        )
+        noise = self._measurement_noise(rng, robust)
+        slack = self._shapes.point_slack(lm_id, kp)
+        if slack > 0:  # a shape's reference point from a partial view: as uncertain as its slack
+            p = self.params
+            sig = [p.bearing_sigma + slack / max(rng, 1e-3)] * 2 + [
+                p.range_sigma + p.range_sigma_per_m * rng + slack
+            ]
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array(sig))
+            noise = self._robust(noise) if robust else noise
+        return gtsam.BearingRangeFactor3D(X(kp), L(lm_id), gtsam.Unit3(p_body), rng, noise)
 
     def _observe(self, lm: _LandmarkRec, ob: _Observation, p_world: np.ndarray) -> None:
         lm.observations.append(ob)
         lm.sum_world = lm.sum_world + p_world
+        lm.var_sum += self._detection_variance(ob.p_body)
         lm.last_keypose = ob.keypose
         if lm.in_graph:
             self._add_factor(self._bearing_range(ob.keypose, lm.id, ob.p_body))
@@ -866,6 +959,8 @@ class GtsamSlam(Slam):
             for o in groups[int(b)]:
                 # The panorama's own measurement, now tied to the old landmark.
                 self._add_factor(self._bearing_range(o.keypose, target.id, o.p_body))
+            # The robot is tied to this landmark again: the front end may track it with a tight gate.
+            target.last_keypose = max(target.last_keypose, max(o.keypose for o in groups[int(b)]))
             if err > p.slc_fuse_ratio * p.slc_tolerance:
                 continue
             for dup_id in {o.landmark for o in groups[int(b)]} - {target.id}:
@@ -874,21 +969,65 @@ class GtsamSlam(Slam):
                     dup = self._lms[dup.alias_of]
                 if dup.id == target.id or dup.alias_of == target.id:
                     continue
-                if dup.in_graph:
-                    noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(3, p.slc_merge_sigma))
-                    self._add_factor(gtsam.BetweenFactorPoint3(L(target.id), L(dup.id), np.zeros(3), noise))
-                else:
-                    for o in dup.observations:
-                        if o.keypose not in {q.keypose for q in groups[int(b)]}:
-                            self._add_factor(self._bearing_range(o.keypose, target.id, o.p_body))
-                target.observations.extend(dup.observations)
-                dup.observations = []
-                dup.alias_of = target.id
-            for o in self._obs:
-                if o.landmark in {q.landmark for q in groups[int(b)]}:
-                    o.landmark = target.id
+                self._fuse(target, dup, skip_keyposes={q.keypose for q in groups[int(b)]})
         # Large corrections need a few relinearisation rounds to settle.
         self._flush(extra_iterations=5)
+        self._fuse_remaining_duplicates()
+
+    def _fuse(self, target: _LandmarkRec, dup: _LandmarkRec, skip_keyposes: set[int] = frozenset()) -> None:
+        """Make ``dup`` an alias of ``target`` (which is in the graph): a stiff zero-offset tie, or
+        its measurements moved over."""
+        assert target.in_graph, "a duplicate is fused into a landmark of the graph"
+        p = self.params
+        target.sum_world = target.sum_world + dup.sum_world
+        if dup.in_graph:
+            noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(3, p.slc_merge_sigma))
+            self._add_factor(gtsam.BetweenFactorPoint3(L(target.id), L(dup.id), np.zeros(3), noise))
+        else:
+            for o in dup.observations:
+                if o.keypose not in skip_keyposes:
+                    self._add_factor(self._bearing_range(o.keypose, target.id, o.p_body))
+        target.observations.extend(dup.observations)
+        target.var_sum += dup.var_sum
+        target.last_keypose = max(target.last_keypose, dup.last_keypose)
+        dup.observations = []
+        dup.alias_of = target.id
+        for o in self._obs:
+            if o.landmark == dup.id:
+                o.landmark = target.id
+
+    def _fuse_remaining_duplicates(self) -> None:
+        """After a loop closure, fuse same-class landmarks it brought together that no frame saw apart.
+
+        The panorama matches only the objects it sees; duplicates of objects just outside it were
+        also created while drifting and now, corrected, sit on their old twins. Two landmarks are
+        one object when they are closer than ``slc_fuse_ratio × slc_tolerance`` (the bar matched pairs
+        must pass to be fused) and within the χ² gate of each other's estimate noise, and no key pose
+        observed both (two detections in one view are two
+        objects). The older landmark survives.
+        """
+        p = self.params
+        live = [lm for lm in self._lms.values() if lm.alias_of is None and lm.count]
+        fused = False
+        for i, a in enumerate(live):
+            for b in live[i + 1 :]:
+                if a.alias_of is not None or b.alias_of is not None or a.class_name != b.class_name:
+                    continue
+                d2 = float(np.sum((self._landmark_position(a) - self._landmark_position(b)) ** 2))
+                var = a.var_sum / a.count**2 + b.var_sum / b.count**2
+                if d2 > (p.slc_fuse_ratio * p.slc_tolerance) ** 2 or d2 > p.association_chi2 * var:
+                    continue
+                if {o.keypose for o in a.observations} & {o.keypose for o in b.observations}:
+                    continue
+                old, new = (a, b) if a.first_distance <= b.first_distance else (b, a)
+                if not old.in_graph:
+                    if not new.in_graph:
+                        continue  # two tentative landmarks: the front end settles them
+                    old, new = new, old
+                self._fuse(old, new)
+                fused = True
+        if fused:
+            self._flush(extra_iterations=2)
 
     def _report(self, result: LoopClosureResult, **extra: float) -> LoopClosureResult:
         if self._context is not None:

@@ -19,8 +19,12 @@ def configured(**params: object) -> GtsamSlam:
 
 
 def drive_loop(seed: int = 0, slam: GtsamSlam | None = None, **world: float) -> tuple[GtsamSlam, LoopWorld]:
-    """Panorama at the start, one drifting loop with detections every metre; back at the start."""
-    w = LoopWorld.rectangle(np.random.default_rng(seed), **({"yaw_bias_per_m": 0.006} | world))
+    """Panorama at the start, one drifting loop with detections every metre; back at the start.
+
+    The yaw bias makes VIO end about 1.4 m (3.5 %) off after the 40 m loop: beyond the front end's
+    association gate, inside semantic loop closure's drift bound (0.4 m + 3 % of the travel).
+    """
+    w = LoopWorld.rectangle(np.random.default_rng(seed), **({"yaw_bias_per_m": 0.005} | world))
     slam = slam or configured()
     Tc = camera_mount()
     slam.add_odometry(w.odometry())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import gtsam
@@ -240,3 +241,26 @@ def test_loop_closure_fuses_only_well_aligned_duplicates() -> None:
     assert events[-1][1]["accepted"], events[-1][1]
     assert _near_duplicates(kept) > 0
     assert len(kept.landmarks()) > len(fused.landmarks())
+
+
+def test_duplicate_fusion_leaves_two_tentative_landmarks_to_the_front_end() -> None:
+    # Two tentative (not yet in the graph) chairs 5 cm apart, never seen in one frame: fusing them
+    # would tie measurements to a variable the graph does not have.
+    slam = configured(min_observations=50)
+    T = pose_from(np.array([0.0, 0, 1]), 0.0)
+    slam.add_odometry(Odometry(0, T))
+    slam.add_detections(Odometry(0, T), camera_mount(), [chair_at(T, np.array([2.0, 0.0, 0.5]))])
+    T2 = pose_from(np.array([0.3, 0, 1]), 0.0)
+    slam.add_odometry(Odometry(1, T2))
+    first = next(iter(slam._lms.values()))
+    dup = dataclasses.replace(
+        first,
+        id=99,
+        first_keypose=1,
+        observations=[dataclasses.replace(o, keypose=1, landmark=99) for o in first.observations],
+        last_keypose=1,
+    )
+    slam._lms[99] = dup
+    slam._fuse_remaining_duplicates()
+    assert all(lm.alias_of is None for lm in slam._lms.values())
+    assert slam.landmarks() == []  # both still tentative; nothing reaches the graph
