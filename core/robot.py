@@ -26,6 +26,7 @@ from amslam.types import (
     RobotSpec,
     SlcCandidate,
     TourItem,
+    TourItemKind,
     Viewpoint,
     VoxelState,
 )
@@ -293,7 +294,8 @@ class Robot:
 
     def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
         """Try an SLC with what the detector saw most recently (e.g. during a panorama)."""
-        candidate = self.slc_offered.get(goal.ref) if goal is not None else None
+        is_slc = goal is not None and goal.kind == TourItemKind.SLC
+        candidate = self.slc_offered.get(goal.ref) if is_slc else None
         if candidate is not None:
             for i in candidate.landmark_ids:
                 self.slc_tried_at[i] = self.distance

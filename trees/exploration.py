@@ -18,7 +18,11 @@ behaviours the plugins provide (``amslam_behaviours``), so a plugin can replace 
     │               ├── Explore (sequence): IsExplore → GoToViewpoint
     │               └── SkipUnreachable
     ├── ReturnHome (failure is success): SetHomeGoal → GoHome
+    │   [→ HomePanorama → HomeSLC, when SLC is on]
     └── Land
+
+With SLC on, the robot closes one last loop where it started: home is where the oldest landmarks
+are, so a panorama there ties the end of the trajectory to its beginning before landing.
 """
 
 from __future__ import annotations
@@ -75,10 +79,12 @@ def build_exploration_tree(
     children: list[py_trees.behaviour.Behaviour] = [b["TakeOff"]("TakeOff")]
     if exploration.look_around:
         children.append(b["Panorama"]("LookAround", steps=exploration.panorama_steps))
-    go_home = Sequence(
-        "GoHomeSteps",
-        memory=True,
-        children=[b["SetHomeGoal"]("SetHomeGoal"), b["GoTo"]("GoHome", goal_key="/home", early_exit=False)],
-    )
+    home_steps = [b["SetHomeGoal"]("SetHomeGoal"), b["GoTo"]("GoHome", goal_key="/home", early_exit=False)]
+    if exploration.slc:
+        home_steps += [
+            b["Panorama"]("HomePanorama", steps=exploration.panorama_steps),
+            b["AttemptSLC"]("HomeSLC"),
+        ]
+    go_home = Sequence("GoHomeSteps", memory=True, children=home_steps)
     children += [explore, FailureIsSuccess("ReturnHome", go_home), b["Land"]("Land")]
     return Sequence("Mission", memory=True, children=children)

@@ -25,6 +25,9 @@ def test_tree_has_the_named_behaviours(registry):
     assert {"TakeOff", "Replan", "Explore", "InsertSLC", "Panorama", "AttemptSLC", "Land"} <= names(root)
     without = build_exploration_tree(ExplorationSection(slc=False), registry.behaviours)
     assert "InsertSLC" not in names(without)
+    # With SLC on, one last loop closure at home before landing; none without.
+    assert {"HomePanorama", "HomeSLC"} <= names(root)
+    assert not {"HomePanorama", "HomeSLC"} & names(without)
 
 
 class FakeRobot(SimpleNamespace):
