@@ -38,7 +38,7 @@ class ShapeParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    window: float = Field(6.0, gt=0, description="seconds of a landmark's points in one measurement")
+    window: float = Field(12.0, gt=0, description="seconds of a landmark's points in one measurement")
     min_points: int = Field(80, ge=10, description="fewest window points for a measurement")
     max_points: int = Field(6000, ge=100, description="window points kept per landmark (random thinning)")
     voxel: float = Field(0.04, gt=0, description="ground buffer voxel size, m")
@@ -49,11 +49,17 @@ class ShapeParams(BaseModel):
         False, description="extrapolate the percentiles to the edges (low-noise sensors)"
     )
     cylinder_axis: str = Field("vertical", description="vertical | ground | pca (shapes.fit_cylinder)")
-    association_margin: float = Field(0.4, ge=0, description="shape inflation for overlap association, m")
+    association_margin: float = Field(
+        0.4, ge=0, description="overlap association: distance to a landmark's points or shape, m"
+    )
     association_overlap: float = Field(0.4, gt=0, le=1, description="share of points inside to associate")
-    sigma_rotation: float = Field(0.05, gt=0, description="cuboid pose rotation std, rad")
-    sigma_translation: float = Field(0.15, gt=0, description="cuboid / root translation std, m")
-    sigma_dims: float = Field(0.15, gt=0, description="cuboid dimension std, m")
+    max_radius: float = Field(1.0, gt=0, description="cylinder fits with a larger radius are rejected, m")
+    min_dim: float = Field(0.3, gt=0, description="cuboid fits with a smaller dimension are rejected, m")
+    max_dim: float = Field(8.0, gt=0, description="cuboid fits with a larger dimension are rejected, m")
+    factors: bool = Field(True, description="add the eq. 1 / eq. 2 factors (False: shapes are only reported)")
+    sigma_rotation: float = Field(0.1, gt=0, description="cuboid pose rotation std, rad")
+    sigma_translation: float = Field(0.3, gt=0, description="cuboid / root translation std, m")
+    sigma_dims: float = Field(0.3, gt=0, description="cuboid dimension std, m")
     sigma_axis: float = Field(0.05, gt=0, description="cylinder axis std (per component)")
     sigma_radius: float = Field(0.03, gt=0, description="cylinder radius std, m")
 
@@ -61,11 +67,14 @@ class ShapeParams(BaseModel):
 @dataclass
 class _ShapeRec:
     model: str
+    cls: str
     points: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (stamp, odom-frame points)
     last_world: dict | None = None  # latest shape in the world frame (for association)
     height: float = float("nan")  # latest cylinder height (not a graph variable)
     pending: list[tuple[int, dict]] = field(default_factory=list)  # (key pose, body-frame shape)
     in_graph: bool = False
+    ref_dims: np.ndarray | None = None  # largest dimensions measured so far (cuboids)
+    slack: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → per-axis slack, m
 
 
 class ShapeLandmarks:
@@ -103,14 +112,35 @@ class ShapeLandmarks:
         return shapes.local_ground(g, centre_odom, self.p.ground_radius)
 
     # ------------------------------------------------------------------ association
-    def associate(self, class_name: str, points_world: np.ndarray, candidates: dict[int, str]) -> int:
-        """The landmark (of ``candidates``: id → class) whose inflated shape holds most points, or -1."""
+    def associate(
+        self,
+        class_name: str,
+        points_odom: np.ndarray,
+        points_world: np.ndarray,
+        candidates: dict[int, str],
+        stamp: float,
+    ) -> int:
+        """The landmark (of ``candidates``: id → class) the detection's points overlap most, or -1.
+
+        A point overlaps a landmark when it lies within ``association_margin`` of the landmark's
+        window points (odometry frame: over a few seconds VIO is exact), or inside its inflated
+        shape (world frame: for a landmark seen again after its window emptied). The landmark with
+        the largest share of overlapping points wins if the share reaches ``association_overlap``.
+        """
+        from scipy.spatial import cKDTree
+
         best, best_share = -1, self.p.association_overlap
         for lm_id, cls in candidates.items():
             rec = self.recs.get(lm_id)
             if cls != class_name or rec is None or rec.last_world is None:
                 continue
-            share = float(np.mean(self._inside(rec.last_world, points_world)))
+            inside = self._inside(rec.last_world, points_world)
+            recent = [q for t, q in rec.points if stamp - t <= self.p.window]
+            if recent:
+                tree = cKDTree(np.concatenate(recent)[:: max(1, sum(map(len, recent)) // 3000)])
+                d, _ = tree.query(points_odom, distance_upper_bound=self.p.association_margin)
+                inside |= np.isfinite(d)
+            share = float(np.mean(inside))
             if share >= best_share:
                 best, best_share = lm_id, share
         return best
@@ -136,7 +166,7 @@ class ShapeLandmarks:
         Returns:
             The measured shape in the key pose's body frame, or ``None`` (too few points).
         """
-        rec = self.recs.setdefault(lm_id, _ShapeRec(self.model(class_name)))
+        rec = self.recs.setdefault(lm_id, _ShapeRec(self.model(class_name), class_name))
         rec.points.append((stamp, np.asarray(points_odom, float)))
         rec.points = [(t, q) for t, q in rec.points if stamp - t <= self.p.window]
         pts = np.concatenate([q for _, q in rec.points])
@@ -149,21 +179,67 @@ class ShapeLandmarks:
             s = shapes.fit_cuboid(pts, ground, percentile=self.p.percentile, extrapolate=self.p.extrapolate)
         else:
             s = shapes.fit_cylinder(pts, ground, axis=self.p.cylinder_axis)
-        if s is None:
+        if s is None or not self._plausible(s):
             return None
         if rec.model == "cylinder":
             rec.height = s["height"]
         return shapes.transform_shape(s, np.linalg.inv(T_odom_kp))
+
+    def record_slack(self, lm_id: int, kp: int, shape: dict) -> np.ndarray:
+        """How much of a cuboid this measurement may have missed, per box axis (m).
+
+        A partial view gives a box shorter than the object, and a centre shifted by up to half
+        the missing length. The slack is half the shortfall of each dimension against the
+        largest seen so far for this landmark; it widens that measurement's noise (eq. 1's
+        translation and dimensions along the box axes, and the point landmark's range-bearing),
+        so that partial views do not drag the key poses.
+        """
+        rec = self.recs[lm_id]
+        if shape["model"] != "cuboid":
+            rec.slack[kp] = np.zeros(3)
+            return rec.slack[kp]
+        d = np.asarray(shape["dims"], float)
+        d_sorted = np.array([max(d[0], d[1]), min(d[0], d[1]), d[2]])  # length ≥ width
+        rec.ref_dims = d_sorted if rec.ref_dims is None else np.maximum(rec.ref_dims, d_sorted)
+        # objects of one class are alike: the first, partial views of a new car are measured
+        # against the median of the other cars' largest boxes
+        others = [
+            r.ref_dims
+            for r in self.recs.values()
+            if r is not rec and r.ref_dims is not None and r.cls == rec.cls
+        ]
+        ref = np.maximum(rec.ref_dims, np.median(others, axis=0)) if others else rec.ref_dims
+        short = np.maximum(ref - d_sorted, 0.0) / 2.0
+        slack = short if d[0] >= d[1] else short[[1, 0, 2]]
+        rec.slack[kp] = slack
+        return slack
+
+    def point_slack(self, lm_id: int, kp: int) -> float:
+        """The slack (norm, m) of a landmark's measurement at a key pose (0 if none)."""
+        rec = self.recs.get(lm_id)
+        if rec is None or kp not in rec.slack:
+            return 0.0
+        return float(np.linalg.norm(rec.slack[kp]))
+
+    def _plausible(self, s: dict) -> bool:
+        """Reject degenerate fits (a circle fitted to a flat patch, a sliver of a box)."""
+        if s["model"] == "cylinder":
+            return 0.01 <= s["radius"] <= self.p.max_radius
+        dims = np.asarray(s["dims"])
+        return bool(np.all(dims >= self.p.min_dim) and np.all(dims <= self.p.max_dim))
 
     def set_world(self, lm_id: int, shape_world: dict) -> None:
         """Record the latest world-frame shape of a landmark (for association)."""
         self.recs[lm_id].last_world = shape_world
 
     # ------------------------------------------------------------------ factors
-    def noise(self, model: str) -> gtsam.noiseModel.Base:
+    def noise(self, model: str, slack: np.ndarray | None = None) -> gtsam.noiseModel.Base:
+        """Eq. 1 / eq. 2 noise; a cuboid's translation and dims widened by the measurement's slack."""
         p = self.p
         if model == "cuboid":
-            s = [p.sigma_rotation] * 3 + [p.sigma_translation] * 3 + [p.sigma_dims] * 3
+            sl = np.zeros(3) if slack is None else np.asarray(slack, float)
+            # eq. 1's translation error is expressed along the measured box axes, like the slack
+            s = [p.sigma_rotation] * 3 + list(p.sigma_translation + sl) + list(p.sigma_dims + 2 * sl)
         else:
             s = [p.sigma_translation] * 3 + [p.sigma_axis] * 3 + [p.sigma_radius]
         return gtsam.noiseModel.Diagonal.Sigmas(np.array(s))
@@ -184,6 +260,7 @@ class ShapeLandmarks:
     def factor(
         self,
         pose_key: int,
+        kp_id: int,
         lm_id: int,
         shape_body: dict,
         T_world_body: np.ndarray,
@@ -193,19 +270,31 @@ class ShapeLandmarks:
         """The eq. 1 / eq. 2 factor of one measurement (body frame) of landmark ``lm_id``.
 
         A box looks the same after a half turn (and after a quarter turn with length and width
-        swapped): the measured pose is replaced by the equivalent closest to the current estimate
-        (``estimate``, world frame), so that the SE(3) log of eq. 1 stays small.
+        swapped): the measured pose is replaced by the equivalent closest in rotation to the
+        current estimate (``estimate``, world frame), so that the SE(3) log of eq. 1 stays small
+        even when a view of one face swapped length and width or the facing cue flipped. The
+        translation and dimension noise is widened by the measurement's slack along each axis
+        (half of what its dims lack against the estimate's and the class's typical box).
         """
-        noise = robust(self.noise(shape_body["model"]))
+        rec = self.recs[lm_id]
         if shape_body["model"] == "cuboid":
             o, d = cuboid_keys(lm_id)
             Z = shapes.cuboid_pose(shape_body)
             dims = np.asarray(shape_body["dims"], float)
+            slack = rec.slack.get(kp_id)
             if estimate is not None:
                 Z, dims = _closest_equivalent(
                     Z, dims, np.linalg.inv(T_world_body) @ shapes.cuboid_pose(estimate)
                 )
-            return cuboid_factor(pose_key, o, d, Z, dims, noise)
+                # the slack along the axes the measurement now has: what it lacks against the
+                # estimate and against the class's typical (sorted) box in the estimate's order
+                ref = np.asarray(estimate["dims"], float)
+                if rec.ref_dims is not None:
+                    typ = rec.ref_dims if ref[0] >= ref[1] else rec.ref_dims[[1, 0, 2]]
+                    ref = np.maximum(ref, typ)
+                slack = np.maximum(ref - dims, 0.0) / 2.0
+            return cuboid_factor(pose_key, o, d, Z, dims, robust(self.noise("cuboid", slack)))
+        noise = robust(self.noise(shape_body["model"]))
         b, n, r = cylinder_keys(lm_id)
         return cylinder_factor(
             pose_key, b, n, r, shape_body["root"], shape_body["axis"], shape_body["radius"], noise
@@ -239,9 +328,8 @@ def _closest_equivalent(Z: np.ndarray, dims: np.ndarray, E: np.ndarray) -> tuple
         Zk = Z.copy()
         Zk[:3, :3] = Z[:3, :3] @ Rk
         dk = dims[[1, 0, 2]] if k % 2 else dims
+        # by rotation alone: a partial view (one face) may have its length and width swapped
         err = np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(Zk[:3, :3].T @ E[:3, :3])))
-        # a quarter turn only if the box is nearly square (else the dims disagree with E's)
-        err += 0.0 if k % 2 == 0 else 2.0 * abs(dims[0] - dims[1])
         if err < best_err:
             best, best_err = (Zk, dk), err
     return best
