@@ -65,6 +65,8 @@ class Target:
     position: np.ndarray
     yaw: float = 0.0
     radius: float = 0.5  # horizontal half-diagonal, for clearance
+    top: float = math.inf  # highest point (world z); unknown: as tall as anything
+    shaped: bool = False  # has a cuboid or cylinder shape (a real obstacle, not a ground tile)
 
 
 def _shape_radius_yaw(shape: dict | None, default_radius: float) -> tuple[float, float]:
@@ -78,6 +80,19 @@ def _shape_radius_yaw(shape: dict | None, default_radius: float) -> tuple[float,
     if shape.get("model") == "cylinder":
         return float(shape.get("radius", default_radius)), 0.0
     return default_radius, object_yaw(shape)
+
+
+def _shape_top(shape: dict | None) -> float:
+    """Highest point of a shape (world z): cuboid centre + half height, cylinder root + height."""
+    if shape and shape.get("model") == "cuboid" and "center" in shape and "dims" in shape:
+        return float(shape["center"][2]) + 0.5 * float(shape["dims"][2])
+    if shape and shape.get("model") == "cylinder" and "root" in shape and "height" in shape:
+        return float(shape["root"][2]) + float(shape["height"])
+    return math.inf
+
+
+def _shaped(shape: dict | None) -> bool:
+    return bool(shape) and shape.get("model") in ("cuboid", "cylinder")
 
 
 def _shape_position(shape: dict | None, position: np.ndarray) -> np.ndarray:
@@ -105,6 +120,8 @@ def load_prior_objects(path: Path, default_radius: float = 0.5) -> list[Target]:
                 _shape_position(shape, np.asarray(lm["position"], float)),
                 yaw,
                 radius,
+                _shape_top(shape),
+                _shaped(shape),
             )
         )
     return out
@@ -116,7 +133,17 @@ def world_objects(world, default_radius: float = 0.5) -> list[Target]:
     for i, (name, pos) in enumerate(sorted(world.object_positions.items())):
         shape = world.object_shapes.get(name)
         radius, yaw = _shape_radius_yaw(shape, default_radius)
-        out.append(Target(i, world.object_classes[name], _shape_position(shape, pos), yaw, radius))
+        out.append(
+            Target(
+                i,
+                world.object_classes[name],
+                _shape_position(shape, pos),
+                yaw,
+                radius,
+                _shape_top(shape),
+                _shaped(shape),
+            )
+        )
     return out
 
 
@@ -208,6 +235,12 @@ class PamsParams(BackendParams):
     )
     entropy_threshold: float | None = Field(None, description="explicit stop threshold on ½ ln det Σ")
     cost_weight: float = Field(0.01, ge=0.0, description="nats per metre of path: breaks ties between orders")
+    overfly: float | None = Field(
+        None,
+        ge=0.0,
+        description="objects whose top is this far (m) below the viewpoints' height do not block them; "
+        "None = every object's footprint (plus clearance) blocks",
+    )
     reach_tolerance: float = Field(1.0, gt=0.0, description="a viewpoint counts as taken within this, m")
     max_attempts: int = Field(
         3,
@@ -230,6 +263,12 @@ class PriorVisitParams(BackendParams):
     height: float | None = Field(None, description="flight height (world z); None = the robot's")
     clearance: float = Field(
         1.0, ge=0.0, description="the look-from place keeps this far from other objects, m"
+    )
+    overfly: float | None = Field(
+        None,
+        ge=0.0,
+        description="objects whose top is this far (m) below the viewpoints' height do not block them; "
+        "None = every object's footprint (plus clearance) blocks",
     )
     reach_tolerance: float = Field(1.0, gt=0.0, description="a stop counts as visited within this, m")
     max_attempts: int = Field(
@@ -270,6 +309,7 @@ class _TargetPlanner(Planner):
         self.context = context
         self._loaded = False
         self.targets, self.order, self.pending = {}, [], []
+        self.obstacles: dict[int, Target] = {}
 
     def _classes(self) -> set[str] | None:
         return None if self.params.target_classes is None else set(self.params.target_classes)
@@ -295,16 +335,26 @@ class _TargetPlanner(Planner):
             order = target_order(request.start, np.array([new[i].position for i in ids]).reshape(-1, 3))
             self.order = [ids[j] for j in order]
         self.targets = new
+        # every shaped prior object keeps viewpoints off its footprint, targets or not (poles, trunks)
+        self.obstacles = {t.id: t for t in found if t.shaped or t.id in new}
         self._loaded = p.prior_objects is not None
 
     def _height(self, request: PlanRequest) -> float:
         return float(self.params.height if self.params.height is not None else request.start[2])
 
-    def _free(self, xy: np.ndarray, skip: int | None = None) -> np.ndarray:
-        """Cells (N×2) clear of every other object's footprint (plus clearance) and inside the area."""
+    def _free(self, xy: np.ndarray, skip: int | None = None, height: float | None = None) -> np.ndarray:
+        """Cells (N×2) clear of every other object's footprint (plus clearance) and inside the area.
+
+        With ``overfly`` set and the viewpoint ``height`` given, objects whose top is at least
+        ``overfly`` below it do not block: a UAV over a parking lot looks at a car from above its
+        neighbours (the local map still guards every step of the flight).
+        """
         ok = np.ones(len(xy), dtype=bool)
+        overfly = self.params.overfly
         for tid, t in self.targets_all.items():
             if tid == skip:
+                continue
+            if overfly is not None and height is not None and t.top <= height - overfly:
                 continue
             ok &= np.linalg.norm(xy - t.position[:2], axis=1) > t.radius + self.params.clearance
         area: BoundingBox | None = self.context.area if self.context is not None else None
@@ -314,8 +364,8 @@ class _TargetPlanner(Planner):
 
     @property
     def targets_all(self) -> dict[int, Target]:
-        """Every object to keep clear of (the targets; subclasses may add others)."""
-        return self.targets
+        """Every object to keep clear of: the targets and the other shaped prior objects."""
+        return {**self.obstacles, **self.targets}
 
     def _settle(self, here: np.ndarray) -> tuple[list[_Pending], list[_Pending], list[_Pending]]:
         """Sort the previous path's stops into taken, dropped and still open.
@@ -341,9 +391,9 @@ class _TargetPlanner(Planner):
         return taken, dropped, rest
 
 
-def _lm_pose(lm, default_radius: float) -> tuple[np.ndarray, float, float]:
+def _lm_pose(lm, default_radius: float) -> tuple[np.ndarray, float, float, float, bool]:
     radius, yaw = _shape_radius_yaw(lm.shape, default_radius)
-    return _shape_position(lm.shape, lm.position), yaw, radius
+    return _shape_position(lm.shape, lm.position), yaw, radius, _shape_top(lm.shape), _shaped(lm.shape)
 
 
 def _item(position: np.ndarray, yaw: float, gain: float, ref: int) -> TourItem:
@@ -383,7 +433,7 @@ class PriorVisitPlanner(_TargetPlanner):
         offsets = np.radians(np.arange(15, 181, 15))
         bearings = base + np.concatenate([[0.0], np.ravel(np.column_stack([offsets, -offsets]))])
         xy = t.position[:2] + dist * np.column_stack([np.cos(bearings), np.sin(bearings)])
-        ok = self._free(xy, skip=tid)
+        ok = self._free(xy, skip=tid, height=self._height(request))
         j = int(np.argmax(ok)) if ok.any() else 0
         return np.array([xy[j, 0], xy[j, 1], self._height(request)])
 
@@ -499,7 +549,7 @@ class PamsPlanner(_TargetPlanner):
         limits = np.array(
             [p.max_position_std if c in POSITION_COMPONENTS else p.max_dimension_std for c in m.components]
         )
-        confident = (conf >= p.min_confidence) & self._free(pos[:, :2], skip=tid)
+        confident = (conf >= p.min_confidence) & self._free(pos[:, :2], skip=tid, height=height)
         good = confident & np.all(np.sqrt(var) <= limits, axis=1)
         if not good.any() and confident.any():
             # nothing meets both limits: the best-predicted share of the confident cells instead

@@ -166,6 +166,43 @@ def test_viewpoints_avoid_other_objects_and_leave_the_area_alone(tmp_path, model
     assert np.all(st.samples[:, 1] <= 2.5)
 
 
+def test_neighbours_block_viewpoints_unless_low_enough_to_overfly(tmp_path, models_path):
+    # a car between two neighbours 2.6 m away (a parking row), and a tall pole off its rear
+    left, right = dict(CAR, center=[10.0, 2.6, 0.75]), dict(CAR, center=[10.0, -2.6, 0.75])
+    pole = {"model": "cylinder", "root": [4.0, 0.0, 0.0], "radius": 0.1, "height": 6.0}
+    objects = [("car", CAR["center"], CAR), ("car", left["center"], left), ("car", right["center"], right)]
+    objects.append(("pole", [4.0, 0.0, 3.0], pole))
+
+    def samples(**params) -> np.ndarray:
+        planner = _pams(
+            tmp_path,
+            models_path,
+            prior_objects=_prior(tmp_path, objects),
+            sampling="uniform",
+            samples=400,
+            target_classes=["car"],
+            max_position_std=0.3,
+            max_dimension_std=0.5,
+            **params,
+        )
+        planner.plan(_request(start=(0.0, 0.0, 3.4)))
+        return planner.state(0, 3.4).samples
+
+    def clear_of(xy: np.ndarray, centre, radius: float) -> bool:
+        return bool(np.all(np.linalg.norm(xy[:, :2] - centre, axis=1) > radius))
+
+    car_r = 0.5 * math.hypot(4.6, 1.9) + 1.0
+    blocked = samples()
+    assert clear_of(blocked, [10.0, 2.6], car_r) and clear_of(blocked, [10.0, -2.6], car_r)
+    assert clear_of(blocked, [4.0, 0.0], 1.1)  # the pole is not a target, but an obstacle
+    over = samples(overfly=0.8)  # the cars' tops (1.5 m) are 1.9 m below the 3.4 m viewpoints
+    assert not clear_of(over, [10.0, 2.6], car_r) and not clear_of(over, [10.0, -2.6], car_r)
+    assert clear_of(over, [4.0, 0.0], 1.1)  # the 6 m pole still blocks
+    assert len(over) > len(blocked)
+    # too small a gap to overfly: the neighbours block again
+    assert clear_of(samples(overfly=2.5), [10.0, 2.6], car_r)
+
+
 # -- stopping and bookkeeping ------------------------------------------------------------------------
 
 
