@@ -168,7 +168,7 @@ def _inspect_file(path: str, mtime_ns: int, size: int) -> ModelInfo:
         session = make_session(Path(path))
     except Exception as exc:  # onnxruntime raises its own exception types
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ModelError(f"not a readable ONNX model: {first}") from exc
+        raise ModelError(f"not a readable ONNX model ({first})") from exc
     return inspect_session(session)
 
 
@@ -176,7 +176,7 @@ def inspect_model(path: Path) -> ModelInfo:
     """Open a model file once (cached by path and modification time) and check its layout."""
     path = Path(path)
     if not path.is_file():
-        raise ModelError(f"model file not found: {path}")
+        raise ModelError("model file not found")
     st = path.stat()
     return _inspect_file(str(path.resolve()), st.st_mtime_ns, st.st_size)
 

@@ -60,7 +60,10 @@ class OnnxDetector(Detector):
         rate_hz: float = Field(2.0, gt=0.0, description="how often the runner calls detect() (paper 1: 2 Hz)")
         confidence: float = Field(0.4, gt=0.0, lt=1.0, description="minimum class score of a detection")
         iou: float = Field(
-            0.5, gt=0.0, le=1.0, description="NMS: same-class boxes overlapping more are merged"
+            0.5,
+            gt=0.0,
+            le=1.0,
+            description="NMS IoU: the weaker of two same-class boxes overlapping more is dropped",
         )
         max_detections: int = Field(50, ge=1, description="most detections per image")
         mask_threshold: float = Field(0.5, gt=0.0, lt=1.0, description="mask probability of an object pixel")
@@ -152,19 +155,26 @@ class OnnxDetector(Detector):
         min_px = max(1, int(round(p.min_pixels * (H * W) / (640 * 480))))
         depth = frame.depth
         valid = (depth > 0) & (depth <= p.max_range)
-        Kinv = np.linalg.inv(frame.K)
         wanted = None if p.classes is None else set(p.classes)
         out: list[Detection] = []
         for inst in instances:
             name = self.names[inst.class_id]
             if wanted is not None and name not in wanted:
                 continue
-            mask = inst.mask & valid
+            # work inside the box: the mask is empty outside it; the window's intrinsics are K
+            # with the principal point shifted by the window's corner
+            u0, v0 = int(np.floor(inst.box[0])), int(np.floor(inst.box[1]))
+            u1, v1 = int(np.ceil(inst.box[2])), int(np.ceil(inst.box[3]))
+            win = (slice(v0, v1), slice(u0, u1))
+            mask = inst.mask[win] & valid[win]
             if p.depth_gap > 0:
-                mask = largest_depth_cluster(mask, depth, p.depth_gap)
+                mask = largest_depth_cluster(mask, depth[win], p.depth_gap)
             if np.count_nonzero(mask) < min_px:
                 continue
-            pts = backproject(mask, depth, Kinv)
+            K = frame.K.copy()
+            K[0, 2] -= u0
+            K[1, 2] -= v0
+            pts = backproject(mask, depth[win], np.linalg.inv(K))
             centroid = np.median(pts, axis=0)
             out.append(Detection(name, float(inst.score), centroid, self._subsample(pts)))
         return out
@@ -191,8 +201,7 @@ def largest_depth_cluster(mask: np.ndarray, depth: np.ndarray, gap: float) -> np
     if len(v) == 0:
         return mask
     z = depth[v, u]
-    order = np.argsort(z, kind="stable")
-    zs = z[order]
+    zs = np.sort(z)  # only the cluster's depth range is needed, not the order of the pixels
     cuts = np.flatnonzero(np.diff(zs) > gap) + 1
     if len(cuts) == 0:
         return mask

@@ -3,10 +3,12 @@
 Frames come from buildings whose seeds the training never saw (``train.HELDOUT_SEEDS``), rendered
 at the demo camera's 320×240 and at the D435i's 640×480. The model runs through the plugin's own
 path (letterbox, threshold, NMS, masks: :class:`~.decoder.SegmentationModel`). A prediction is a
-true positive when its mask overlaps a not yet matched ground-truth instance of the same class
-with IoU ≥ 0.5 (greedy, best score first). Instances smaller than the detector's ``min_pixels``
-(60 at 640×480, scaled with the image area) are "don't care": a prediction on one counts neither
-way, missing one is no miss.
+true positive when it overlaps a not yet matched ground-truth instance of the same class with
+IoU ≥ 0.5 (greedy, best score first), the overlap being that of the masks (``match="mask"``, the
+instance-segmentation criterion) or of the boxes (``match="box"``, the detection criterion; the
+box of an instance is its visible mask's). The mask IoU column averages the true positives' mask
+IoU either way. Instances smaller than the detector's ``min_pixels`` (60 at 640×480, scaled with
+the image area) are "don't care": a prediction on one counts neither way, missing one is no miss.
 
     python -m amslam.plugins.onnx_detector.evaluate [--model FILE] [--frames 40]
 """
@@ -33,12 +35,25 @@ class Counts:
     fp: int = 0
     fn: int = 0
     ious: list[float] = field(default_factory=list)
+    #: (visible pixels at 320×240, found) of every ground-truth instance counted
+    sizes: list[tuple[int, bool]] = field(default_factory=list)
 
     def add(self, other: Counts) -> None:
         self.tp += other.tp
         self.fp += other.fp
         self.fn += other.fn
         self.ious += other.ious
+        self.sizes += other.sizes
+
+    def recall_by_size(self, edges: tuple[int, ...]) -> list[tuple[int, int, float]]:
+        """(low edge, instances, recall) of instances binned by visible pixels."""
+        a = np.array([s for s, _ in self.sizes])
+        f = np.array([ok for _, ok in self.sizes], dtype=bool)
+        out = []
+        for lo, hi in zip(edges, (*edges[1:], 1 << 62), strict=True):
+            sel = (a >= lo) & (a < hi)
+            out.append((lo, int(sel.sum()), float(f[sel].mean()) if sel.any() else float("nan")))
+        return out
 
     @property
     def precision(self) -> float:
@@ -58,10 +73,32 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return inter / max(np.count_nonzero(a | b), 1)
 
 
+def _box(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], dtype=float)
+
+
+def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
+    inter = float(np.prod(np.clip(np.minimum(a[2:], b[2:]) - np.maximum(a[:2], b[:2]), 0, None)))
+    union = float(np.prod(a[2:] - a[:2]) + np.prod(b[2:] - b[:2])) - inter
+    return inter / max(union, 1e-9)
+
+
 def evaluate(
-    model: SegmentationModel, data: Dataset, *, conf: float = 0.4, iou: float = 0.5, min_pixels: int = 60
+    model: SegmentationModel,
+    data: Dataset,
+    *,
+    conf: float = 0.4,
+    iou: float = 0.5,
+    min_pixels: int = 60,
+    match: str = "mask",
 ) -> dict[str, Counts]:
-    """Counts per class name (and ``"all"``) of the model on every frame of ``data``."""
+    """Counts per class name (and ``"all"``) of the model on every frame of ``data``.
+
+    ``match`` is ``"mask"`` or ``"box"``: which overlap pairs predictions with instances.
+    """
+    if match not in ("mask", "box"):
+        raise ValueError(f"match must be 'mask' or 'box', got {match!r}")
     H, W = data.images.shape[1:3]
     min_px = max(1, int(round(min_pixels * H * W / (640 * 480))))
     per = {n: Counts() for n in data.names}
@@ -69,12 +106,13 @@ def evaluate(
         preds = model(data.images[i], conf=conf, iou=iou)
         gts = data.objects(i)
         big = [np.count_nonzero(m) >= min_px for _, m in gts]
+        boxes = [_box(m) for _, m in gts]
         used = [False] * len(gts)
         for p in preds:  # best score first
             best, best_iou = -1, 0.5
             for g, (c, m) in enumerate(gts):
                 if c == p.class_id and not used[g]:
-                    v = _iou(p.mask, m)
+                    v = _iou(p.mask, m) if match == "mask" else _box_iou(p.box, boxes[g])
                     if v >= best_iou:
                         best, best_iou = g, v
             counts = per[data.names[p.class_id]]
@@ -84,10 +122,14 @@ def evaluate(
             used[best] = True
             if big[best]:
                 counts.tp += 1
-                counts.ious.append(best_iou)
-        for g, (c, _) in enumerate(gts):
-            if big[g] and not used[g]:
-                per[data.names[c]].fn += 1
+                counts.ious.append(_iou(p.mask, gts[best][1]))
+        for g, (c, m) in enumerate(gts):
+            if big[g]:
+                # size in pixels of a 320×240 image, so that resolutions compare
+                area = np.count_nonzero(m) * 320 * 240 / (H * W)
+                per[data.names[c]].sizes.append((int(round(area)), used[g]))
+                if not used[g]:
+                    per[data.names[c]].fn += 1
     total = Counts()
     for c in per.values():
         total.add(c)
@@ -95,17 +137,17 @@ def evaluate(
     return per
 
 
-def table(results: dict[str, dict[str, Counts]]) -> str:
-    """A markdown table: one row per (resolution, class)."""
+def table(results: dict[tuple[str, str], dict[str, Counts]]) -> str:
+    """A markdown table: one row per (frames, match, class)."""
     lines = [
-        "| frames | class | ground truth | detections | precision | recall | mask IoU |",
-        "|---|---|---:|---:|---:|---:|---:|",
+        "| frames | match | class | ground truth | detections | precision | recall | mask IoU |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
     ]
-    for res, per in results.items():
+    for (res, match), per in results.items():
         for name, c in per.items():
             lines.append(
-                f"| {res} | {name} | {c.tp + c.fn} | {c.tp + c.fp} | {c.precision:.3f} | {c.recall:.3f} "
-                f"| {c.mask_iou:.3f} |"
+                f"| {res} | {match} IoU ≥ 0.5 | {name} | {c.tp + c.fn} | {c.tp + c.fp} | {c.precision:.3f} "
+                f"| {c.recall:.3f} | {c.mask_iou:.3f} |"
             )
     return "\n".join(lines)
 
@@ -125,9 +167,22 @@ def main(argv: list[str] | None = None) -> None:
     for spec in args.sizes.split(","):
         w, h = (int(v) for v in spec.split("x"))
         data = render_dataset(list(HELDOUT_SEEDS), args.frames, width=w, height=h)
-        results[f"{w}×{h}, {len(data)}"] = evaluate(model, data, conf=args.conf)
+        for match in ("mask", "box"):
+            results[(f"{w}×{h}, {len(data)}", match)] = evaluate(model, data, conf=args.conf, match=match)
     print(f"model {args.model or shipped_model()}, held-out seeds {list(HELDOUT_SEEDS)}, conf {args.conf}")
     print(table(results))
+    print()
+    edges = (0, 400, 1600, 6400)
+    heads = [f"recall, {lo}–{hi} px" for lo, hi in zip(edges, edges[1:], strict=False)] + [
+        f"recall, {edges[-1]}+ px"
+    ]
+    print("Recall by object size (visible pixels, scaled to a 320×240 image; instances in brackets):")
+    print()
+    print("| frames | match | " + " | ".join(heads) + " |")
+    print("|---|---|" + "---:|" * len(edges))
+    for (res, match), per in results.items():
+        cells = [f"{r:.2f} ({n})" for _, n, r in per["all"].recall_by_size(edges)]
+        print(f"| {res} | {match} IoU ≥ 0.5 | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

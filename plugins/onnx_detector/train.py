@@ -16,7 +16,9 @@ Training (simplified from YOLOv8 to fit a CPU budget): each ground-truth instanc
 the cells of its size's pyramid levels whose centres lie inside its box and within 2.5 strides
 of its centre (FCOS/YOLOX-style centre sampling; YOLOv8's task-aligned assigner needs a trained
 network to rank cells). Losses: binary cross-entropy for the classes (summed over all cells,
-normalised by the positives, as YOLOv8 does), generalised IoU for the boxes, and YOLOv8's mask
+normalised by the positives, as YOLOv8 does) against IoU-aware targets (a positive cell's
+target is the IoU of its box with the object's, like YOLOv8's task-aligned scores), generalised
+IoU for the boxes, and YOLOv8's mask
 loss: per-pixel cross-entropy of ``sigmoid(coeffs @ protos)`` against the instance mask at
 prototype resolution, inside the box, normalised by the box area.
 
@@ -271,7 +273,7 @@ def assign(boxes: np.ndarray, anchor_xy: np.ndarray, strides: np.ndarray, radius
 
 
 def giou(a, b):
-    """Generalised IoU of matching rows of two (P, 4) xyxy tensors."""
+    """Generalised IoU and IoU of matching rows of two (P, 4) xyxy tensors."""
     torch = _torch()
     lt = torch.maximum(a[:, :2], b[:, :2])
     rb = torch.minimum(a[:, 2:], b[:, 2:])
@@ -283,7 +285,7 @@ def giou(a, b):
     clt = torch.minimum(a[:, :2], b[:, :2])
     crb = torch.maximum(a[:, 2:], b[:, 2:])
     hull = (crb - clt).clamp(min=0).prod(1) + 1e-7
-    return iou - (hull - union) / hull
+    return iou - (hull - union) / hull, iou
 
 
 def _cap_per_group(groups: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
@@ -322,10 +324,14 @@ def compute_loss(levels, protos, targets, anchor_xy, strides, gains=(5.0, 1.0, 5
         g = which[pos]
         n_pos += len(pos)
         pos_t = torch.from_numpy(pos)
-        cls_target[b, torch.from_numpy(t["classes"][g]), pos_t] = 1.0
         gt_boxes = torch.from_numpy(t["boxes"][g])
         pred_boxes = boxes[b, :, pos_t].T
-        box_losses.append((1.0 - giou(pred_boxes, gt_boxes)).sum())
+        g_iou, iou = giou(pred_boxes, gt_boxes)
+        box_losses.append((1.0 - g_iou).sum())
+        # IoU-aware class target (as YOLOv8's task-aligned targets and VarifocalNet): a cell's
+        # score learns how well its box fits, so NMS keeps the best box and the poorly placed
+        # boxes of a large object's edge cells fall below the confidence threshold
+        cls_target[b, torch.from_numpy(t["classes"][g]), pos_t] = iou.detach().clamp(0.0, 1.0)
         # mask: coefficients of the positive cells on this image's prototypes; at most
         # `mask_cells` random cells per instance (the mask loss dominated the step time otherwise)
         keep = _cap_per_group(g, mask_cells, rng)
