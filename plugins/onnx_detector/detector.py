@@ -23,7 +23,7 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from amslam.errors import AmslamError
 from amslam.interfaces import BackendParams, Detector, RunContext
-from amslam.plugins.onnx_detector.decoder import ModelError, SegmentationModel, inspect_model
+from amslam.plugins.onnx_detector.decoder import Instance, ModelError, SegmentationModel, inspect_model
 from amslam.plugins.sim.detector import _backproject as backproject
 from amslam.types import Detection, Frame
 
@@ -146,38 +146,47 @@ class OnnxDetector(Detector):
             raise RuntimeError("OnnxDetector.detect() called before configure()")
         if frame.rgb is None:
             raise ValueError("the onnx detector needs RGB frames (the platform renders no image)")
+        if frame.rgb.shape[:2] != frame.depth.shape:
+            raise ValueError(
+                f"RGB {frame.rgb.shape[:2]} and depth {frame.depth.shape} images must be registered"
+            )
         instances = self.model(
             frame.rgb, conf=p.confidence, iou=p.iou, max_det=p.max_detections, mask_threshold=p.mask_threshold
         )
-        H, W = frame.depth.shape
-        if frame.rgb.shape[:2] != (H, W):
-            raise ValueError(f"RGB {frame.rgb.shape[:2]} and depth {(H, W)} images must be registered")
-        min_px = max(1, int(round(p.min_pixels * (H * W) / (640 * 480))))
-        depth = frame.depth
-        valid = (depth > 0) & (depth <= p.max_range)
         wanted = None if p.classes is None else set(p.classes)
         out: list[Detection] = []
         for inst in instances:
-            name = self.names[inst.class_id]
-            if wanted is not None and name not in wanted:
+            if wanted is not None and self.names[inst.class_id] not in wanted:
                 continue
-            # work inside the box: the mask is empty outside it; the window's intrinsics are K
-            # with the principal point shifted by the window's corner
-            u0, v0 = int(np.floor(inst.box[0])), int(np.floor(inst.box[1]))
-            u1, v1 = int(np.ceil(inst.box[2])), int(np.ceil(inst.box[3]))
-            win = (slice(v0, v1), slice(u0, u1))
-            mask = inst.mask[win] & valid[win]
-            if p.depth_gap > 0:
-                mask = largest_depth_cluster(mask, depth[win], p.depth_gap)
-            if np.count_nonzero(mask) < min_px:
-                continue
-            K = frame.K.copy()
-            K[0, 2] -= u0
-            K[1, 2] -= v0
-            pts = backproject(mask, depth[win], np.linalg.inv(K))
-            centroid = np.median(pts, axis=0)
-            out.append(Detection(name, float(inst.score), centroid, self._subsample(pts)))
+            det = self.lift(inst, frame.depth, frame.K)
+            if det is not None:
+                out.append(det)
         return out
+
+    def lift(self, inst: Instance, depth: np.ndarray, K: np.ndarray) -> Detection | None:
+        """The 3-D step of one instance: its mask's depth → centroid and points (None if too few)."""
+        p = self.params
+        assert p is not None
+        H, W = depth.shape
+        min_px = max(1, int(round(p.min_pixels * (H * W) / (640 * 480))))
+        # work inside the box: the mask is empty outside it; the window's intrinsics are K
+        # with the principal point shifted by the window's corner
+        u0, v0 = int(np.floor(inst.box[0])), int(np.floor(inst.box[1]))
+        u1, v1 = int(np.ceil(inst.box[2])), int(np.ceil(inst.box[3]))
+        win = (slice(v0, v1), slice(u0, u1))
+        d = depth[win]
+        mask = inst.mask[win] & (d > 0) & (d <= p.max_range)
+        if p.depth_gap > 0:
+            mask = largest_depth_cluster(mask, d, p.depth_gap)
+        if np.count_nonzero(mask) < min_px:
+            return None
+        Kw = np.array(K, dtype=float)
+        Kw[0, 2] -= u0
+        Kw[1, 2] -= v0
+        pts = backproject(mask, d, np.linalg.inv(Kw))
+        return Detection(
+            self.names[inst.class_id], float(inst.score), np.median(pts, axis=0), self._subsample(pts)
+        )
 
     def _subsample(self, pts: np.ndarray) -> np.ndarray:
         assert self.params is not None
