@@ -58,7 +58,9 @@ class OnnxDetector(Detector):
             "default: the shipped model trained on simulator images (chair, table, shelf, sofa)",
         )
         rate_hz: float = Field(2.0, gt=0.0, description="how often the runner calls detect() (paper 1: 2 Hz)")
-        confidence: float = Field(0.4, gt=0.0, lt=1.0, description="minimum class score of a detection")
+        confidence: float = Field(
+            0.25, gt=0.0, lt=1.0, description="minimum class score of a detection (ultralytics: 0.25)"
+        )
         iou: float = Field(
             0.5,
             gt=0.0,

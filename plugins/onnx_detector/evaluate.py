@@ -88,7 +88,7 @@ def evaluate(
     model: SegmentationModel,
     data: Dataset,
     *,
-    conf: float = 0.4,
+    conf: float = 0.25,
     iou: float = 0.5,
     min_pixels: int = 60,
     match: str = "mask",
@@ -205,7 +205,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", type=Path, default=None, help="default: the shipped model")
     ap.add_argument("--frames", type=int, default=40, help="frames per held-out building")
-    ap.add_argument("--conf", type=float, default=0.4)
+    ap.add_argument("--conf", type=float, default=0.25)
     ap.add_argument("--sizes", default="320x240,640x480", help="image sizes to render, WxH,...")
     ap.add_argument("--centroids", action="store_true", help="also: centroid error against exact masks")
     args = ap.parse_args(argv)
