@@ -1,0 +1,97 @@
+"""Training data, cell assignment and the held-out evaluation (torch is not needed for these)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amslam.plugins.onnx_detector.dataset import CLASSES, Dataset, render_dataset
+from amslam.plugins.onnx_detector.decoder import SegmentationModel
+from amslam.plugins.onnx_detector.evaluate import evaluate
+from amslam.plugins.onnx_detector.train import STRIDES, anchors, assign, make_batch
+from tests.plugins.onnx_detector.graphs import candidates, constant_model
+
+
+@pytest.fixture(scope="module")
+def tiny_set() -> Dataset:
+    return render_dataset([100], 6, width=160, height=120)
+
+
+def test_rendered_frames_are_labelled_by_instance_masks(tiny_set: Dataset, tmp_path: Path) -> None:
+    assert tiny_set.images.shape == (6, 120, 160, 3) and tiny_set.images.dtype == np.uint8
+    assert tiny_set.names == CLASSES and set(tiny_set.seeds.tolist()) == {100}
+    labelled = 0
+    for i in range(len(tiny_set)):
+        ids = set(np.unique(tiny_set.instance[i]).tolist()) - {0}
+        # every id in the image has a class, every class row entry beyond them is unused
+        assert all(0 <= tiny_set.inst_class[i, k] < len(CLASSES) for k in ids)
+        for c, m in tiny_set.objects(i):
+            assert 0 <= c < len(CLASSES) and m.sum() >= 12
+            labelled += 1
+    assert labelled > 0, "most poses look at furniture: some frame must show an object"
+    tiny_set.save(tmp_path / "d.npz")
+    back = Dataset.load(tmp_path / "d.npz")
+    np.testing.assert_array_equal(back.instance, tiny_set.instance)
+    assert back.names == tiny_set.names
+
+
+def test_batches_letterbox_images_boxes_and_masks(tiny_set: Dataset) -> None:
+    imgs, targets = make_batch(tiny_set, np.arange(len(tiny_set)), 160, None)
+    assert imgs.shape == (6, 3, 160, 160) and imgs.min() >= 0.0 and imgs.max() <= 1.0
+    for i, t in enumerate(targets):
+        objs = tiny_set.objects(i)
+        assert len(t["boxes"]) == len(objs)
+        for (c, m), box, cls in zip(objs, t["boxes"], t["classes"], strict=True):
+            ys, xs = np.nonzero(m)
+            # centred letterbox: 160×120 into 160×160 puts the image 20 rows down
+            np.testing.assert_array_equal(box, [xs.min(), ys.min() + 20, xs.max() + 1, ys.max() + 21])
+            assert cls == c
+        assert t["masks"].shape == (len(objs), 40, 40)
+
+
+def test_assignment_by_size_centre_and_smallest_box() -> None:
+    a_xy, strides = anchors(320)
+    assert len(a_xy) == sum((320 // s) ** 2 for s in STRIDES)
+    boxes = np.array(
+        [
+            [100.0, 100.0, 120.0, 130.0],  # 30 px tall: stride 8 only
+            [0.0, 0.0, 300.0, 300.0],  # 300 px: stride 32, and holds the first box
+            [10.0, 200.0, 13.0, 204.0],  # 4 px: no cell centre inside, gets the nearest one
+        ]
+    )
+    which = assign(boxes, a_xy, strides)
+    small = np.flatnonzero(which == 0)
+    assert len(small) > 0 and set(strides[small].tolist()) == {8.0}
+    inside = (a_xy[small] > boxes[0, :2]) & (a_xy[small] < boxes[0, 2:])
+    assert inside.all()
+    big = np.flatnonzero(which == 1)
+    assert set(strides[big].tolist()) == {32.0}
+    assert np.count_nonzero(which == 2) == 1
+
+
+def test_evaluation_counts_on_a_known_model(tmp_path: Path) -> None:
+    """One 160×120 frame with one chair; a model predicting exactly it, plus one false table."""
+    inst = np.zeros((1, 120, 160), np.int16)
+    inst[0, 40:80, 40:80] = 1
+    data = Dataset(
+        np.zeros((1, 120, 160, 3), np.uint8),
+        inst,
+        np.array([[-1, 0]], np.int16),
+        np.array([0]),
+        ("chair", "table"),
+    )
+    # 160×120 → 320×320 input: scale 2, 40-pixel borders above and below
+    out0 = candidates(
+        [((120.0, 160.0, 80.0, 80.0), [0.9, 0.0], [1.0]), ((260.0, 100.0, 40.0, 40.0), [0.0, 0.8], [1.0])]
+    )
+    protos = np.zeros((1, 32, 80, 80), np.float32)
+    protos[0, 0] = 20.0
+    model = SegmentationModel(constant_model(tmp_path / "m.onnx", out0, protos))
+    for match in ("mask", "box"):
+        res = evaluate(model, data, conf=0.25, match=match)
+        assert (res["chair"].tp, res["chair"].fp, res["chair"].fn) == (1, 0, 0)
+        assert res["chair"].mask_iou == pytest.approx(1.0)
+        assert (res["table"].tp, res["table"].fp) == (0, 1)
+        assert res["all"].precision == pytest.approx(0.5) and res["all"].recall == pytest.approx(1.0)
