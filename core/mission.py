@@ -300,7 +300,8 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
             report((kind, "plugin"), str(exc))
             continue
         try:
-            params = cls.Params.model_validate(section)
+            # Backends resolve relative file parameters (a model, a mesh) against the mission's folder.
+            params = cls.Params.model_validate(section, context={"mission_dir": path.resolve().parent})
         except ValidationError as exc:
             for err in exc.errors():
                 report((kind, *err["loc"]), _describe(err, cls.Params, err["loc"]))

@@ -17,6 +17,7 @@ import dataclasses
 import json
 import traceback
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ from amslam.report import compute_metrics, write_outputs
 from amslam.robot import Robot
 from amslam.rundir import RunDir
 from amslam.trees.flight import build_mission_tree
-from amslam.types import BoundingBox, Odometry
+from amslam.types import BoundingBox, Frame, Odometry
 
 
 @dataclass
@@ -185,6 +186,23 @@ class Runner:
         bar = self._progress_bar(model.limits.max_time)
         self.truth: list[tuple[float, np.ndarray]] = []
         self.vio: list[tuple[float, np.ndarray]] = []
+
+        def use_detections(frame: Frame, detections: list) -> None:
+            frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(T_body_cam))
+            slam.add_detections(frame_odom, T_body_cam, detections)
+            T_truth = frame.T_world_cam_truth
+            measurements.detections(
+                frame_odom, detections, None if T_truth is None else T_truth @ invert(T_body_cam)
+            )
+            self.robot.recent_detections.append((frame_odom, detections))
+            del self.robot.recent_detections[:-64]
+
+        # On a real vehicle the network runs beside the control loop (frames arriving while it is
+        # busy are skipped); in the simulator it runs inline: the clock waits, runs stay repeatable.
+        detect_pool = (
+            None if platform.simulated else ThreadPoolExecutor(1, thread_name_prefix="amslam-detector")
+        )
+        detecting: tuple[Future, Frame] | None = None
         try:
             while True:
                 platform.advance(dt)
@@ -207,17 +225,15 @@ class Runner:
                         self.robot.viewpoints_stale = False
                         next_viewpoints = frame.stamp + ex.viewpoint_period
                         self.robot.set_viewpoints(mapping.viewpoints())
-                    if frame.stamp >= next_detect:
+                    if frame.stamp >= next_detect and detecting is None:
                         next_detect = frame.stamp + detect_period
-                        detections = detector.detect(frame)
-                        frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(T_body_cam))
-                        slam.add_detections(frame_odom, T_body_cam, detections)
-                        T_truth = frame.T_world_cam_truth
-                        measurements.detections(
-                            frame_odom, detections, None if T_truth is None else T_truth @ invert(T_body_cam)
-                        )
-                        self.robot.recent_detections.append((frame_odom, detections))
-                        del self.robot.recent_detections[:-64]
+                        if detect_pool is None:
+                            use_detections(frame, detector.detect(frame))
+                        else:
+                            detecting = (detect_pool.submit(detector.detect, frame), frame)
+                if detecting is not None and detecting[0].done():
+                    (done, frame_seen), detecting = detecting, None
+                    use_detections(frame_seen, done.result())
                 if t >= next_traj:
                     next_traj = t + 1.0 / ex.trajectory_rate_hz
                     self.rundir.pose("vio", t, odom.T_odom_body)
@@ -261,6 +277,8 @@ class Runner:
                     limit = model.limits.max_time
                     return f"failed: still flying {hard_stop:.0f} s after start (time limit {limit} s)"
         finally:
+            if detect_pool is not None:
+                detect_pool.shutdown(wait=True, cancel_futures=True)
             if bar is not None:
                 bar.close()
             recorder.close()

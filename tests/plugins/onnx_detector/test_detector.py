@@ -91,6 +91,16 @@ def test_missing_model_fails_mission_validation_with_its_location(tmp_path: Path
     assert "model file not found" in problem and str(missing) in problem
 
 
+def test_missing_relative_model_fails_mission_validation(tmp_path: Path, registry) -> None:
+    # A relative path is looked up beside the mission file, already when the mission is validated.
+    path = _write_mission(tmp_path, "plugin: onnx\nmodel: models/absent.onnx\n")
+    with pytest.raises(MissionError) as info:
+        load_mission(path, registry)
+    (problem,) = info.value.problems
+    assert problem.startswith(f"{path}:4: detector.model:"), problem
+    assert str(tmp_path / "models" / "absent.onnx") in problem
+
+
 def test_corrupt_model_fails_mission_validation(tmp_path: Path, registry) -> None:
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"this is not an ONNX file")

@@ -1,0 +1,51 @@
+"""On a real vehicle the detector runs beside the control loop; its detections still reach SLAM."""
+
+from __future__ import annotations
+
+import threading
+
+import amslam
+from amslam.mission import load_mission
+from amslam.plugins.sim import SimDetector, SimPlatform
+from amslam.registry import build_plugin_manager
+from amslam.runner import Runner
+
+from .missions import small_mission
+
+
+class ThreadRecordingDetector(SimDetector):
+    threads: set[str] = set()
+
+    def detect(self, frame):
+        ThreadRecordingDetector.threads.add(threading.current_thread().name)
+        return super().detect(frame)
+
+
+class UnsimulatedSim(SimPlatform):
+    """The simulator, flagged as a real vehicle: the runner treats it as one (no failsafes raised)."""
+
+    simulated = False
+
+
+class Plugin:
+    @amslam.hookimpl
+    def amslam_platform_backends(self):
+        return {"unsimulated": UnsimulatedSim}
+
+    @amslam.hookimpl
+    def amslam_detector_backends(self):
+        return {"recording": ThreadRecordingDetector}
+
+
+def test_a_real_vehicle_detects_off_the_control_thread(tmp_path):
+    registry = build_plugin_manager(extra_plugins=[Plugin()])
+    path = small_mission(tmp_path, max_time=40)
+    text = path.read_text().replace("plugin: sim\n", "plugin: unsimulated\n", 1)
+    path.write_text(text.replace("detector: {plugin: sim}", "detector: {plugin: recording}"))
+    mission = load_mission(path, registry)
+    result = Runner(mission, registry, tmp_path / "runs").run()
+    assert result.verdict == "completed", result.verdict
+    assert ThreadRecordingDetector.threads and all(
+        name.startswith("amslam-detector") for name in ThreadRecordingDetector.threads
+    )
+    assert result.metrics["landmarks"]["count"] > 0
