@@ -44,11 +44,26 @@ import numpy as np
 
 from amslam.plugins.onnx_detector.dataset import CLASSES, Dataset, render_dataset
 
-#: Strides of the detection levels and the prototype stride.
+#: Strides of the detection levels (YOLOv8's P3–P5) and the prototype stride.
 STRIDES: tuple[int, ...] = (8, 16, 32)
+#: With the extra stride-4 level (YOLOv8's "-p2" variant) for small, far objects.
+P2_STRIDES: tuple[int, ...] = (4, 8, 16, 32)
 PROTO_STRIDE = 4
 #: Box size ranges (longest side, input pixels at 320) that each level learns, overlapping.
 LEVEL_SIZES: tuple[tuple[float, float], ...] = ((0.0, 80.0), (40.0, 160.0), (100.0, 1e9))
+#: The same with the stride-4 level, which takes the boxes under 40 px (a chair beyond ~4 m).
+P2_LEVEL_SIZES: tuple[tuple[float, float], ...] = ((0.0, 40.0), (16.0, 80.0), (40.0, 160.0), (100.0, 1e9))
+
+
+def level_sizes(strides: tuple[int, ...]) -> dict[int, tuple[float, float]]:
+    """Box size range of each detection level, by stride, for the levels ``strides``."""
+    if tuple(strides) == STRIDES:
+        return dict(zip(STRIDES, LEVEL_SIZES, strict=True))
+    if tuple(strides) == P2_STRIDES:
+        return dict(zip(P2_STRIDES, P2_LEVEL_SIZES, strict=True))
+    raise ValueError(f"detection levels must be {STRIDES} or {P2_STRIDES}, got {strides}")
+
+
 NUM_MASKS = 32
 PAD_VALUE = 114
 
@@ -67,8 +82,16 @@ def _torch():
     return torch
 
 
-def build_model(nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64)) -> Any:
-    """The tiny YOLOv8-seg-like network (a ``torch.nn.Module``) for ``nc`` classes."""
+def build_model(
+    nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64), strides: tuple[int, ...] = STRIDES
+) -> Any:
+    """The tiny YOLOv8-seg-like network (a ``torch.nn.Module``) for ``nc`` classes.
+
+    With ``strides=P2_STRIDES`` the feature pyramid goes one step further down, to the stride-4
+    features, and a fourth head detects there (as YOLOv8's ``-p2`` models do).
+    """
+    level_sizes(strides)  # validates the levels
+    p2 = strides[0] == 4
     torch = _torch()
     nn = torch.nn
     F = torch.nn.functional
@@ -125,7 +148,9 @@ def build_model(nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64)) -> Any:
             self.s5 = nn.Sequential(Conv(c3, c4, 3, 2), Res(c4))
             self.top4 = nn.Sequential(Conv(c4 + c3, c3, 1), Res(c3))
             self.top3 = nn.Sequential(Conv(c3 + c2, c2, 1), Res(c2))
-            self.heads = nn.ModuleList([Head(c, nc, s) for c, s in zip((c2, c3, c4), STRIDES, strict=True)])
+            chans = ((c1,) if p2 else ()) + (c2, c3, c4)
+            self.heads = nn.ModuleList([Head(c, nc, s) for c, s in zip(chans, strides, strict=True)])
+            self.top2 = nn.Sequential(Conv(c2 + c1, c1, 1), Res(c1)) if p2 else None
             # prototypes as in YOLOv8 (convolution, ×2 upsampling, convolution, 1×1 to 32 maps),
             # with the stride-4 features added back for sharper mask edges
             cp = c1
@@ -140,7 +165,12 @@ def build_model(nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64)) -> Any:
             p5 = self.s5(p4)
             n4 = self.top4(torch.cat([F.interpolate(p5, scale_factor=2.0, mode="nearest"), p4], 1))
             n3 = self.top3(torch.cat([F.interpolate(n4, scale_factor=2.0, mode="nearest"), p3], 1))
-            levels = [h(f) for h, f in zip(self.heads, (n3, n4, p5), strict=True)]
+            feats = [n3, n4, p5]
+            if self.top2 is not None:
+                feats.insert(
+                    0, self.top2(torch.cat([F.interpolate(n3, scale_factor=2.0, mode="nearest"), p2], 1))
+                )
+            levels = [h(f) for h, f in zip(self.heads, feats, strict=True)]
             up = F.interpolate(self.proto_in(n3), scale_factor=2.0, mode="nearest")
             protos = self.proto_out(up + self.proto_skip(p2))
             return levels, protos
@@ -148,10 +178,10 @@ def build_model(nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64)) -> Any:
     return TinyYoloSeg(nc)
 
 
-def anchors(size: int) -> tuple[np.ndarray, np.ndarray]:
+def anchors(size: int, levels: tuple[int, ...] = STRIDES) -> tuple[np.ndarray, np.ndarray]:
     """Cell centres (N×2, input pixels) and strides (N,) of all levels, level by level, row-major."""
     pts, strides = [], []
-    for s in STRIDES:
+    for s in levels:
         n = size // s
         ys, xs = np.mgrid[0:n, 0:n]
         pts.append(np.stack([(xs.ravel() + 0.5) * s, (ys.ravel() + 0.5) * s], 1))
@@ -256,7 +286,8 @@ def assign(boxes: np.ndarray, anchor_xy: np.ndarray, strides: np.ndarray, radius
     cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
     side = np.maximum(x2 - x1, y2 - y1)
     level_ok = np.zeros((len(boxes), N), dtype=bool)
-    for s, (lo, hi) in zip(STRIDES, LEVEL_SIZES, strict=True):
+    levels = tuple(int(s) for s in np.unique(strides))
+    for s, (lo, hi) in level_sizes(levels).items():
         level_ok |= (strides[None] == s) & (side >= lo) & (side <= hi)
     r = radius * strides[None]
     cand = (x > x1) & (x < x2) & (y > y1) & (y < y2) & (np.abs(x - cx) < r) & (np.abs(y - cy) < r) & level_ok
@@ -359,12 +390,19 @@ def compute_loss(levels, protos, targets, anchor_xy, strides, gains=(5.0, 1.0, 5
 # -------------------------------------------------------------------------------------------
 # export
 # -------------------------------------------------------------------------------------------
-def export_onnx(model, path: Path, size: int, names: tuple[str, ...], extra: dict[str, str] | None = None):
+def export_onnx(
+    model,
+    path: Path,
+    size: int,
+    names: tuple[str, ...],
+    extra: dict[str, str] | None = None,
+    levels: tuple[int, ...] = STRIDES,
+):
     """Export in the YOLOv8-seg layout with ultralytics-style metadata."""
     torch = _torch()
     import onnx
 
-    anchor_xy, strides = anchors(size)
+    anchor_xy, strides = anchors(size, levels)
 
     class Exported(torch.nn.Module):
         def __init__(self, net):
@@ -400,7 +438,7 @@ def export_onnx(model, path: Path, size: int, names: tuple[str, ...], extra: dic
         "description": "amslam tiny YOLOv8-seg trained on simulator images",
         "author": "amslam",
         "task": "segment",
-        "stride": str(max(STRIDES)),
+        "stride": str(max(levels)),
         "batch": "1",
         "imgsz": str([size, size]),
         "names": str(dict(enumerate(names))),
@@ -428,15 +466,16 @@ def train(
     threads: int = 2,
     seed: int = 0,
     log_every: int = 20,
+    levels: tuple[int, ...] = STRIDES,
 ) -> Path:
-    """Train on ``data`` and export the network to ``out`` (ONNX)."""
+    """Train on ``data`` and export the network to ``out`` (ONNX); ``levels``: detection strides."""
     torch = _torch()
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    model = build_model(len(data.names))
+    model = build_model(len(data.names), strides=levels)
     n_params = sum(p.numel() for p in model.parameters())
-    anchor_xy, strides = anchors(size)
+    anchor_xy, strides = anchors(size, levels)
     steps_per_epoch = max(1, len(data) // batch)
     total = epochs * steps_per_epoch
     warmup = min(200, total // 10)
@@ -484,7 +523,9 @@ def train(
             "train_frames": str(len(data)),
             "epochs": str(epochs),
             "train_seeds": str(sorted(set(data.seeds.tolist()))),
+            "levels": str(list(levels)),
         },
+        levels=levels,
     )
     print(f"exported {out} ({out.stat().st_size / 1e6:.2f} MB) after {time.time() - t0:.0f}s", flush=True)
     return out
@@ -508,6 +549,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
     )
+    ap.add_argument("--p2", action="store_true", help="add the stride-4 detection level (small, far objects)")
     args = ap.parse_args(argv)
     if args.data.exists():
         data = Dataset.load(args.data)
@@ -517,7 +559,15 @@ def main(argv: list[str] | None = None) -> None:
         data = render_dataset(list(TRAIN_SEEDS[: args.seeds]), args.frames, progress=True, classes=CLASSES)
         data.save(args.data)
         print(f"rendered {len(data)} frames in {time.time() - t:.0f}s → {args.data}", flush=True)
-    train(data, args.out, size=args.size, epochs=args.epochs, batch=args.batch, threads=args.threads)
+    train(
+        data,
+        args.out,
+        size=args.size,
+        epochs=args.epochs,
+        batch=args.batch,
+        threads=args.threads,
+        levels=P2_STRIDES if args.p2 else STRIDES,
+    )
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ import pytest
 from amslam.plugins.onnx_detector.dataset import CLASSES, Dataset, render_dataset
 from amslam.plugins.onnx_detector.decoder import SegmentationModel
 from amslam.plugins.onnx_detector.evaluate import evaluate
-from amslam.plugins.onnx_detector.train import STRIDES, anchors, assign, make_batch
+from amslam.plugins.onnx_detector.train import P2_STRIDES, STRIDES, anchors, assign, make_batch
 from tests.plugins.onnx_detector.graphs import candidates, constant_model
 
 
@@ -69,6 +69,23 @@ def test_assignment_by_size_centre_and_smallest_box() -> None:
     big = np.flatnonzero(which == 1)
     assert set(strides[big].tolist()) == {32.0}
     assert np.count_nonzero(which == 2) == 1
+
+
+def test_stride_4_level_takes_the_small_boxes() -> None:
+    a_xy, strides = anchors(320, P2_STRIDES)
+    assert len(a_xy) == sum((320 // s) ** 2 for s in P2_STRIDES)
+    boxes = np.array(
+        [
+            [100.0, 100.0, 110.0, 112.0],  # 12 px: stride 4 only
+            [200.0, 200.0, 230.0, 230.0],  # 30 px: strides 4 and 8
+            [0.0, 0.0, 300.0, 300.0],  # 300 px: stride 32
+        ]
+    )
+    which = assign(boxes, a_xy, strides)
+    small = np.flatnonzero(which == 0)
+    assert len(small) >= 4 and set(strides[small].tolist()) == {4.0}
+    assert set(strides[which == 1].tolist()) == {4.0, 8.0}
+    assert set(strides[which == 2].tolist()) == {32.0}
 
 
 def test_evaluation_counts_on_a_known_model(tmp_path: Path) -> None:
