@@ -135,7 +135,9 @@ def team_overrides(
         mode: homogeneous (same robots) or heterogeneous (low-altitude and overhead alternate).
         seed: the experiment seed (robot 0 flies it; the others fly in the same world).
         overrides: applied to every robot first.
-        overhead_altitude: take-off altitude of overhead robots (m).
+        overhead_altitude: take-off altitude of overhead robots (m); when it is not above the
+            mission's altitude (outdoor missions fly at 3.5 m), overhead robots fly at 1.5 × that
+            altitude instead, so that they are always the higher robots.
         overhead_pitch: their camera's downward tilt (degrees).
         base_spacing: smallest distance between two bases (m).
         split: give each robot its own strip of the area (default: homogeneous only).
@@ -155,7 +157,8 @@ def team_overrides(
         hi = np.array(area.hi if area else world.bounds_hi, float)
         radius = mission.model.robot.radius
         low_alt = mission.model.robot.altitude
-        alts = [low_alt if mode == "homogeneous" or k % 2 == 0 else overhead_altitude for k in range(n)]
+        high_alt = overhead_altitude if overhead_altitude > low_alt else round(1.5 * low_alt, 2)
+        alts = [low_alt if mode == "homogeneous" or k % 2 == 0 else high_alt for k in range(n)]
         boxes = split_area(lo, hi, n) if split else [(lo, hi)] * n
         start = np.asarray(platform.ground_truth())[:2, 3]
         bases: list[np.ndarray] = []
