@@ -50,8 +50,13 @@ def fly(tmp_path: Path) -> Callable[..., RunResult]:
     return run
 
 
-def when(condition: Callable[[], bool], then: Callable[[], None], timeout: float = 30.0) -> threading.Thread:
-    """Run ``then`` on a helper thread as soon as ``condition`` holds (e.g. cut the link mid-flight)."""
+def when(condition: Callable[[], bool], then: Callable[[], None], timeout: float = 180.0) -> threading.Thread:
+    """Run ``then`` on a helper thread as soon as ``condition`` holds (e.g. cut the link mid-flight).
+
+    The watch starts before the flight does: on a loaded machine building the plugins and
+    connecting can take most of a minute (a 30 s watch once expired before take-off, and the
+    flight it should have interrupted completed), so the timeout only bounds a test gone wrong.
+    """
 
     def watch() -> None:
         deadline = time.monotonic() + timeout
