@@ -39,7 +39,9 @@ def _fly(slam: GtsamSlam, rng: np.random.Generator, noise: float = 0.02) -> None
         dets = []
         car = box_points(rz(CAR_YAW), CAR_C, CAR_DIMS, cam_pos, rng, n=400, noise=noise)
         pole = cylinder_points(POLE_ROOT, POLE_R, POLE_H, cam_pos, rng, n=200, noise=noise)
-        ground = np.column_stack([rng.uniform(-4, 14, 400), rng.uniform(-8, 10, 400), rng.normal(0, 0.01, 400)])
+        ground = np.column_stack(
+            [rng.uniform(-4, 14, 400), rng.uniform(-8, 10, 400), rng.normal(0, 0.01, 400)]
+        )
         for cls, pts in (("car", car), ("pole", pole), ("ground", ground)):
             pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
             dets.append(Detection(cls, 0.9, np.median(pc, axis=0), pc))
