@@ -179,7 +179,7 @@ def test_neighbours_block_viewpoints_unless_low_enough_to_overfly(tmp_path, mode
             models_path,
             prior_objects=_prior(tmp_path, objects),
             sampling="uniform",
-            samples=400,
+            samples=120,
             target_classes=["car"],
             max_position_std=0.3,
             max_dimension_std=0.5,
