@@ -497,8 +497,8 @@ def train(
         for k in range(steps_per_epoch):
             idx = order[k * batch : (k + 1) * batch]
             imgs, targets = make_batch(data, idx, size, rng)
-            levels, protos = model(torch.from_numpy(imgs.astype(np.float32)))
-            loss, parts = compute_loss(levels, protos, targets, anchor_xy, strides, rng=rng)
+            heads_out, protos = model(torch.from_numpy(imgs.astype(np.float32)))
+            loss, parts = compute_loss(heads_out, protos, targets, anchor_xy, strides, rng=rng)
             opt.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
