@@ -6,6 +6,7 @@ The emulator's own trace (true positions, NED) is the judge of what the vehicle 
 from __future__ import annotations
 
 import _thread
+import signal
 
 import numpy as np
 
@@ -151,8 +152,15 @@ def test_operator_abort_holds_then_lands(make_peer, fly):
         trace = peer.trace
         return len(trace) > 2 and trace[-1].mode == "OFFBOARD" and 0.4 < trace[-1].position[1] < 1.6
 
-    when(moving_east, _thread.interrupt_main)  # what Ctrl-C does
-    result = fly(url)
+    # A shell that starts a job in the background makes it ignore SIGINT, and then Python installs
+    # no KeyboardInterrupt handler and interrupt_main() does nothing: `nohup make test &` flew the
+    # square to the end. Ctrl-C at a terminal always has Python's handler.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        when(moving_east, _thread.interrupt_main)  # what Ctrl-C does
+        result = fly(url)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
     assert result.verdict == "aborted"
     names = [e["event"] for e in events(result.run_dir)]
