@@ -53,9 +53,9 @@ def fly(tmp_path: Path) -> Callable[..., RunResult]:
 def when(condition: Callable[[], bool], then: Callable[[], None], timeout: float = 180.0) -> threading.Thread:
     """Run ``then`` on a helper thread as soon as ``condition`` holds (e.g. cut the link mid-flight).
 
-    The watch starts before the flight does: on a loaded machine building the plugins and
-    connecting can take most of a minute (a 30 s watch once expired before take-off, and the
-    flight it should have interrupted completed), so the timeout only bounds a test gone wrong.
+    The watch starts before the flight does, and on a loaded machine building the plugins and
+    connecting can take most of a minute, so the timeout is generous: it only bounds a test gone
+    wrong.
     """
 
     def watch() -> None:
