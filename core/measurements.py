@@ -32,6 +32,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from amslam.geometry import invert, transform_points
+from amslam.rundir import jsonable
 from amslam.types import Detection, Odometry
 
 FORMAT = "amslam-measurements"
@@ -146,7 +147,7 @@ class MeasurementLog:
                 obj["points"] = np.round(pts[idx] @ R.T + t, 2).tolist()
             shape = getattr(d, "shape", None)
             if shape:
-                obj["shape"] = _jsonable(shape)
+                obj["shape"] = jsonable(shape)
             objects.append(obj)
         stamp = round(float(odom.stamp), 4)
         self._write({"type": "detections", "keypose": kp, "t": stamp, "objects": objects})
@@ -155,18 +156,6 @@ class MeasurementLog:
         """Close the file; safe to call twice."""
         if not self._file.closed:
             self._file.close()
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 # -- reading ---------------------------------------------------------------------------------

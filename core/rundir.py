@@ -21,15 +21,16 @@ from amslam.geometry import tum_line
 TRAJECTORIES = ("ground_truth", "vio", "slam")
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
+    """``value`` with numpy arrays and scalars, enums and non-finite floats made JSON-safe."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, np.generic):
-        return _jsonable(value.item())
+        return jsonable(value.item())
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if hasattr(value, "value") and hasattr(value, "name"):  # enums
@@ -58,12 +59,12 @@ class RunDir:
     def event(self, t: float, name: str, /, **fields: Any) -> None:
         """Append one event to ``events.jsonl`` (the run's clock ``t`` wins over a field of that name)."""
         record = {"t": round(float(t), 4), "event": name, **{k: v for k, v in fields.items() if k != "t"}}
-        self._events.write(json.dumps(_jsonable(record)) + "\n")
+        self._events.write(json.dumps(jsonable(record)) + "\n")
         self._events.flush()
 
     def tree_change(self, record: dict[str, Any]) -> None:
         """Append one behaviour-tree change record to ``tree.jsonl``."""
-        self._tree.write(json.dumps(_jsonable(record)) + "\n")
+        self._tree.write(json.dumps(jsonable(record)) + "\n")
         self._tree.flush()
 
     def pose(self, which: str, stamp: float, T: np.ndarray) -> None:
@@ -86,12 +87,12 @@ class RunDir:
 
     def write_yaml(self, name: str, data: Any) -> Path:
         path = self.path / name
-        path.write_text(yaml.safe_dump(_jsonable(data), sort_keys=False))
+        path.write_text(yaml.safe_dump(jsonable(data), sort_keys=False))
         return path
 
     def write_json(self, name: str, data: Any) -> Path:
         path = self.path / name
-        path.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
+        path.write_text(json.dumps(jsonable(data), indent=2) + "\n")
         return path
 
     def write_ply(self, name: str, points: np.ndarray) -> Path:

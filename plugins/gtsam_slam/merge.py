@@ -54,6 +54,7 @@ from scipy.optimize import linear_sum_assignment
 
 from amslam.geometry import transform_points, wrap_angle, yaw_of
 from amslam.measurements import RobotMeasurements, read_measurements
+from amslam.rundir import jsonable
 from amslam.types import Landmark
 
 __all__ = [
@@ -504,25 +505,13 @@ def write_landmarks(path: Path, landmarks: Sequence[Landmark]) -> Path:
             "position": [float(v) for v in lm.position],
             "covariance": clean(lm.covariance),
             "observations": lm.observations,
-            **({"shape": _jsonable(lm.shape)} if lm.shape else {}),
+            **({"shape": jsonable(lm.shape)} if lm.shape else {}),
         }
         for lm in landmarks
     ]
     path = Path(path)
     path.write_text(json.dumps(records, indent=2) + "\n")
     return path
-
-
-def _jsonable(value: object) -> object:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 def position_errors(
