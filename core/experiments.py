@@ -316,20 +316,23 @@ def pams_comparison(
     return folder
 
 
-def pool_errors(blocks: list[dict]) -> dict[str, float]:
-    """Pool per-run ``{mapped, objects, dims_error_mean_m, dims_error_std_m}`` over runs.
+def pool_errors(blocks: list[dict], metric: str = "dims_error", mapped: str = "mapped") -> dict[str, float]:
+    """Pool per-run ``{mapped, objects, <metric>_mean_m, <metric>_std_m}`` over runs.
 
     Means weight each run by its mapped objects; the pooled std comes from the pooled second
     moment (``E[e²] = σ² + μ²`` per run), so it equals the std over all objects together.
+    ``mapped`` names the count that goes with ``metric`` (``fig9_mapped`` for the overall
+    ``fig9_error``, which counts vehicles only).
     """
-    n = np.array([b.get("mapped", 0) for b in blocks], float)
-    objects = float(sum(b.get("objects", 0) for b in blocks))
-    has = [b for b in blocks if "dims_error_mean_m" in b and b.get("mapped", 0) > 0]
+    count = "objects" if mapped == "mapped" else mapped.replace("_mapped", "_objects")
+    n = np.array([b.get(mapped, 0) for b in blocks], float)
+    objects = float(sum(b.get(count, 0) for b in blocks))
+    has = [b for b in blocks if f"{metric}_mean_m" in b and b.get(mapped, 0) > 0]
     out = {"mapped": float(n.sum()), "objects": objects}
     if has:
-        w = np.array([b["mapped"] for b in has], float)
-        m = np.array([b["dims_error_mean_m"] for b in has])
-        s = np.array([b["dims_error_std_m"] for b in has])
+        w = np.array([b[mapped] for b in has], float)
+        m = np.array([b[f"{metric}_mean_m"] for b in has])
+        s = np.array([b[f"{metric}_std_m"] for b in has])
         mean = float(np.sum(w * m) / w.sum())
         second = float(np.sum(w * (s**2 + m**2)) / w.sum())
         out["mean"], out["std"] = mean, float(np.sqrt(max(second - mean**2, 0.0)))
@@ -338,9 +341,20 @@ def pool_errors(blocks: list[dict]) -> dict[str, float]:
 
 def pams_table(rows: list[dict], planners: tuple[str, ...] = ("pams", "prior_visit")) -> str:
     """Markdown like paper 2 Fig. 9: one column per world and one for all data; ``a / b`` cells
-    compare the planners in the order given."""
+    compare the planners in the order given.
+
+    The error of the overall rows and of cuboid classes is paper 2 Fig. 9's: a vehicle's
+    |Δlength| and |Δwidth| averaged (``fig9_error`` of the ``objects`` metrics), over vehicles
+    only; cylinder classes get their diameter error (``dims_error``) in rows of their own.
+    """
     worlds = list(dict.fromkeys(r["world"] for r in rows))
     classes = sorted({c for r in rows for c in (r["metrics"].get("objects") or {}) if c != "overall"})
+    models = {
+        c: b.get("model")
+        for r in rows
+        for c, b in (r["metrics"].get("objects") or {}).items()
+        if c != "overall"
+    }
 
     def pooled(world: str | None, planner: str, cls: str) -> dict[str, float]:
         blocks = [
@@ -348,7 +362,11 @@ def pams_table(rows: list[dict], planners: tuple[str, ...] = ("pams", "prior_vis
             for r in rows
             if r["planner"] == planner and (world is None or r["world"] == world)
         ]
-        return pool_errors(blocks)
+        if cls == "overall":
+            if any("fig9_mapped" in b for b in blocks):
+                return pool_errors(blocks, "fig9_error", "fig9_mapped")
+            return pool_errors(blocks)  # runs measured before the Fig. 9 metric existed
+        return pool_errors(blocks, "fig9_error" if models.get(cls) == "cuboid" else "dims_error")
 
     def cell(world: str | None, cls: str, what: str) -> str:
         vals = []
@@ -363,7 +381,8 @@ def pams_table(rows: list[dict], planners: tuple[str, ...] = ("pams", "prior_vis
     cols = [*worlds, None]
     head = " / ".join(planners)
     lines = [
-        f"Object dimension error and objects mapped ({head}), like paper 2 Fig. 9",
+        f"Object model error and objects mapped ({head}), like paper 2 Fig. 9. Err.: per vehicle"
+        " mean |Δlength|, |Δwidth| (overall = vehicles); for cylinder classes: |Δdiameter|",
         "",
         "| measure | " + " | ".join(w or "all data" for w in cols) + " |",
         "|---|" + "---|" * len(cols),

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
-import numpy as np
+import dataclasses
 
-from amslam.report import landmark_accuracy
+import numpy as np
+import pytest
+
+from amslam.plugins.gtsam_slam import shapes
+from amslam.report import landmark_accuracy, object_accuracy
 from amslam.types import Landmark, WorldSummary
 
 
@@ -41,3 +45,36 @@ def test_landmark_accuracy_pairs_by_class_and_counts_duplicates_and_spurious() -
     assert acc["off_by_more_than_0_5_m"] == 1
     # one-to-one: the duplicate at 0.07 m takes chair a, landmark 0 is left as the duplicate
     assert np.isclose(acc["mean_error_m"], (np.hypot(0.05, 0.05) + 0.6 + 0.2) / 3, atol=1e-3)
+
+
+def test_object_accuracy_fig9_error_is_length_and_width_of_vehicles_only() -> None:
+    """Paper 2 Fig. 9 scores vehicles by length and width; height and cylinders stay out of it."""
+    yaw = 0.4
+    R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    car_a = shapes.cuboid_shape(R, [0, 0, 0.75], [4.6, 1.8, 1.5])
+    car_b = shapes.cuboid_shape(R, [0, 5, 0.75], [4.2, 1.7, 1.4])
+    pole = shapes.cylinder_shape(np.array([8.0, 0, 0]), np.array([0, 0, 1.0]), 0.15, 6.0)
+    world = _world({"a": ("car", [0, 0, 0.75]), "b": ("car", [0, 5, 0.75]), "p": ("pole", [8, 0, 0])})
+    world = dataclasses.replace(world, object_shapes={"a": car_a, "b": car_b, "p": pole})
+    # car a: length 0.2 m short, height 0.5 m too tall; seen a quarter turn off (l and w swapped)
+    est_a = shapes.cuboid_shape(
+        R @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]]), [0.3, 0, 0.75], [1.8, 4.4, 2.0]
+    )
+    est_b = shapes.cuboid_shape(R, [0, 5.1, 0.7], [4.2, 1.9, 1.4])  # width 0.2 m off
+    dup_b = shapes.cuboid_shape(R, [0, 6.8, 0.7], [2.0, 1.7, 1.4])  # a second landmark on car b
+    est_p = shapes.cylinder_shape(np.array([8.0, 0.1, 0]), np.array([0, 0, 1.0]), 0.2, 6.0)
+    lms = [
+        Landmark(i, c, np.asarray(shapes.shape_center(s)), np.eye(3), 5, 0, s)
+        for i, (c, s) in enumerate([("car", est_a), ("car", est_b), ("car", dup_b), ("pole", est_p)])
+    ]
+    acc = object_accuracy(lms, world)
+    car = acc["car"]
+    assert car["mapped"] == 2 and car["duplicates"] == 1 and car["spurious"] == 0
+    # per car: mean(|dl|, |dw|) = 0.1 and 0.1; with the height: (0.2 + 0.5) / 3 and 0.2 / 3
+    assert car["fig9_error_mean_m"] == pytest.approx(0.1) and car["fig9_error_std_m"] == pytest.approx(0.0)
+    assert car["dims_error_mean_m"] == pytest.approx((0.7 / 3 + 0.2 / 3) / 2, abs=1e-4)
+    assert "fig9_error_mean_m" not in acc["pole"] and acc["pole"]["dims_error_mean_m"] == pytest.approx(0.1)
+    overall = acc["overall"]
+    assert overall["fig9_objects"] == 2 and overall["fig9_mapped"] == 2
+    assert overall["fig9_error_mean_m"] == pytest.approx(0.1)
+    assert overall["mapped"] == 3
