@@ -200,6 +200,14 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
     if len(truth) > 1:
         p = np.array([T[:3, 3] for _, T in truth])
         metrics["distance_truth_m"] = round(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()), 3)
+    status = platform.status()
+    if status.closest_approach is not None:
+        metrics["closest_approach"] = {
+            "clearance_m": status.closest_approach,
+            "robot_radius_m": robot.spec.radius if robot else None,
+            "to": status.closest_to,
+            "position": list(status.closest_position or ()),
+        }
     mapping = backends.get("mapping")
     world = platform.world_summary()
     if mapping is not None:
@@ -391,6 +399,11 @@ def write_report(runner: Runner, metrics: dict[str, Any], plots: list[str]) -> N
     row("explored (% of reachable free volume)", m.get("explored_percent"))
     if m.get("explored_percent_per_floor"):
         row("explored per floor (%)", ", ".join(str(v) for v in m["explored_percent_per_floor"]))
+    if close := m.get("closest_approach"):
+        row(
+            f"closest approach to any surface (m; robot radius {close['robot_radius_m']})",
+            f"{close['clearance_m']} to {close['to']} at {close['position']}",
+        )
     err = m.get("final_error")
     if err:
         row("final position error VIO / SLAM (m)", f"{err['vio_position_m']} / {err['slam_position_m']}")

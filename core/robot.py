@@ -55,6 +55,7 @@ class Robot:
     viewpoints_stale: bool = False  # ask the runner to refresh viewpoints at the next frame
     planned_viewpoints: list[np.ndarray] = field(default_factory=list)
     _executor: ThreadPoolExecutor | None = None
+    _guard_grid: np.ndarray | None = None
     recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
     slc_log: list[tuple[float, float, LoopClosureResult]] = field(
         default_factory=list
@@ -102,7 +103,7 @@ class Robot:
         T_odom_world = invert(self.slam.T_world_odom())
         p_odom = transform_points(T_odom_world, np.asarray(position, float)[None])[0]
         yaw_odom = yaw + float(np.arctan2(T_odom_world[1, 0], T_odom_world[0, 0]))
-        self.platform.set_setpoint(self._height_guard(p_odom), yaw_odom)
+        self.platform.set_setpoint(self._clearance_guard(self._height_guard(p_odom)), yaw_odom)
 
     def _height_guard(self, p_odom: np.ndarray) -> np.ndarray:
         """Keep a setpoint inside the floor/ceiling band of the fresh local (odometry-frame) map.
@@ -125,6 +126,58 @@ class Robot:
         lo, hi = floor + ex.min_height, ceiling - ex.min_headroom
         new_z = 0.5 * (floor + ceiling) if lo > hi else float(np.clip(z, lo, hi))
         return p_odom if new_z == z else np.array([p_odom[0], p_odom[1], new_z])
+
+    #: grid step of the clearance guard's look into the local map: paper 1's local voxel, m
+    GUARD_STEP = 0.1
+    #: distance kept from occupied local voxels beyond the robot radius, m
+    GUARD_MARGIN = 0.05
+    #: how far around the vehicle the clearance guard looks, m: the largest kept distance (radius,
+    #: margin, one voxel) plus a braking distance (1 m/s at 1.5 m/s² stops in 0.33 m), so that a
+    #: surface enters the look before the vehicle can reach it
+    GUARD_LOOK = 0.8
+
+    def _clearance_guard(self, setpoint: np.ndarray) -> np.ndarray:
+        """Move a setpoint so that the straight flight to it keeps clear of the fresh local map.
+
+        Paths are laid on the coarse world map: 0.25 m voxels carrying the pose error of when each
+        wall was seen, so a door can be 0.1–0.2 m narrower or offset from what the vehicle meets,
+        and a path checked against it can graze the frame. The local map was built moments ago in
+        the frame the vehicle flies in. Each occupied local voxel near the vehicle bounds a
+        half-space: its tangent plane towards the vehicle, pushed out by the safe distance. The
+        setpoint is projected into their intersection (a few rounds of projection onto the most
+        violated one); the vehicle is inside it too (or the constraint moves the setpoint away),
+        so the straight flight between them stays inside: a convex safe flight corridor (Liu et
+        al., RA-L 2017), rebuilt every tick. Opposite door jambs give opposite half-spaces, which
+        centre the vehicle in the opening. No maintained library filters a position setpoint
+        against a voxel map, hence by hand.
+        """
+        here = self.platform.odometry().T_odom_body[:3, 3]
+        samples = here + self._guard_offsets()
+        occupied = samples[self.mapping.states(samples, local=True) == VoxelState.OCCUPIED]
+        if not len(occupied):
+            return setpoint
+        away = here - occupied
+        dist = np.maximum(np.linalg.norm(away, axis=1), 1e-6)
+        normals = away / dist[:, None]
+        # A sample can lie up to one voxel deeper than the face of the voxel it fell in.
+        need = self.spec.radius + self.GUARD_MARGIN + self.GUARD_STEP - dist  # normals · step ≥ need
+        step = np.asarray(setpoint, float) - here
+        for _ in range(12):
+            slack = normals @ step - need
+            worst = int(np.argmin(slack))
+            if slack[worst] >= -1e-3:
+                break
+            step = step - slack[worst] * normals[worst]
+        return here + step
+
+    def _guard_offsets(self) -> np.ndarray:
+        if self._guard_grid is None:
+            k = int(np.ceil(self.GUARD_LOOK / self.GUARD_STEP))
+            axis = np.arange(-k, k + 1) * self.GUARD_STEP
+            grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+            radius = np.linalg.norm(grid, axis=1)
+            self._guard_grid = grid[(radius > 0) & (radius <= self.GUARD_LOOK)]
+        return self._guard_grid
 
     def hold(self) -> None:
         """Keep the current VIO position and heading."""

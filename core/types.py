@@ -301,6 +301,11 @@ class VehicleStatus:
     airborne: bool
     crashed: bool = False
     crash_reason: str = ""
+    #: the smallest distance from the vehicle's centre to any geometry so far while cruising
+    #: (after take-off, before landing), with what and where it was: known only in simulation
+    closest_approach: float | None = None
+    closest_to: str = ""
+    closest_position: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -149,6 +149,9 @@ class SimPlatform(Platform):
         self._landing = False
         self._crashed = False
         self._crash_reason = ""
+        self._cruise_z = np.inf  # take-off height; clearance is tracked from reaching it to landing
+        self._cruising = False
+        self._closest: tuple[float, np.ndarray | None, str] = (np.inf, None, "")  # clearance, where, what
         self._sp: np.ndarray = pos.copy()
         self._sp_yaw = self._yaw
         self._odom = Odometry(0.0, self._T_odom_body())
@@ -281,7 +284,11 @@ class SimPlatform(Platform):
             self.context.emit("sim_landed", t=self._t, position=self._p.round(3).tolist())
             return
         # --- collision: the robot's sphere touching any geometry
-        if w.distance(self._p)[0] < r.radius:
+        clearance = float(w.distance(self._p)[0])
+        self._cruising = self._cruising or (not self._landing and self._p[2] >= self._cruise_z - 0.2)
+        if self._cruising and clearance < self._closest[0]:
+            self._closest = (clearance, self._p.copy(), "")
+        if clearance < r.radius:
             d, q, what = w.closest(self._p)
             self._crashed = True
             self._vel[:] = 0.0
@@ -333,6 +340,8 @@ class SimPlatform(Platform):
         self._landing = False
         self._sp = np.array([self._vio.position[0], self._vio.position[1], self._ground_z + altitude])
         self._sp_yaw = self._vio.yaw
+        self._cruise_z = float(self._sp[2])
+        self._cruising = False
         self.context.emit("sim_takeoff", t=self._t, altitude=altitude)
 
     def land(self) -> None:
@@ -341,6 +350,7 @@ class SimPlatform(Platform):
         if not self._airborne or self._landing:
             return
         self._landing = True
+        self._cruising = False
         # the descent is vertical: the surface below is found once, not at every sub-step
         self._land_ground = self.world.ground_below(self._p)
         drop = self._p[2] - (self._land_ground + self._landed_height) + 0.05  # aim just below touchdown
@@ -348,8 +358,22 @@ class SimPlatform(Platform):
         self._sp_yaw = self._vio.yaw
 
     def status(self) -> VehicleStatus:
-        _ = self.world
-        return VehicleStatus(self._armed, self._airborne, self._crashed, self._crash_reason)
+        world = self.world
+        clearance, where, what = self._closest
+        if where is not None and not what:
+            what = world.closest(where)[2]
+            self._closest = (clearance, where, what)
+        if where is None:
+            return VehicleStatus(self._armed, self._airborne, self._crashed, self._crash_reason)
+        return VehicleStatus(
+            self._armed,
+            self._airborne,
+            self._crashed,
+            self._crash_reason,
+            closest_approach=round(clearance, 4),
+            closest_to=what,
+            closest_position=tuple(round(float(x), 3) for x in where),
+        )
 
     # ---------------------------------------------------------------------------------------
     # sensing

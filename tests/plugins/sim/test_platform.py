@@ -200,3 +200,20 @@ def test_start_parameter_and_blocked_start(tmp_path, room_with_chair):
     assert abs(np.arctan2(T[1, 0], T[0, 0]) - 1.0) < 1e-12
     with pytest.raises(PlatformError, match="no room to take off.*chair_1"):
         make_platform(tmp_path, spec=room_with_chair, start=(5.0, 4.3))  # beside the chair
+
+
+def test_closest_approach_is_tracked_between_take_off_and_landing(tmp_path, room_with_chair):
+    plat = make_platform(tmp_path, spec=room_with_chair)
+    plat.arm_and_takeoff(1.2)
+    plat.advance(4.0)
+    assert plat.status().closest_approach > 1.0  # the floor under the take-off does not count
+    fly_to(plat, np.array([2.0, 6.0, 1.2]))  # round the chair (its top is 0.9 m high)
+    fly_to(plat, np.array([9.4, 6.0, 1.2]))  # 0.6 m from the x = 10 wall by VIO, which drifts
+    st = plat.status()
+    assert not st.crashed
+    assert "walls" in st.closest_to
+    assert st.closest_approach < 1.0
+    assert st.closest_approach == pytest.approx(10.0 - st.closest_position[0], abs=0.01)
+    plat.land()
+    plat.advance(8.0)
+    assert plat.status().closest_approach == st.closest_approach  # touching down is not a graze

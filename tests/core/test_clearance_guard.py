@@ -1,0 +1,115 @@
+"""The clearance guard: setpoints keep the straight flight clear of what the local map shows."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from amslam.mission import ExplorationSection, LimitsSection
+from amslam.robot import Robot
+from amslam.types import Odometry, RobotSpec, VoxelState
+
+VOXEL = 0.1
+RADIUS = 0.25
+
+
+class BoxMap:
+    """Local map of axis-aligned solid boxes, voxelised at 0.1 m like the real local map."""
+
+    def __init__(self, boxes):
+        self.boxes = [(np.asarray(lo, float), np.asarray(hi, float)) for lo, hi in boxes]
+
+    def states(self, points, *, local=False):
+        centres = (np.floor(np.asarray(points) / VOXEL) + 0.5) * VOXEL
+        out = np.full(len(centres), VoxelState.FREE, dtype=np.int8)
+        for lo, hi in self.boxes:
+            # a voxel is occupied when its box overlaps the solid (touching is not overlapping)
+            inside = np.all((centres + VOXEL / 2 > lo + 1e-6) & (centres - VOXEL / 2 < hi - 1e-6), axis=1)
+            out[inside] = VoxelState.OCCUPIED
+        return out
+
+    def clearance(self, p):
+        """True distance from p to the nearest box surface."""
+        return min(
+            float(np.linalg.norm(np.maximum(lo - p, 0) + np.maximum(p - hi, 0))) for lo, hi in self.boxes
+        )
+
+
+class PointVehicle:
+    """Flies towards its setpoint at up to 1 m/s, first order, 10 Hz."""
+
+    def __init__(self, start):
+        self.p = np.asarray(start, float)
+        self.setpoints = []
+
+    def odometry(self):
+        T = np.eye(4)
+        T[:3, 3] = self.p
+        return Odometry(0.0, T)
+
+    def set_setpoint(self, position, yaw):
+        self.setpoints.append(np.asarray(position, float))
+        step = self.setpoints[-1] - self.p
+        length = np.linalg.norm(step)
+        self.p = self.p + (step if length <= 0.1 else step * 0.1 / length)
+
+
+def make_robot(world: BoxMap, start) -> Robot:
+    return Robot(
+        platform=PointVehicle(start),
+        mapping=world,
+        slam=SimpleNamespace(T_world_odom=lambda: np.eye(4)),
+        detector=None,
+        planner=None,
+        spec=RobotSpec(radius=RADIUS),
+        limits=LimitsSection(),
+        exploration=ExplorationSection(min_height=0.0, min_headroom=0.0),
+        emit=lambda *a, **k: None,
+    )
+
+
+# A wall along x at y = 2 (0.1 m thick) with a 1.2 m door from x = 0.4 to x = 1.6; floor far below.
+DOOR = BoxMap([((-3, 2.0, 0), (0.4, 2.1, 3)), ((1.6, 2.0, 0), (4, 2.1, 3))])
+
+
+def fly(robot: Robot, goal, ticks=80):
+    clearances = []
+    for _ in range(ticks):
+        robot.send_setpoint_world(np.asarray(goal, float), 0.0)
+        clearances.append(DOOR.clearance(robot.platform.p) if robot.mapping is DOOR else None)
+    return clearances
+
+
+def test_a_path_grazing_a_door_jamb_is_pushed_into_the_opening():
+    # The straight line from (0.55, 1.0) to (0.55, 3.5) passes 0.15 m from the west jamb: a
+    # path laid on a world map that put the door 0.2 m further west.
+    start, goal = (0.55, 1.0, 1.2), (0.55, 3.5, 1.2)
+    line = np.linspace(start, goal, 200)
+    assert min(DOOR.clearance(p) for p in line) < RADIUS  # without the guard: a collision
+    robot = make_robot(DOOR, start)
+    clearances = fly(robot, goal)
+    assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
+    assert robot.platform.p[1] > 2.9  # and it went through the door
+
+
+def test_a_goal_behind_a_wall_stops_the_vehicle_short_of_it():
+    robot = make_robot(DOOR, (3.0, 1.0, 1.2))
+    clearances = fly(robot, (3.0, 3.0, 1.2))
+    assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
+    assert robot.platform.p[1] < 2.0 - RADIUS
+
+
+def test_setpoints_away_from_obstacles_are_untouched():
+    robot = make_robot(DOOR, (1.0, 0.5, 1.2))
+    goal = np.array([1.0, -0.5, 1.2])
+    robot.send_setpoint_world(goal, 0.0)
+    np.testing.assert_allclose(robot.platform.setpoints[-1], goal)
+
+
+def test_sliding_along_a_wall_keeps_the_safe_distance():
+    # Flying parallel to the wall but aimed 0.1 m from it: the guard keeps the flight off.
+    robot = make_robot(DOOR, (-2.5, 1.6, 1.2))
+    clearances = fly(robot, (-0.5, 1.9, 1.2), ticks=40)
+    assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
+    assert robot.platform.p[0] > -1.0  # still made progress along the wall
