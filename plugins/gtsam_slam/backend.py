@@ -205,6 +205,8 @@ class GtsamSlam(Slam):
         self._shapes = ShapeLandmarks({}, ShapeParams(), np.random.default_rng(0))
         self._shape_assoc: dict[int, int] = {}  # detection index → shape landmark (this call)
         self._shape_meas: dict[int, dict] = {}  # detection index → measured shape, body frame
+        self._shape_version = -1  # graph version of the shape estimates used for association
+        self._shape_twins: list[tuple[int, int]] = []  # (measured landmark, same-object landmark)
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -379,6 +381,8 @@ class GtsamSlam(Slam):
             self._observe(lm, ob, pw)
             if k in self._shape_meas:
                 self._shape_observe(lm, kp, self._shape_meas[k])
+        if self._shape_twins:
+            self._fuse_shape_twins()
         self._expire_tentative()
         self._flush()
 
@@ -406,9 +410,12 @@ class GtsamSlam(Slam):
         T_world_kp = self._pose(kp)
         T_world_odom = T_world_kp @ invert(T_odom_kp)
         live = {lm.id: lm.class_name for lm in self._lms.values() if lm.alias_of is None}
+        if self._shape_version != self._version:
+            sh.refresh_estimates(self._estimate)
+            self._shape_version = self._version
         out_d: list[Detection] = []
         out_p: list[np.ndarray] = []
-        self._shape_assoc, self._shape_meas = {}, {}
+        self._shape_assoc, self._shape_meas, self._shape_twins = {}, {}, []
         for d, pb in zip(dets, p_body, strict=True):
             model = sh.model(d.class_name)
             if model == "centroid":
@@ -422,11 +429,16 @@ class GtsamSlam(Slam):
             if len(pts) == 0:
                 continue
             pts_world = pts @ T_world_odom[:3, :3].T + T_world_odom[:3, 3]
-            lm_id = sh.associate(d.class_name, pts, pts_world, live, stamp)
+            # two detections of one frame are two objects: a landmark this frame measured is taken
+            taken = set(self._shape_assoc.values())
+            free = {j: c for j, c in live.items() if j not in taken}
+            lm_id = sh.associate(d.class_name, pts, pts_world, free, stamp)
             new = lm_id < 0
             if new:
                 lm_id = max(self._new_landmark_id(), max(sh.recs, default=-1) + 1)
-            shape_body = sh.measure(lm_id, d.class_name, stamp, pts, T_odom_kp)
+            shape_body = sh.measure(
+                lm_id, d.class_name, stamp, pts, T_odom_kp, T_odom_cam[:3, 3], T_world_odom
+            )
             if shape_body is None:
                 if new:
                     sh.recs.pop(lm_id, None)
@@ -436,6 +448,7 @@ class GtsamSlam(Slam):
                 live[lm_id] = d.class_name
             sh.set_world(lm_id, shapes.transform_shape(shape_body, T_world_kp))
             sh.record_slack(lm_id, kp, shape_body)
+            self._shape_twins += [(lm_id, j) for j in sh.twins(lm_id, live)]
             k = len(out_d)
             self._shape_assoc[k] = lm_id
             self._shape_meas[k] = shape_body
@@ -464,6 +477,39 @@ class GtsamSlam(Slam):
             T = self._pose(k)
             self._add_factor(sh.factor(X(k), k, lm.id, s, T, est, self._robust))
         rec.pending = []
+
+    def _fuse_shape_twins(self) -> None:
+        """Fuse shape landmarks found to be one object (:meth:`.ShapeLandmarks.twins`).
+
+        Two landmarks a single view observed are two objects and stay apart; otherwise the one
+        seen first survives (it must be in the graph, else both wait until one is), with a stiff
+        tie of the reference points (:meth:`_fuse`), and its shape record takes the twin's
+        points, cameras and per-key-pose slack.
+        """
+        sh = self._shapes
+        for a, b in self._shape_twins:
+            a, b = self._live_id(a), self._live_id(b)
+            if a == b or a < 0 or b < 0:
+                continue
+            la, lb = self._lms[a], self._lms[b]
+            if la.alias_of is not None or lb.alias_of is not None:
+                continue
+            if {o.keypose for o in la.observations} & {o.keypose for o in lb.observations}:
+                continue
+            old, new = (la, lb) if la.first_distance <= lb.first_distance else (lb, la)
+            if not old.in_graph:
+                if not new.in_graph:
+                    continue
+                old, new = new, old
+            keep, gone = sh.recs[old.id], sh.recs[new.id]
+            keep.points = sorted(keep.points + gone.points, key=lambda tq: tq[0])
+            keep.cameras = sorted(keep.cameras + gone.cameras, key=lambda tq: tq[0])
+            for kp, v in gone.slack.items():
+                keep.slack.setdefault(kp, v)
+            self._fuse(old, new)
+            if self._context is not None:
+                self._context.emit("slam_shape_twins_fused", kept=old.id, fused=new.id, cls=old.class_name)
+        self._shape_twins = []
 
     def _new_landmark_id(self) -> int:
         return max(self._lms, default=-1) + 1
@@ -551,12 +597,13 @@ class GtsamSlam(Slam):
         rng = float(np.linalg.norm(p_body))
         noise = self._measurement_noise(rng, robust)
         slack = self._shapes.point_slack(lm_id, kp)
-        if slack > 0:  # a shape's reference point from a partial view: as uncertain as its slack
-            p = self.params
+        scale = self._shapes.point_scale(lm_id, kp)
+        if slack > 0 or scale != 1.0:  # a shape's reference point from a partial view: as uncertain
+            p = self.params  # as its slack; and a window of points counts once (decorrelate)
             sig = [p.bearing_sigma + slack / max(rng, 1e-3)] * 2 + [
                 p.range_sigma + p.range_sigma_per_m * rng + slack
             ]
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array(sig))
+            noise = gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(sig))
             noise = self._robust(noise) if robust else noise
         return gtsam.BearingRangeFactor3D(X(kp), L(lm_id), gtsam.Unit3(p_body), rng, noise)
 

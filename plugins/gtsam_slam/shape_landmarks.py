@@ -28,9 +28,20 @@ from pydantic import BaseModel, ConfigDict, Field
 from amslam.plugins.gtsam_slam import shapes
 from amslam.plugins.gtsam_slam.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
 
-__all__ = ["ShapeLandmarks", "ShapeParams"]
+__all__ = ["ShapeLandmarks", "ShapeParams", "SizePrior"]
 
 MODELS = ("centroid", "cuboid", "cylinder", "plane")
+
+
+class SizePrior(BaseModel):
+    """A class's typical box (for completing partial views) and its spread."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    dims: tuple[float, float, float] = Field(description="typical length, width, height (length ≥ width), m")
+    std: tuple[float, float, float] = Field(
+        (0.4, 0.15, 0.3), description="spread of the class's length, width, height, m"
+    )
 
 
 class ShapeParams(BaseModel):
@@ -56,6 +67,24 @@ class ShapeParams(BaseModel):
     max_radius: float = Field(1.0, gt=0, description="cylinder fits with a larger radius are rejected, m")
     min_dim: float = Field(0.3, gt=0, description="cuboid fits with a smaller dimension are rejected, m")
     max_dim: float = Field(8.0, gt=0, description="cuboid fits with a larger dimension are rejected, m")
+    complete: bool = Field(
+        True,
+        description="complete partial cuboid views with the class size prior (shapes.complete_cuboid):"
+        " a box is placed behind its visible faces, and its noise covers what was not seen",
+    )
+    size_prior: dict[str, SizePrior] = Field(
+        default_factory=dict,
+        description="per cuboid class, the typical box; a class not listed uses the median of the largest"
+        " boxes of its landmarks once size_prior_min_boxes of them look complete",
+    )
+    size_prior_min_boxes: int = Field(3, ge=1, description="landmarks before a learned size prior is used")
+    completion_tolerance: float = Field(0.15, ge=0, description="shortfall of an extent that is noise, m")
+    decorrelate: bool = Field(
+        True,
+        description="measurements of a landmark fitted to overlapping windows share their points: each"
+        " one's noise is scaled by √(its landmark's measurements within the window), so a window of"
+        " points counts once against the odometry",
+    )
     factors: bool = Field(True, description="add the eq. 1 / eq. 2 factors (False: shapes are only reported)")
     sigma_rotation: float = Field(0.1, gt=0, description="cuboid pose rotation std, rad")
     sigma_translation: float = Field(0.3, gt=0, description="cuboid / root translation std, m")
@@ -73,8 +102,14 @@ class _ShapeRec:
     height: float = float("nan")  # latest cylinder height (not a graph variable)
     pending: list[tuple[int, dict]] = field(default_factory=list)  # (key pose, body-frame shape)
     in_graph: bool = False
-    ref_dims: np.ndarray | None = None  # largest dimensions measured so far (cuboids)
+    ref_dims: np.ndarray | None = None  # largest dimensions measured so far (cuboids, sorted l ≥ w)
     slack: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → per-axis slack, m
+    cameras: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (stamp, odom-frame camera)
+    est_world: dict | None = None  # the optimised shape (world frame), for association
+    completion: shapes.Completion | None = None  # of the latest measurement
+    loose: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # kp → (centre, dims) σ+
+    fits: list[float] = field(default_factory=list)  # stamps of the measurements within the window
+    scale: dict[int, float] = field(default_factory=dict)  # key pose → noise scale (decorrelate)
 
 
 class ShapeLandmarks:
@@ -135,6 +170,8 @@ class ShapeLandmarks:
             if cls != class_name or rec is None or rec.last_world is None:
                 continue
             inside = self._inside(rec.last_world, points_world)
+            if rec.est_world is not None:
+                inside |= self._inside(rec.est_world, points_world)
             recent = [q for t, q in rec.points if stamp - t <= self.p.window]
             if recent:
                 tree = cKDTree(np.concatenate(recent)[:: max(1, sum(map(len, recent)) // 3000)])
@@ -145,8 +182,8 @@ class ShapeLandmarks:
                 best, best_share = lm_id, share
         return best
 
-    def _inside(self, shape: dict, pts: np.ndarray) -> np.ndarray:
-        m = self.p.association_margin
+    def _inside(self, shape: dict, pts: np.ndarray, margin: float | None = None) -> np.ndarray:
+        m = self.p.association_margin if margin is None else margin
         if shape["model"] == "cuboid":
             T = shapes.cuboid_pose(shape)
             local = (pts - T[:3, 3]) @ T[:3, :3]
@@ -159,9 +196,21 @@ class ShapeLandmarks:
 
     # ------------------------------------------------------------------ measurements
     def measure(
-        self, lm_id: int, class_name: str, stamp: float, points_odom: np.ndarray, T_odom_kp: np.ndarray
+        self,
+        lm_id: int,
+        class_name: str,
+        stamp: float,
+        points_odom: np.ndarray,
+        T_odom_kp: np.ndarray,
+        camera_odom: np.ndarray | None = None,
+        T_world_odom: np.ndarray | None = None,
     ) -> dict | None:
         """Add a detection's points to landmark ``lm_id`` and fit its shape over the window.
+
+        With ``complete`` and the camera position (odometry frame), a cuboid that falls short
+        of its class's size prior is completed behind its visible faces
+        (:func:`.shapes.complete_cuboid`; the landmark's estimate, through ``T_world_odom``,
+        tells its length from its width).
 
         Returns:
             The measured shape in the key pose's body frame, or ``None`` (too few points).
@@ -169,6 +218,10 @@ class ShapeLandmarks:
         rec = self.recs.setdefault(lm_id, _ShapeRec(self.model(class_name), class_name))
         rec.points.append((stamp, np.asarray(points_odom, float)))
         rec.points = [(t, q) for t, q in rec.points if stamp - t <= self.p.window]
+        if camera_odom is not None:
+            rec.cameras.append((stamp, np.asarray(camera_odom, float)))
+            rec.cameras = [(t, q) for t, q in rec.cameras if stamp - t <= self.p.window]
+        rec.completion = None
         pts = np.concatenate([q for _, q in rec.points])
         if len(pts) < self.p.min_points:
             return None
@@ -181,26 +234,72 @@ class ShapeLandmarks:
             s = shapes.fit_cylinder(pts, ground, axis=self.p.cylinder_axis)
         if s is None or not self._plausible(s):
             return None
+        rec.fits = [t for t in rec.fits if stamp - t < self.p.window] + [stamp]
         if rec.model == "cylinder":
             rec.height = s["height"]
+        elif self.p.complete and rec.cameras:
+            prior = self.size_prior(rec)
+            if prior is not None:
+                ref = rec.est_world or rec.last_world
+                if ref is not None and T_world_odom is not None:
+                    ref = shapes.transform_shape(ref, np.linalg.inv(T_world_odom))
+                else:
+                    ref = None
+                rec.completion = shapes.complete_cuboid(
+                    s,
+                    np.array([q for _, q in rec.cameras]),
+                    prior[0],
+                    reference=ref,
+                    tolerance=self.p.completion_tolerance,
+                )
+                s = rec.completion.shape
         return shapes.transform_shape(s, np.linalg.inv(T_odom_kp))
+
+    def size_prior(self, rec: _ShapeRec) -> tuple[np.ndarray, np.ndarray] | None:
+        """The typical box (length ≥ width, height) of a landmark's class and its spread, if known.
+
+        Declared (``size_prior``) or learned: the median of the largest boxes measured for the
+        class's other landmarks, once ``size_prior_min_boxes`` exist (a landmark's largest box
+        grows with its views, so the median settles on the whole objects); the spread is then
+        10 % of the median (at least 0.1 m).
+        """
+        declared = self.p.size_prior.get(rec.cls)
+        if declared is not None:
+            return np.asarray(declared.dims, float), np.asarray(declared.std, float)
+        boxes = [
+            r.ref_dims
+            for r in self.recs.values()
+            if r is not rec and r.cls == rec.cls and r.ref_dims is not None
+        ]
+        if len(boxes) < self.p.size_prior_min_boxes:
+            return None
+        med = np.median(boxes, axis=0)
+        return med, np.maximum(0.1 * med, 0.1)
 
     def record_slack(self, lm_id: int, kp: int, shape: dict) -> np.ndarray:
         """How much of a cuboid this measurement may have missed, per box axis (m).
 
         A partial view gives a box shorter than the object, and a centre shifted by up to half
         the missing length. The slack is half the shortfall of each dimension against the
-        largest seen so far for this landmark; it widens that measurement's noise (eq. 1's
-        translation and dimensions along the box axes, and the point landmark's range-bearing),
-        so that partial views do not drag the key poses.
+        largest seen so far for this landmark (and the class's typical box); it widens that
+        measurement's noise (eq. 1's translation and dimensions along the box axes, and the
+        point landmark's range-bearing), so that partial views do not drag the key poses.
+
+        A measurement completed with the size prior (:meth:`measure`) has, along an extended
+        axis, a centre as uncertain as half the prior's spread and a dimension that is the
+        prior's (loose by the shortfall plus the spread); along an axis whose missing side is
+        unknown, a centre loose by half the shortfall.
         """
         rec = self.recs[lm_id]
+        rec.scale[kp] = float(np.sqrt(len(rec.fits))) if self.p.decorrelate and rec.fits else 1.0
         if shape["model"] != "cuboid":
             rec.slack[kp] = np.zeros(3)
             return rec.slack[kp]
         d = np.asarray(shape["dims"], float)
-        d_sorted = np.array([max(d[0], d[1]), min(d[0], d[1]), d[2]])  # length ≥ width
-        rec.ref_dims = d_sorted if rec.ref_dims is None else np.maximum(rec.ref_dims, d_sorted)
+        comp = rec.completion
+        raw = comp.measured if comp is not None else d
+        raw_sorted = np.array([max(raw[0], raw[1]), min(raw[0], raw[1]), raw[2]])  # length ≥ width
+        rec.ref_dims = raw_sorted if rec.ref_dims is None else np.maximum(rec.ref_dims, raw_sorted)
         # objects of one class are alike: the first, partial views of a new car are measured
         # against the median of the other cars' largest boxes
         others = [
@@ -209,10 +308,18 @@ class ShapeLandmarks:
             if r is not rec and r.ref_dims is not None and r.cls == rec.cls
         ]
         ref = np.maximum(rec.ref_dims, np.median(others, axis=0)) if others else rec.ref_dims
-        short = np.maximum(ref - d_sorted, 0.0) / 2.0
-        slack = short if d[0] >= d[1] else short[[1, 0, 2]]
-        rec.slack[kp] = slack
-        return slack
+        ref = ref if d[0] >= d[1] else ref[[1, 0, 2]]
+        slack = np.maximum(ref - d, 0.0) / 2.0
+        loose_c, loose_d = np.zeros(3), np.zeros(3)
+        if comp is not None:
+            prior = self.size_prior(rec)
+            std = np.zeros(3) if prior is None else prior[1][[1, 0, 2]] if comp.swapped else prior[1]
+            loose_c = np.where(comp.extended, std / 2, np.where(comp.ambiguous, comp.missing / 2, 0.0))
+            loose_d = np.where(comp.extended | comp.ambiguous, comp.missing + std * comp.extended, 0.0)
+            slack = np.where(comp.extended, 0.0, slack)  # the extended extent is the prior's
+        rec.loose[kp] = (loose_c, loose_d)
+        rec.slack[kp] = np.maximum(slack, loose_c)
+        return rec.slack[kp]
 
     def point_slack(self, lm_id: int, kp: int) -> float:
         """The slack (norm, m) of a landmark's measurement at a key pose (0 if none)."""
@@ -221,6 +328,11 @@ class ShapeLandmarks:
             return 0.0
         return float(np.linalg.norm(rec.slack[kp]))
 
+    def point_scale(self, lm_id: int, kp: int) -> float:
+        """The noise scale of a landmark's measurement at a key pose (``decorrelate``; 1 if none)."""
+        rec = self.recs.get(lm_id)
+        return 1.0 if rec is None else rec.scale.get(kp, 1.0)
+
     def _plausible(self, s: dict) -> bool:
         """Reject degenerate fits (a circle fitted to a flat patch, a sliver of a box)."""
         if s["model"] == "cylinder":
@@ -228,21 +340,82 @@ class ShapeLandmarks:
         dims = np.asarray(s["dims"])
         return bool(np.all(dims >= self.p.min_dim) and np.all(dims <= self.p.max_dim))
 
+    def refresh_estimates(self, values: gtsam.Values) -> None:
+        """Keep each landmark's optimised shape (world frame) for association: it holds every view,
+        while the latest measurement may cover only the part of the object seen last."""
+        for lm_id, rec in self.recs.items():
+            if rec.in_graph:
+                rec.est_world = self.estimate(lm_id, values)
+
+    def twins(self, lm_id: int, candidates: dict[int, str]) -> list[int]:
+        """Landmarks of ``candidates`` (id → class) that are the same object as ``lm_id``.
+
+        Two boxes of one class are one object when each one's centre lies inside the other
+        (latest measurement or estimate, world frame; no margin): two cars parked side by side
+        are 2.5 m apart, more than half a car's width. A car first seen at its two ends in two
+        passes gets two landmarks, each on its own end; once completed behind their visible faces
+        (:meth:`measure`) the two boxes hold each other's centres. Cylinders: roots closer than
+        the larger radius plus ``association_margin``.
+        """
+        rec = self.recs.get(lm_id)
+        if rec is None:
+            return []
+        mine = [s for s in (rec.last_world, rec.est_world) if s is not None]
+        out = []
+        for j, cls in candidates.items():
+            other = self.recs.get(j)
+            if j == lm_id or other is None or cls != rec.cls or other.model != rec.model:
+                continue
+            theirs = [s for s in (other.last_world, other.est_world) if s is not None]
+            if not mine or not theirs:
+                continue
+            if rec.model == "cuboid":
+                a_in_b = any(
+                    self._inside(t, shapes.shape_center(m)[None], 0.0)[0] for m in mine for t in theirs
+                )
+                b_in_a = any(
+                    self._inside(m, shapes.shape_center(t)[None], 0.0)[0] for m in mine for t in theirs
+                )
+                if a_in_b and b_in_a:
+                    out.append(j)
+            else:
+                gap = min(
+                    np.linalg.norm(np.asarray(m["root"])[:2] - np.asarray(t["root"])[:2])
+                    - max(m["radius"], t["radius"])
+                    for m in mine
+                    for t in theirs
+                )
+                if gap <= self.p.association_margin:
+                    out.append(j)
+        return out
+
     def set_world(self, lm_id: int, shape_world: dict) -> None:
         """Record the latest world-frame shape of a landmark (for association)."""
         self.recs[lm_id].last_world = shape_world
 
     # ------------------------------------------------------------------ factors
-    def noise(self, model: str, slack: np.ndarray | None = None) -> gtsam.noiseModel.Base:
-        """Eq. 1 / eq. 2 noise; a cuboid's translation and dims widened by the measurement's slack."""
+    def noise(
+        self,
+        model: str,
+        slack: np.ndarray | None = None,
+        loose_dims: np.ndarray | None = None,
+        scale: float = 1.0,
+    ) -> gtsam.noiseModel.Base:
+        """Eq. 1 / eq. 2 noise; a cuboid's translation and dims widened by the measurement's slack.
+
+        ``loose_dims`` (per box axis) replaces ``2·slack`` for the dims where it is larger: a
+        dimension completed with the size prior is the prior's, not a measurement. ``scale``
+        multiplies every sigma (``decorrelate``).
+        """
         p = self.p
         if model == "cuboid":
             sl = np.zeros(3) if slack is None else np.asarray(slack, float)
+            ld = 2 * sl if loose_dims is None else np.maximum(2 * sl, loose_dims)
             # eq. 1's translation error is expressed along the measured box axes, like the slack
-            s = [p.sigma_rotation] * 3 + list(p.sigma_translation + sl) + list(p.sigma_dims + 2 * sl)
+            s = [p.sigma_rotation] * 3 + list(p.sigma_translation + sl) + list(p.sigma_dims + ld)
         else:
             s = [p.sigma_translation] * 3 + [p.sigma_axis] * 3 + [p.sigma_radius]
-        return gtsam.noiseModel.Diagonal.Sigmas(np.array(s))
+        return gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(s))
 
     def initial_values(self, lm_id: int, shape_world: dict, values: gtsam.Values) -> None:
         """Insert the variables of a landmark entering the graph, from a world-frame shape."""
@@ -282,10 +455,13 @@ class ShapeLandmarks:
             Z = shapes.cuboid_pose(shape_body)
             dims = np.asarray(shape_body["dims"], float)
             slack = rec.slack.get(kp_id)
+            loose_c, loose_d = rec.loose.get(kp_id, (np.zeros(3), np.zeros(3)))
             if estimate is not None:
-                Z, dims = _closest_equivalent(
+                Z, dims, k = _closest_equivalent(
                     Z, dims, np.linalg.inv(T_world_body) @ shapes.cuboid_pose(estimate)
                 )
+                if k % 2:
+                    loose_c, loose_d = loose_c[[1, 0, 2]], loose_d[[1, 0, 2]]
                 # the slack along the axes the measurement now has: what it lacks against the
                 # estimate and against the class's typical (sorted) box in the estimate's order
                 ref = np.asarray(estimate["dims"], float)
@@ -293,8 +469,10 @@ class ShapeLandmarks:
                     typ = rec.ref_dims if ref[0] >= ref[1] else rec.ref_dims[[1, 0, 2]]
                     ref = np.maximum(ref, typ)
                 slack = np.maximum(ref - dims, 0.0) / 2.0
-            return cuboid_factor(pose_key, o, d, Z, dims, robust(self.noise("cuboid", slack)))
-        noise = robust(self.noise(shape_body["model"]))
+                slack = np.where(loose_d > 0, np.maximum(slack, loose_c), slack)
+            noise = self.noise("cuboid", slack, loose_d, rec.scale.get(kp_id, 1.0))
+            return cuboid_factor(pose_key, o, d, Z, dims, robust(noise))
+        noise = robust(self.noise(shape_body["model"], scale=rec.scale.get(kp_id, 1.0)))
         b, n, r = cylinder_keys(lm_id)
         return cylinder_factor(
             pose_key, b, n, r, shape_body["root"], shape_body["axis"], shape_body["radius"], noise
@@ -319,9 +497,9 @@ class ShapeLandmarks:
         )
 
 
-def _closest_equivalent(Z: np.ndarray, dims: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Among the box's symmetric poses (turns by k·90° about b3), the one closest to ``E``."""
-    best, best_err = (Z, dims), np.inf
+def _closest_equivalent(Z: np.ndarray, dims: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Among the box's symmetric poses (turns by k·90° about b3), the one closest to ``E``, and k."""
+    best, best_err = (Z, dims, 0), np.inf
     for k in range(4):
         c, s = np.cos(k * np.pi / 2), np.sin(k * np.pi / 2)
         Rk = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -331,5 +509,5 @@ def _closest_equivalent(Z: np.ndarray, dims: np.ndarray, E: np.ndarray) -> tuple
         # by rotation alone: a partial view (one face) may have its length and width swapped
         err = np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(Zk[:3, :3].T @ E[:3, :3])))
         if err < best_err:
-            best, best_err = (Zk, dk), err
+            best, best_err = (Zk, dk, k), err
     return best

@@ -53,7 +53,9 @@ from scipy.spatial import ConvexHull, QhullError
 
 __all__ = [
     "GroundPlane",
+    "Completion",
     "cluster",
+    "complete_cuboid",
     "cuboid_pose",
     "cuboid_shape",
     "cylinder_shape",
@@ -340,6 +342,108 @@ def fit_cuboid(
     centre = foot + n * (0.5 * (bottom + top))
     R = np.column_stack([b1, b2, n])
     return cuboid_shape(R, centre, [hi1 - lo1, hi2 - lo2, top - bottom])
+
+
+@dataclass(frozen=True)
+class Completion:
+    """A partial cuboid view completed with a class size prior (:func:`complete_cuboid`).
+
+    Attributes:
+        shape: the completed box (same frame as the input).
+        measured: the fitted dims before completion (along the box axes ``b1, b2, b3``).
+        missing: per box axis, how much the fitted extent lacks against the prior (≥ 0, m).
+        extended: per box axis, whether the box was extended behind its visible faces.
+        ambiguous: per box axis, whether the extent is short but the missing side is unknown
+            (every camera looked from within the box's slab along that axis).
+        swapped: whether the box's ``b1`` is the object's width (the prior was applied as
+            ``[width, length, height]``).
+    """
+
+    shape: dict
+    measured: np.ndarray
+    missing: np.ndarray
+    extended: np.ndarray
+    ambiguous: np.ndarray
+    swapped: bool = False
+
+
+def complete_cuboid(
+    shape: dict,
+    cameras: np.ndarray,
+    prior: np.ndarray | list[float],
+    *,
+    reference: dict | None = None,
+    tolerance: float = 0.15,
+) -> Completion:
+    """Place a box fitted to a partial view *behind* its visible faces, with a class size prior.
+
+    A depth camera sees at most the faces of a box that face it. When the far end of an object
+    is out of view (cut by the image, the range limit or a neighbour), the fitted box spans only
+    the visible part and its centre sits on the camera's side — for every car seen along a lane,
+    the same way, which drags the key poses. Along each horizontal box axis whose fitted extent
+    falls short of the prior by more than ``tolerance``:
+
+    * if every camera of the window was beyond one face (outside the box's slab along the axis,
+      on the same side), that face was seen and the missing part lies behind: the far face is
+      put at the prior's distance from the seen one (centre moved away from the cameras by half
+      the shortfall, the dimension set to the prior's);
+    * if cameras were beyond both faces, both were seen: the object is this short, kept;
+    * if no camera was beyond either face (looking across the axis, the extent cut by the image),
+      the missing side is unknown: kept, flagged ``ambiguous`` (its noise must cover it).
+
+    The height is not completed (seen from above; the bottom is on the ground plane).
+
+    Args:
+        shape: a cuboid fitted by :func:`fit_cuboid` (``b1`` the longer fitted side).
+        cameras: K×3 camera positions of the views the points came from (same frame).
+        prior: the class's typical ``[length, width, height]`` (length ≥ width).
+        reference: a shape of the same object (same frame), e.g. the current estimate: its
+            longer horizontal axis tells which fitted axis is the length (unless the fitted extent
+            along the other is longer than the prior's width). Without it, a box shorter than the prior's
+            width in both directions (one end seen) takes the axis closer to the viewing
+            direction as its length — a car seen end-on shows its full width across the view.
+        tolerance: shortfalls up to this are measurement noise, not missing parts (m).
+    """
+    R = np.asarray(shape["rotation"], float)
+    c = np.asarray(shape["center"], float)
+    d = np.asarray(shape["dims"], float)
+    pr = np.asarray(prior, float).copy()
+    cams = np.asarray(cameras, float).reshape(-1, 3)
+    local = (cams - c) @ R  # camera positions along b1, b2, b3
+    if reference is not None:
+        Rr, dr = np.asarray(reference["rotation"], float), np.asarray(reference["dims"], float)
+        length = Rr[:, int(np.argmax(dr[:2]))]  # the reference's longer horizontal axis
+        swapped = abs(R[:, 0] @ length) < abs(R[:, 1] @ length)
+    elif d[0] < pr[1] + tolerance and len(cams):
+        view = -np.mean(local[:, :2], axis=0)  # mean viewing direction, box axes
+        swapped = abs(view[1]) > abs(view[0])
+    else:
+        swapped = False
+    if swapped and d[0] > pr[1] + 2 * tolerance:
+        swapped = False  # a fitted extent longer than the object is wide is its length
+    if swapped:
+        pr[[0, 1]] = pr[[1, 0]]
+    missing = np.zeros(3)
+    extended = np.zeros(3, bool)
+    ambiguous = np.zeros(3, bool)
+    c_new, d_new = c.copy(), d.copy()
+    for a in (0, 1):
+        need = pr[a] - d[a]
+        if need <= tolerance:
+            continue
+        beyond = np.abs(local[:, a]) > d[a] / 2
+        pos, neg = bool(np.any(beyond & (local[:, a] > 0))), bool(np.any(beyond & (local[:, a] < 0)))
+        if pos and neg:
+            continue
+        missing[a] = need
+        if pos or neg:
+            c_new -= (1.0 if pos else -1.0) * 0.5 * need * R[:, a]
+            d_new[a] = pr[a]
+            extended[a] = True
+        else:
+            ambiguous[a] = True
+    out = cuboid_shape(R, c_new, d_new) if extended.any() else shape
+    return Completion(out, d, missing, extended, ambiguous, bool(swapped))
 
 
 def cuboid_shape(R: np.ndarray, center: np.ndarray, dims: np.ndarray | list[float]) -> dict:

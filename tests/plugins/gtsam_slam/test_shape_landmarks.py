@@ -93,3 +93,75 @@ def test_centroid_is_the_default_model() -> None:
 def test_unknown_model_is_rejected() -> None:
     with pytest.raises(ValueError):
         GtsamSlam.Params(landmark_models={"car": "sphere"})
+
+
+def _two_end_passes(params: GtsamSlam.Params) -> GtsamSlam:
+    """A car seen at its front end, then, after its points left the window, at its rear end.
+
+    Each pass is a sideways flight 4 m beyond one end, 3.5 m up, looking at the car; only the
+    near 2 m of the car are in view (the rest cut by the image). Exact odometry.
+    """
+    slam = GtsamSlam()
+    slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
+    rng = np.random.default_rng(3)
+    T_body_cam = CameraModel.forward_mount(35.0)
+    R = rz(CAR_YAW)
+    t = 0.0
+    for end in (1.0, -1.0):
+        for k in range(12):
+            lateral = -1.5 + 3.0 * k / 11
+            p = CAR_C + R @ np.array([end * 6.3, lateral, 2.75])
+            T_wb = _pose(p, CAR_YAW + (np.pi if end > 0 else 0.0))  # facing the car
+            odom = Odometry(t, T_wb)
+            slam.add_odometry(odom)
+            cam = (T_wb @ T_body_cam)[:3, 3]
+            car = box_points(R, CAR_C, CAR_DIMS, cam, rng, n=600)
+            car = car[end * ((car - CAR_C) @ R[:, 0]) >= 0.25]
+            ground = np.column_stack(
+                [rng.uniform(0, 12, 400), rng.uniform(-4, 8, 400), rng.normal(0, 0.01, 400)]
+            )
+            T_cw = np.linalg.inv(T_wb @ T_body_cam)
+            dets = []
+            for cls, pts in (("car", car), ("ground", ground)):
+                pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
+                dets.append(Detection(cls, 0.9, np.median(pc, axis=0), pc))
+            slam.add_detections(odom, T_body_cam, dets)
+            t += 1.0
+        t += 30.0  # the first pass's points leave the window
+    return slam
+
+
+def test_a_car_seen_at_both_ends_is_one_landmark_placed_on_the_car() -> None:
+    models = {"car": "cuboid", "ground": "plane"}
+    prior = {"car": {"dims": [4.6, 1.85, 1.5]}}
+    shape = {"window": 5.0, "size_prior": prior}
+    done = _two_end_passes(GtsamSlam.Params(landmark_models=models, max_range=12.0, shapes=shape))
+    cars = [lm for lm in done.landmarks() if lm.class_name == "car"]
+    assert len(cars) == 1
+    assert np.linalg.norm(cars[0].position[:2] - CAR_C[:2]) < 0.25
+    # without the completion each end is a landmark of its own, ~1.2 m off the car's centre
+    shape["complete"] = False
+    raw = _two_end_passes(GtsamSlam.Params(landmark_models=models, max_range=12.0, shapes=shape))
+    cars = [lm for lm in raw.landmarks() if lm.class_name == "car"]
+    assert len(cars) == 2
+    assert all(np.linalg.norm(lm.position[:2] - CAR_C[:2]) > 0.8 for lm in cars)
+
+
+def test_twins_are_boxes_holding_each_others_centre_not_neighbours() -> None:
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    sh = ShapeLandmarks({"car": "cuboid"}, ShapeParams(), np.random.default_rng(0))
+    R = rz(0.3)
+    boxes = {
+        0: S.cuboid_shape(R, R @ [0.5, 0, 0] + [0, 0, 0.75], [4.4, 1.8, 1.5]),  # front-heavy view
+        1: S.cuboid_shape(R, R @ [-0.6, 0.1, 0] + [0, 0, 0.75], [4.6, 1.8, 1.5]),  # rear-heavy view
+        2: S.cuboid_shape(R, R @ [0.0, 2.5, 0] + [0, 0, 0.75], [4.6, 1.8, 1.5]),  # the next stall
+        3: S.cuboid_shape(R, R @ [1.8, 0, 0] + [0, 0, 0.75], [1.2, 1.8, 1.5]),  # the front 1.2 m only
+    }
+    for i, b in boxes.items():
+        sh.measure(i, "car", 0.0, np.zeros((1, 3)), np.eye(4))  # creates the record (too few points)
+        sh.set_world(i, b)
+    live = dict.fromkeys(boxes, "car")
+    assert sh.twins(0, live) == [1]
+    assert sh.twins(2, live) == []
+    assert 3 not in sh.twins(0, live)  # its centre is in the big box, not the other way round

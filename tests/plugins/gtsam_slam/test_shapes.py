@@ -207,3 +207,87 @@ def test_shape_errors_symmetries() -> None:
     assert S.shape_errors(turned, truth)["dims"] == pytest.approx(0.0, abs=1e-9)
     off = S.cuboid_shape(rz(0.5), [0, 0, 0.7], [4.0, 2.0, 1.4])
     assert S.shape_errors(off, truth)["yaw"] == pytest.approx(0.3)
+
+
+# ---------------------------------------------------------------------------------------------
+# completion of partial views with a class size prior
+
+
+def _truncated_view(yaw: float, viewer_local: np.ndarray, keep_x: float, rng: np.random.Generator):
+    """A 4.6 × 1.85 × 1.5 m box seen from ``viewer_local`` (box frame), with only the points
+    whose box-frame x ≥ ``keep_x`` in view (the rest cut by the image): returns the points, the
+    viewer (world) and the true centre."""
+    R = rz(yaw)
+    centre, dims = np.array([2.0, 1.0, 0.75]), np.array([4.6, 1.85, 1.5])
+    viewer = R @ viewer_local + centre
+    p = box_points(R, centre, dims, viewer, rng)
+    p = p[(p - centre) @ R[:, 0] >= keep_x]
+    return p, viewer, centre
+
+
+@pytest.mark.parametrize("yaw", [0.3, -2.4])
+def test_end_on_view_is_completed_behind_the_visible_faces(yaw: float) -> None:
+    rng = np.random.default_rng(5)
+    # a camera 4 m ahead of the front, 2.75 m above the roof: the front face and the front 2 m
+    p, viewer, centre = _truncated_view(yaw, np.array([6.3, 0.4, 2.75]), 0.3, rng)
+    fit = S.fit_cuboid(p, percentile=2.5, extrapolate=False)
+    assert (
+        fit is not None and np.linalg.norm(S.shape_center(fit)[:2] - centre[:2]) > 0.9
+    )  # on the camera's side
+    done = S.complete_cuboid(fit, viewer[None], [4.6, 1.85, 1.5])
+    assert done.extended[0] and not done.extended[1] and not done.ambiguous.any()
+    assert np.linalg.norm(S.shape_center(done.shape)[:2] - centre[:2]) < 0.12
+    assert max(done.shape["dims"][:2]) == pytest.approx(4.6)
+    # the prior's length overshoots a shorter car by the difference, not more
+    short = S.complete_cuboid(fit, viewer[None], [5.0, 1.85, 1.5])
+    assert np.linalg.norm(S.shape_center(short.shape)[:2] - centre[:2]) == pytest.approx(0.2, abs=0.12)
+
+
+def test_one_end_seen_takes_the_viewing_direction_as_length() -> None:
+    rng = np.random.default_rng(6)
+    # only the front 1.2 m in view: shorter than the car is wide, so b1 is fitted across the car
+    p, viewer, centre = _truncated_view(0.3, np.array([5.0, 0.0, 2.75]), 1.1, rng)
+    fit = S.fit_cuboid(p, percentile=2.5, extrapolate=False)
+    assert fit is not None and abs(np.asarray(fit["rotation"])[:, 0] @ rz(0.3)[:, 0]) < 0.2
+    done = S.complete_cuboid(fit, viewer[None], [4.6, 1.85, 1.5])
+    assert done.swapped and done.extended[1]
+    assert np.linalg.norm(S.shape_center(done.shape)[:2] - centre[:2]) < 0.15
+
+
+def test_side_view_cut_by_the_image_is_ambiguous_and_views_from_both_ends_are_kept() -> None:
+    rng = np.random.default_rng(7)
+    # beside the car, the rear 1.5 m cut by the image: which end is missing is unknown
+    p, viewer, centre = _truncated_view(0.3, np.array([0.2, 5.0, 2.75]), -0.8, rng)
+    fit = S.fit_cuboid(p, percentile=2.5, extrapolate=False)
+    done = S.complete_cuboid(fit, viewer[None], [4.6, 1.85, 1.5])
+    assert done.ambiguous[0] and not done.extended.any() and done.shape is fit
+    assert done.missing[0] == pytest.approx(4.6 - fit["dims"][0])
+    # a short object seen from beyond both of its ends is this short
+    cams = np.array([viewer + 6 * rz(0.3)[:, 0], viewer - 6 * rz(0.3)[:, 0]])
+    both = S.complete_cuboid(fit, cams, [4.6, 1.85, 1.5])
+    assert not both.extended.any() and not both.ambiguous.any()
+
+
+def test_reference_shape_tells_length_from_width() -> None:
+    R = rz(0.3)
+    fit = S.cuboid_shape(R, [0.0, 0.0, 0.75], [1.9, 1.3, 1.5])  # b1 across: a 1.3 m deep end view
+    ref = S.cuboid_shape(R @ rz(np.pi / 2), [0.0, -1.6, 0.75], [4.6, 1.85, 1.5])  # length along b2
+    cam = R @ np.array([0.0, 6.0, 3.0])
+    done = S.complete_cuboid(fit, cam[None], [4.6, 1.85, 1.5], reference=ref)
+    assert done.swapped and done.extended[1] and done.shape["dims"][1] == pytest.approx(4.6)
+    assert np.allclose(S.shape_center(done.shape), R @ np.array([0.0, -1.65, 0.0]) + [0, 0, 0.75])
+
+
+def test_reference_length_is_its_longer_axis_and_a_long_fit_is_never_a_width() -> None:
+    R = rz(0.3)
+    cam = R @ np.array([0.0, 6.0, 3.0])
+    # the estimate's b1 is across the car (its dims say so): the length is along its b2
+    ref = S.cuboid_shape(R, [0.0, -1.6, 0.75], [1.85, 4.6, 1.5])
+    fit = S.cuboid_shape(R, [0.0, 0.0, 0.75], [1.9, 1.3, 1.5])
+    done = S.complete_cuboid(fit, cam[None], [4.6, 1.85, 1.5], reference=ref)
+    assert done.swapped and done.shape["dims"][1] == pytest.approx(4.6)
+    # a 3 m fitted extent cannot be a 1.85 m wide car's width, whatever the reference says
+    long_fit = S.cuboid_shape(R, [0.0, 0.0, 0.75], [3.0, 1.8, 1.5])
+    done = S.complete_cuboid(long_fit, (R @ np.array([6.0, 0.5, 3.0]))[None], [4.6, 1.85, 1.5], reference=ref)
+    assert not done.swapped and done.extended[0] and not done.extended[1]
+    assert done.shape["dims"][0] == pytest.approx(4.6) and done.shape["dims"][1] == pytest.approx(1.8)
