@@ -28,6 +28,19 @@ So the base builds one factor graph from the robots' measurement logs
    (``optimizer="lm"``; ``"isam2"`` keeps the incremental solution), then marginal covariances of
    the landmarks.
 
+**Shape classes** (``landmark_models``: class → ``cuboid`` | ``cylinder``, as onboard): the
+centroid of a car's visible surface moves by metres with the view, so a car seen from two sides
+by two robots would become several landmarks. These classes are therefore associated as the
+onboard shape front end does (:mod:`.shape_landmarks`): by the share of a detection's points
+within ``shape_margin`` of a landmark's points or inside its fitted, inflated shape; and after
+each joint optimisation, landmarks of a shape class never detected in one frame are fused when
+their points overlap or together still fit one object of the class (``shape_max_dims``: a car's
+box; two parked neighbours make a box far wider or longer). Their detection centroids stay in
+the graph as weak range-bearing measurements (``shape_centroid_sigma``), and a landmark's
+reported position is its fitted shape's reference point (cuboid centre, cylinder root).
+Every key pose also gets an attitude factor (the IMU's gravity direction), as roll and pitch do
+not drift.
+
 Steps 3 and 4 alternate with a re-association of every detection against the optimised map
 (``refine_rounds``): once robot 2's observations have corrected robot 1's drifted chain, robot
 1's late detections fall within the gate of the objects they saw, and move there.
@@ -51,9 +64,12 @@ import numpy as np
 from gtsam.symbol_shorthand import L
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from amslam.geometry import transform_points, wrap_angle, yaw_of
 from amslam.measurements import RobotMeasurements, read_measurements
+from amslam.plugins.gtsam_slam import shapes
+from amslam.plugins.gtsam_slam.shape_landmarks import ShapeParams
 from amslam.rundir import jsonable
 from amslam.types import Landmark
 
@@ -77,6 +93,10 @@ ROBOT_CHARS = "abcdefghijkmnopqrstuvwyz"
 ShapeFitter = Callable[[str, np.ndarray], dict | None]
 
 
+#: The onboard shape front end's defaults (:mod:`.shape_landmarks`), shared by the merge.
+_SHAPE = ShapeParams()
+
+
 def robot_key(robot: int, keypose: int) -> int:
     """The gtsam key of robot ``robot``'s key pose ``keypose``."""
     return gtsam.symbol(ROBOT_CHARS[robot], keypose)
@@ -95,6 +115,11 @@ class MergeParams(BaseModel):
     odom_sigma_yaw_per_rad: float = Field(0.01, ge=0, description="VIO yaw std per radian turned")
     odom_sigma_yaw_min: float = Field(0.002, gt=0, description="VIO yaw std floor, rad")
     odom_sigma_roll_pitch: float = Field(0.002, gt=0, description="roll/pitch std (IMU), rad")
+    attitude_sigma: float = Field(
+        0.01,
+        ge=0,
+        description="std of each key pose's tilt against gravity (IMU), rad (0: no attitude factors)",
+    )
     bearing_sigma: float = Field(0.05, gt=0, description="bearing std of an object centroid, rad")
     range_sigma: float = Field(0.05, gt=0, description="range std at zero range, m")
     range_sigma_per_m: float = Field(0.03, ge=0, description="range std growth per metre")
@@ -109,6 +134,42 @@ class MergeParams(BaseModel):
         8, ge=0, description="rounds of re-association + duplicate fusion + joint optimisation"
     )
     update_every: int = Field(20, ge=1, description="iSAM2 update at least every this many key poses")
+    landmark_models: dict[str, Literal["centroid", "cuboid", "cylinder"]] = Field(
+        default_factory=dict,
+        description="landmark model per class (default centroid); cuboid / cylinder classes are "
+        "associated and fused by their points and fitted shapes, not by the centroid gate",
+    )
+    shape_margin: float = Field(
+        _SHAPE.association_margin,
+        ge=0,
+        description="shape association: distance to a landmark's points or shape, m",
+    )
+    shape_overlap: float = Field(
+        _SHAPE.association_overlap,
+        gt=0,
+        le=1,
+        description="share of a detection's points inside to associate",
+    )
+    shape_max_dims: dict[str, tuple[float, float, float]] = Field(
+        default_factory=lambda: {"car": (6.0, 2.6, 2.8)},
+        description="largest single object of a cuboid class (length, width, height), m: two landmarks "
+        "whose points fit in one such box are fused (cars and vans are <= 5.5 x 2.05 x 2.3 m)",
+    )
+    shape_max_radius: float = Field(
+        _SHAPE.max_radius, gt=0, description="largest radius of one cylinder object (fusion), m"
+    )
+    shape_centroid_sigma: dict[str, float] = Field(
+        default_factory=lambda: {"cuboid": 5.0, "cylinder": 0.3},
+        description="extra std (m) of a shape-class detection's centroid as a range-bearing measurement: "
+        "the centroid of a visible surface is biased towards the viewer by up to half the object "
+        "(a car's: metres, consistently along a pass), a pole's by its radius (docs/multirobot.md: on "
+        "two lot_a logs, 1.0 m for cars bent the chains to 0.90 / 0.69 m mean error, VIO alone "
+        "0.53 / 0.41 m, 5.0 m gave 0.15 / 0.36 m)",
+    )
+    shape_cloud: int = Field(1500, ge=50, description="points kept per shape landmark (even thinning)")
+    shape_fit_points: int = Field(
+        400, ge=20, description="points a landmark's shape is fitted to during association (cost of the fit)"
+    )
 
 
 @dataclass
@@ -120,6 +181,7 @@ class _Obs:
     p_body: np.ndarray
     points: np.ndarray
     landmark: int = -1
+    points_world: np.ndarray | None = None  # at association time (incremental pass)
 
 
 @dataclass
@@ -130,6 +192,11 @@ class _Lm:
     sum_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
     in_graph: bool = False
     alias_of: int | None = None
+    # shape classes: the world points of all detections, their k-d tree and the fitted shape
+    cloud: np.ndarray | None = None
+    tree: cKDTree | None = None
+    shape: dict | None = None
+    fitted: int = 0  # observations when cloud / shape were last computed
 
 
 @dataclass
@@ -191,8 +258,12 @@ class _Merger:
     def bearing_range(self, key: int, lm: int, p_body: np.ndarray) -> gtsam.NonlinearFactor:
         p = self.p
         rng = float(np.linalg.norm(p_body))
+        # a shape class's detection centroid (the median of the visible surface) lies anywhere
+        # within about the object's size of its centre: widen range and bearing by that spread
+        spread = p.shape_centroid_sigma.get(self.model(self.lms[lm].class_name), 0.0)
+        sb = float(np.hypot(p.bearing_sigma, np.arctan2(spread, max(rng, 1e-3))))
         base = gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([p.bearing_sigma, p.bearing_sigma, p.range_sigma + p.range_sigma_per_m * rng])
+            np.array([sb, sb, p.range_sigma + p.range_sigma_per_m * rng + spread])
         )
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), base)
         return gtsam.BearingRangeFactor3D(key, L(lm), gtsam.Unit3(p_body), rng, noise)
@@ -243,6 +314,17 @@ class _Merger:
                 self.new_values.insert(key, gtsam.Pose3(self.pose(robot_key(r, i - 1)) @ rel))
             self.odometry.add(factor)
             self.new_graph.add(factor)
+            if p.attitude_sigma > 0:
+                # the IMU observes roll and pitch against gravity at every key pose: without this,
+                # the between-factors let the tilt random-walk along a long chain, and biased
+                # landmark measurements bend it (metres of height error across a 36 m lot)
+                R = (log.T_world_odom @ log.T_odom_body[i])[:3, :3]
+                up = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
+                att = gtsam.AttitudeFactorPose3(
+                    key, up, gtsam.noiseModel.Isotropic.Sigma(2, p.attitude_sigma), gtsam.Unit3(R[2])
+                )
+                self.odometry.add(att)
+                self.new_graph.add(att)
             since_update += 1
             dets = by_kp.get(i)
             if dets:
@@ -256,28 +338,24 @@ class _Merger:
         T = self.pose(robot_key(r, i))
         p_body = np.array([d.p_body for d in dets])
         p_world = transform_points(T, p_body)
+        pts_world = [transform_points(T, d.points) if len(d.points) else np.zeros((0, 3)) for d in dets]
         live = [lm for lm in self.lms.values() if lm.alias_of is None]
         assoc = [-1] * len(dets)
         if live:
-            pos = np.array([self.landmark_position(lm) for lm in live])
-            cls = np.array([lm.class_name for lm in live])
-            dist = np.linalg.norm(p_world[:, None] - pos[None], axis=2)
-            bad = (np.array([d.class_name for d in dets])[:, None] != cls[None]) | (
-                dist > self.p.association_gate
-            )
+            cost, bad = self.association_costs([d.class_name for d in dets], p_world, pts_world, live)
             if not bad.all():
-                rows, cols = linear_sum_assignment(np.where(bad, 1e9, dist))
+                rows, cols = linear_sum_assignment(np.where(bad, 1e9, cost))
                 for a, b in zip(rows, cols, strict=True):
                     if not bad[a, b]:
                         assoc[a] = live[b].id
         batch = self.batches
         self.batches += 1
-        for d, pw, lm_id in zip(dets, p_world, assoc, strict=True):
+        for d, pw, pts, lm_id in zip(dets, p_world, pts_world, assoc, strict=True):
             if lm_id < 0:
                 lm_id = max(self.lms, default=-1) + 1
                 self.lms[lm_id] = _Lm(lm_id, d.class_name)
             lm = self.lms[lm_id]
-            ob = _Obs(r, i, batch, d.class_name, np.asarray(d.p_body, float), d.points, lm_id)
+            ob = _Obs(r, i, batch, d.class_name, np.asarray(d.p_body, float), d.points, lm_id, pts)
             self.obs.append(ob)
             lm.obs.append(ob)
             lm.sum_world = lm.sum_world + pw
@@ -289,6 +367,174 @@ class _Merger:
                 self.new_values.insert(L(lm.id), lm.sum_world / len(lm.obs))
                 for o in lm.obs:
                     self.new_graph.add(self.bearing_range(robot_key(o.robot, o.keypose), lm.id, o.p_body))
+
+    def association_costs(
+        self,
+        classes: list[str],
+        p_world: np.ndarray,
+        pts_world: list[np.ndarray],
+        live: list[_Lm],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Cost and infeasibility (detections × landmarks) of one detection frame's association.
+
+        Centroid classes: the distance of the detection's centroid to the landmark within
+        ``association_gate``. Shape classes (as the onboard shape front end,
+        :meth:`.shape_landmarks.ShapeLandmarks.associate`): one minus the share of the
+        detection's points within ``shape_margin`` of the landmark's points or inside its
+        inflated fitted shape, feasible from ``shape_overlap`` on; a detection without points
+        falls back to the centroid gate.
+        """
+        pos = np.array([self.landmark_position(lm) for lm in live])
+        cls = np.array([lm.class_name for lm in live])
+        dist = np.linalg.norm(p_world[:, None] - pos[None], axis=2)
+        cost = dist.copy()
+        bad = (np.array(classes)[:, None] != cls[None]) | (dist > self.p.association_gate)
+        for a, c in enumerate(classes):
+            if not self.is_shape(c) or len(pts_world[a]) < 5:
+                continue
+            reach = self.reach(c)
+            for b, lm in enumerate(live):
+                cost[a, b], bad[a, b] = 1.0, True
+                if lm.class_name != c:
+                    continue
+                self.refresh(lm)
+                if lm.cloud is None or np.linalg.norm(lm.cloud.mean(axis=0)[:2] - p_world[a, :2]) > reach:
+                    continue
+                share = self.overlap(lm, pts_world[a])
+                if share >= self.p.shape_overlap:
+                    cost[a, b], bad[a, b] = 1.0 - share, False
+        return cost, bad
+
+    # ---------------------------------------------------------------- shape classes
+
+    def model(self, class_name: str) -> str:
+        return self.p.landmark_models.get(class_name, "centroid")
+
+    def is_shape(self, class_name: str) -> bool:
+        return self.model(class_name) in ("cuboid", "cylinder")
+
+    def reach(self, class_name: str) -> float:
+        """How far apart (horizontally) two parts of one object of this class can be, m."""
+        if self.model(class_name) == "cylinder":
+            return 2.0 * self.p.shape_max_radius + self.p.shape_margin
+        dims = self.p.shape_max_dims.get(class_name)
+        return float(dims[0]) if dims else _SHAPE.max_dim
+
+    def fit_shape(self, class_name: str, cloud: np.ndarray) -> dict | None:
+        """The class's shape fitted to world points with the onboard front end's settings."""
+        if len(cloud) < 20:
+            return None
+        if self.model(class_name) == "cuboid":
+            s = shapes.fit_cuboid(cloud, percentile=_SHAPE.percentile, extrapolate=_SHAPE.extrapolate)
+            ok = s is not None and max(s["dims"]) <= _SHAPE.max_dim
+        else:
+            s = shapes.fit_cylinder(cloud, axis=_SHAPE.cylinder_axis)
+            ok = s is not None and 0.01 <= s["radius"] <= self.p.shape_max_radius
+        return s if ok else None
+
+    def refresh(self, lm: _Lm, values: gtsam.Values | None = None, force: bool = False) -> None:
+        """Recompute a shape landmark's cloud, k-d tree and shape.
+
+        Without ``values`` (incremental pass) the points as placed at association time are used,
+        and only once the landmark has grown by a quarter since the last fit (fits are the cost
+        here); with ``values``, every detection's points are moved with the optimised poses.
+        """
+        n = len(lm.obs)
+        if not force and lm.cloud is not None and n < max(lm.fitted + 1, 1.25 * lm.fitted):
+            return
+        pts = []
+        for o in lm.obs:
+            if values is not None:
+                pts.append(transform_points(values.atPose3(robot_key(o.robot, o.keypose)).matrix(), o.points))
+            elif o.points_world is not None:
+                pts.append(o.points_world)
+        cloud = np.vstack(pts) if pts else np.zeros((0, 3))
+        if len(cloud) > self.p.shape_cloud:  # evenly thinned, deterministic
+            cloud = cloud[np.linspace(0, len(cloud) - 1, self.p.shape_cloud).round().astype(int)]
+        lm.cloud = cloud if len(cloud) else None
+        lm.tree = cKDTree(cloud) if len(cloud) else None
+        k = self.p.shape_fit_points  # the L-shape search costs O(points): thin for association
+        sub = cloud[np.linspace(0, len(cloud) - 1, k).round().astype(int)] if len(cloud) > k else cloud
+        lm.shape = self.fit_shape(lm.class_name, sub)
+        lm.fitted = n
+
+    def overlap(self, lm: _Lm, pts: np.ndarray) -> float:
+        """Share of ``pts`` within ``shape_margin`` of the landmark's points or inside its shape."""
+        if lm.tree is None or len(pts) == 0:
+            return 0.0
+        d, _ = lm.tree.query(pts, distance_upper_bound=self.p.shape_margin)
+        inside = np.isfinite(d)
+        if lm.shape is not None:
+            inside |= _inside(lm.shape, pts, self.p.shape_margin)
+        return float(inside.mean())
+
+    def one_object(self, a: _Lm, b: _Lm) -> bool:
+        """Whether two landmarks of a shape class are parts of one object.
+
+        Either one's points overlap the other's (as in association), or their points together
+        still fit one object of the class: a cuboid within ``shape_max_dims`` (length ≥ width),
+        a cylinder within ``shape_max_radius``. Two parked cars side by side or nose to nose
+        make a box far wider or longer than any car.
+        """
+        small, large = (a, b) if len(a.cloud) <= len(b.cloud) else (b, a)
+        if self.overlap(large, small.cloud) >= self.p.shape_overlap:
+            return True
+        union = self.fit_shape(a.class_name, np.vstack([a.cloud, b.cloud]))
+        if union is None:
+            return False
+        if union["model"] == "cylinder":
+            return True  # fit_shape already bounded the radius
+        limit = self.p.shape_max_dims.get(a.class_name)
+        if limit is None:
+            return False
+        d = union["dims"]
+        return max(d[0], d[1]) <= limit[0] and min(d[0], d[1]) <= limit[1] and d[2] <= limit[2]
+
+    def fuse_shapes(self, values: gtsam.Values) -> int:
+        """Fuse landmarks of shape classes that are parts of one object (:meth:`one_object`).
+
+        A car seen from different sides by different robots (or by one robot whose chain
+        drifted) gives point clouds that need not overlap, so association left several
+        landmarks; after a joint optimisation, same-class landmarks within reach that were
+        never detected in one frame (objects seen together are distinct) are fused, closest
+        first, when their points together still make one object of the class.
+        """
+        fused = 0
+        graph_lms = self.graph_landmarks()
+        for cls in sorted({lm.class_name for lm in graph_lms if self.is_shape(lm.class_name)}):
+            lms = [lm for lm in graph_lms if lm.class_name == cls]
+            for lm in lms:
+                self.refresh(lm, values, force=True)
+            lms = [lm for lm in lms if lm.cloud is not None]
+            if len(lms) < 2:
+                continue
+            centre = np.array([lm.cloud.mean(axis=0) for lm in lms])
+            d = np.linalg.norm(centre[:, None, :2] - centre[None, :, :2], axis=2)
+            reach = self.reach(cls)
+            pairs = sorted(
+                (d[a, b], a, b) for a in range(len(lms)) for b in range(a + 1, len(lms)) if d[a, b] <= reach
+            )
+            batches = {lm.id: {o.batch for o in lm.obs} for lm in lms}
+            for _, a, b in pairs:
+                A, B = lms[a], lms[b]
+                if A.alias_of is not None or B.alias_of is not None or batches[A.id] & batches[B.id]:
+                    continue
+                if not self.one_object(A, B):
+                    continue
+                keep, drop = (A, B) if len(A.obs) >= len(B.obs) else (B, A)
+                self.absorb(keep, drop)
+                batches[keep.id] |= batches.pop(drop.id)
+                self.refresh(keep, values, force=True)
+                fused += 1
+        return fused
+
+    def absorb(self, keep: _Lm, drop: _Lm) -> None:
+        """Move ``drop``'s detections to ``keep``; ``drop`` becomes an alias."""
+        for o in drop.obs:
+            o.landmark = keep.id
+        keep.obs.extend(drop.obs)
+        drop.obs = []
+        drop.alias_of = keep.id
 
     # ---------------------------------------------------------------- joint optimisation
 
@@ -327,7 +573,9 @@ class _Merger:
             (dist[a, b], a, b)
             for a in range(len(lms))
             for b in range(a + 1, len(lms))
-            if lms[a].class_name == lms[b].class_name and dist[a, b] <= self.p.fuse_gate
+            if lms[a].class_name == lms[b].class_name
+            and dist[a, b] <= self.p.fuse_gate
+            and not self.is_shape(lms[a].class_name)  # shape classes: fuse_shapes
         ]
         fused = 0
         batches = {lm.id: {o.batch for o in lm.obs} for lm in lms}
@@ -337,11 +585,7 @@ class _Merger:
                 continue
             if batches[keep.id] & batches[drop.id]:
                 continue  # seen together in one frame: two objects
-            for o in drop.obs:
-                o.landmark = keep.id
-            keep.obs.extend(drop.obs)
-            drop.obs = []
-            drop.alias_of = keep.id
+            self.absorb(keep, drop)
             batches[keep.id] |= batches.pop(drop.id)
             fused += 1
         return fused
@@ -354,7 +598,7 @@ class _Merger:
         many detections changed landmark. Landmarks left with fewer than ``min_observations``
         leave the graph.
         """
-        lms = self.graph_landmarks()
+        lms = [lm for lm in self.graph_landmarks() if not self.is_shape(lm.class_name)]
         if not lms:
             return 0
         ids = np.array([lm.id for lm in lms])
@@ -362,7 +606,7 @@ class _Merger:
         cls = np.array([lm.class_name for lm in lms])
         by_batch: dict[int, list[_Obs]] = {}
         for o in self.obs:
-            if self.lms[o.landmark].alias_of is None:
+            if self.lms[o.landmark].alias_of is None and not self.is_shape(o.class_name):
                 by_batch.setdefault(o.batch, []).append(o)
         changed = 0
         for group in by_batch.values():
@@ -396,7 +640,7 @@ class _Merger:
         fused = 0
         for _ in range(self.p.refine_rounds):
             moved = self.reassociate(values)
-            n = self.fuse_duplicates(values)
+            n = self.fuse_duplicates(values) + self.fuse_shapes(values)
             if moved == 0 and n == 0:
                 break
             fused += n
@@ -433,11 +677,19 @@ class _Merger:
                 ]
                 if pts:
                     shape = shape_fitter(lm.class_name, np.vstack(pts))
+            elif self.is_shape(lm.class_name):
+                self.refresh(lm, values, force=True)
+                shape = lm.shape
+            position = np.asarray(values.atPoint3(L(lm.id)))
+            if self.is_shape(lm.class_name) and shape and shape.get("model") == self.model(lm.class_name):
+                # a shape landmark's position is its shape's reference point (cuboid centre,
+                # cylinder root), as onboard; the graph's point is a mean of visible surfaces
+                position = shapes.shape_center(shape)
             out.append(
                 Landmark(
                     new_id,
                     lm.class_name,
-                    np.asarray(values.atPoint3(L(lm.id))),
+                    position,
                     cov.get(lm.id, np.full((3, 3), np.nan)),
                     len(lm.obs),
                     -1,
@@ -448,6 +700,22 @@ class _Merger:
         return MergeResult(
             out, trajectories, [log.robot for log in self.logs], contributors, fused, graph, values
         )
+
+
+def _inside(shape: dict, pts: np.ndarray, margin: float) -> np.ndarray:
+    """Which points lie inside a cuboid / cylinder shape inflated by ``margin`` (world frame).
+
+    The test of the onboard front end (``ShapeLandmarks._inside``), with the margin explicit.
+    """
+    if shape["model"] == "cuboid":
+        T = shapes.cuboid_pose(shape)
+        local = (pts - T[:3, 3]) @ T[:3, :3]
+        return np.all(np.abs(local) <= np.asarray(shape["dims"]) / 2 + margin, axis=1)
+    root, n = np.asarray(shape["root"]), np.asarray(shape["axis"])
+    v = pts - root
+    along = v @ n
+    radial = np.linalg.norm(v - np.outer(along, n), axis=1)
+    return (radial <= shape["radius"] + margin) & (along >= -margin)
 
 
 def _is_pose(key: int) -> bool:

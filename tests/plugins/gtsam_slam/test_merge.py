@@ -20,6 +20,7 @@ from amslam.plugins.gtsam_slam.merge import (
     write_landmarks,
 )
 from amslam.plugins.gtsam_slam.synthetic import LoopWorld, camera_mount
+from amslam.types import Detection, Odometry
 
 WIDTH, HEIGHT = 12.0, 8.0
 
@@ -156,3 +157,73 @@ def test_known_base_places_the_chain(two_robots: tuple[LoopWorld, Path, Path]) -
     result = merge_runs([a], bases=[shift], params=MergeParams(optimizer="isam2"))
     start = result.trajectories[0][0][:3, 3]
     np.testing.assert_allclose(start, [100.0, -50.0, 1.2], atol=0.05)
+
+
+# -- shape classes: cars seen from opposite sides --------------------------------------------------
+
+CAR = np.array([1.8, 4.5, 1.5])  # x (width), y (length), z (height): nose-in stalls along x
+
+
+def car_points(lo: np.ndarray, viewer: np.ndarray, rng: np.random.Generator, n: int = 60) -> np.ndarray:
+    """Surface points of the box faces at ``lo`` (size CAR) that face the viewer."""
+    hi = lo + CAR
+    out = []
+    for axis in range(3):
+        for side, plane in ((-1, lo[axis]), (1, hi[axis])):
+            if (viewer[axis] - plane) * side <= 0 or (axis == 2 and side < 0):
+                continue  # the face is turned away (or is the bottom)
+            p = rng.uniform(lo, hi, (n, 3))
+            p[:, axis] = plane
+            out.append(p)
+    return np.vstack(out)
+
+
+def fly_past_cars(cars: np.ndarray, y: float, direction: int, seed: int, path: Path) -> Path:
+    """A robot flying along x at height 3.5 m, ``y`` m off the row, detecting cars within 6 m."""
+    rng = np.random.default_rng(seed)
+    log = MeasurementLog(path, f"robot-{seed}", camera_mount())
+    xs = np.arange(-6.0, cars[:, 0].max() + 8.0, 0.25)[::direction]
+    for k, x in enumerate(xs):
+        T = pose_from(np.array([x, y, 3.5]), 0.0 if direction > 0 else np.pi)
+        odom = Odometry(float(k) * 0.25, T)
+        log.keypose(odom, T)
+        if k % 2:
+            continue
+        T_wc = T @ camera_mount()
+        dets = []
+        for lo in cars:
+            if np.linalg.norm(lo + CAR / 2 - T[:3, 3]) > 6.0:
+                continue
+            pw = car_points(lo, T[:3, 3], rng)
+            pc = (pw - T_wc[:3, 3]) @ T_wc[:3, :3]
+            dets.append(Detection("car", 0.9, np.median(pc, axis=0), rng.permutation(pc)))
+        log.detections(odom, dets, T)
+    log.close()
+    return path
+
+
+def test_shape_classes_merge_by_shape_one_landmark_per_car(tmp_path: Path) -> None:
+    # four cars side by side, 2.6 m stalls (0.8 m gaps), as in the simulated lot; robot a flies
+    # past their fronts, robot b past their backs: the visible-surface centroids of one car seen
+    # from the two sides are ~2 m apart, far beyond the centroid gate
+    cars = np.array([[2.6 * i, 0.0, 0.0] for i in range(4)])
+    truth = {str(i): lo + CAR / 2 for i, lo in enumerate(cars)}
+    classes = dict.fromkeys(truth, "car")
+    a = fly_past_cars(cars, -3.0, 1, 1, tmp_path / "a.jsonl")
+    b = fly_past_cars(cars, CAR[1] + 3.0, -1, 2, tmp_path / "b.jsonl")
+    logs = [read_measurements(a), read_measurements(b)]
+    by_centroid = merge_measurements(logs)
+    by_shape = merge_measurements(logs, MergeParams(landmark_models={"car": "cuboid"}))
+    assert len(by_centroid.landmarks) >= 2 * len(cars)  # each side its own landmark
+    assert len(by_shape.landmarks) == len(cars)  # one per car, neighbours not fused
+    assert by_shape.shared() == len(cars)  # both robots' sides in each
+    err, pairs = position_errors(by_shape.landmarks, truth, classes, gate=0.5)
+    assert len(pairs) == len(cars) and err.max() < 0.3  # the position is the fitted box centre
+    for lm in by_shape.landmarks:
+        assert lm.shape is not None and lm.shape["model"] == "cuboid"
+        np.testing.assert_allclose(sorted(lm.shape["dims"][:2]), sorted(CAR[:2]), atol=0.35)
+    # the size gate is what keeps neighbours apart: with a limit of two cars' size they fuse
+    loose = merge_measurements(
+        logs, MergeParams(landmark_models={"car": "cuboid"}, shape_max_dims={"car": (12.0, 6.0, 3.0)})
+    )
+    assert len(loose.landmarks) < len(cars)
