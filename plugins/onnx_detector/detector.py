@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib.resources
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
@@ -79,6 +80,18 @@ class OnnxDetector(Detector):
         )
         depth_gap: float = Field(
             0.3, ge=0.0, description="split the mask's depths at gaps larger than this (m); 0 = keep all"
+        )
+        centroid_height: Literal["mask", "box"] = Field(
+            "box",
+            description="height of the centroid: the median of the mask's points, or the middle of the"
+            " box at their median depth (masks miss thin parts such as chair legs, boxes do not)",
+        )
+        duplicate_overlap: float = Field(
+            0.5,
+            gt=0.0,
+            le=1.0,
+            description="a detection whose depth pixels lie more than this share in stronger detections of"
+            " its class is a part or a merge of them and is dropped (mask NMS); 1 = off",
         )
         max_points: int = Field(400, ge=0, description="points_cam is subsampled to at most this many")
         threads: int = Field(1, ge=1, le=16, description="onnxruntime intra-op threads")
@@ -156,17 +169,38 @@ class OnnxDetector(Detector):
             frame.rgb, conf=p.confidence, iou=p.iou, max_det=p.max_detections, mask_threshold=p.mask_threshold
         )
         wanted = None if p.classes is None else set(p.classes)
+        H, W = frame.depth.shape
+        claimed: dict[int, np.ndarray] = {}  # per class: pixels of the stronger detections kept so far
         out: list[Detection] = []
-        for inst in instances:
+        for inst in instances:  # best first
             if wanted is not None and self.names[inst.class_id] not in wanted:
                 continue
-            det = self.lift(inst, frame.depth, frame.K)
-            if det is not None:
-                out.append(det)
+            lifted = self._lift(inst, frame.depth, frame.K)
+            if lifted is None:
+                continue
+            det, (v, u) = lifted
+            if p.duplicate_overlap < 1.0:
+                # Mask NMS: box NMS keeps a box on a chair's back next to one on the whole chair, or
+                # one spanning two chairs next to theirs (their IoU is small); in 3-D these repeat an
+                # object already reported. Each one becomes a second tentative landmark within a few
+                # decimetres of the first, and the SLAM front end then finds every later detection of
+                # that chair ambiguous between the two and starts yet another (issue #8).
+                taken = claimed.setdefault(inst.class_id, np.zeros((H, W), dtype=bool))
+                if np.count_nonzero(taken[v, u]) > p.duplicate_overlap * len(v):
+                    continue
+                taken[v, u] = True
+            out.append(det)
         return out
 
     def lift(self, inst: Instance, depth: np.ndarray, K: np.ndarray) -> Detection | None:
         """The 3-D step of one instance: its mask's depth → centroid and points (None if too few)."""
+        lifted = self._lift(inst, depth, K)
+        return None if lifted is None else lifted[0]
+
+    def _lift(
+        self, inst: Instance, depth: np.ndarray, K: np.ndarray
+    ) -> tuple[Detection, tuple[np.ndarray, np.ndarray]] | None:
+        """:meth:`lift`, plus the image rows and columns of the depth pixels it used."""
         p = self.params
         assert p is not None
         H, W = depth.shape
@@ -186,9 +220,15 @@ class OnnxDetector(Detector):
         Kw[0, 2] -= u0
         Kw[1, 2] -= v0
         pts = backproject(mask, d, np.linalg.inv(Kw))
-        return Detection(
-            self.names[inst.class_id], float(inst.score), np.median(pts, axis=0), self._subsample(pts)
-        )
+        vv, uu = np.nonzero(mask)
+        centroid = np.median(pts, axis=0)
+        if p.centroid_height == "box" and inst.box[1] > 0.5 and inst.box[3] < H - 0.5:
+            # The camera's y axis points down the image: the box's middle row (box edges are pixel
+            # edges, K counts pixel centres: − ½) at the points' median depth.
+            fy, cy = float(K[1, 1]), float(K[1, 2])
+            centroid[1] = (0.5 * (inst.box[1] + inst.box[3]) - 0.5 - cy) / fy * centroid[2]
+        det = Detection(self.names[inst.class_id], float(inst.score), centroid, self._subsample(pts))
+        return det, (vv + v0, uu + u0)
 
     def _subsample(self, pts: np.ndarray) -> np.ndarray:
         assert self.params is not None

@@ -14,6 +14,7 @@ from amslam.errors import AmslamError, MissionError
 from amslam.interfaces import RunContext
 from amslam.mission import load_mission
 from amslam.plugins.onnx_detector import OnnxDetector
+from amslam.plugins.onnx_detector.decoder import Instance
 from amslam.plugins.onnx_detector.detector import largest_depth_cluster, shipped_model
 from amslam.plugins.sim import SimPlatform
 from amslam.plugins.sim.camera import viewing_pose
@@ -147,3 +148,68 @@ def test_largest_depth_cluster_drops_the_wall_behind() -> None:
     expected[2:8, 2:8] = True
     np.testing.assert_array_equal(kept, expected)
     np.testing.assert_array_equal(largest_depth_cluster(mask, depth, gap=5.0), mask)
+
+
+class _StubModel:
+    """Stands in for the network: returns fixed instances (the 3-D step and mask NMS are under test)."""
+
+    def __init__(self, instances: list[Instance]) -> None:
+        self.instances = instances
+
+    def __call__(self, rgb: np.ndarray, **kwargs) -> list[Instance]:  # noqa: ANN003
+        return list(self.instances)
+
+
+def _instance(
+    class_id: int, score: float, box: tuple[int, int, int, int], rows: slice | None = None
+) -> Instance:
+    """An instance on a 320×240 image whose mask fills its box (or only the box's ``rows``)."""
+    mask = np.zeros((240, 320), bool)
+    u0, v0, u1, v1 = box
+    mask[v0:v1, u0:u1] = True
+    if rows is not None:
+        keep = np.zeros_like(mask)
+        keep[rows, u0:u1] = True
+        mask &= keep
+    return Instance(class_id, score, np.array(box, float), mask)
+
+
+def _stub_detector(tmp_path: Path, instances: list[Instance], **params) -> tuple[OnnxDetector, Frame]:  # noqa: ANN003
+    det = OnnxDetector()
+    det.configure(OnnxDetector.Params(**params), RunContext(rng=np.random.default_rng(0), run_dir=tmp_path))
+    det._model = _StubModel(instances)
+    K = np.array([[160.0, 0.0, 159.5], [0.0, 160.0, 119.5], [0.0, 0.0, 1.0]])
+    depth = np.full((240, 320), 3.0, np.float32)
+    frame = Frame(0.0, depth, K, np.eye(4), np.zeros((240, 320, 3), np.uint8))
+    return det, frame
+
+
+def test_mask_nms_drops_parts_and_merges_of_stronger_detections(tmp_path: Path) -> None:
+    chair_a = _instance(0, 0.9, (100, 60, 160, 200))
+    chair_b = _instance(0, 0.8, (170, 60, 230, 200))
+    back_of_a = _instance(0, 0.7, (100, 60, 160, 110))  # box IoU with A 0.36: box NMS keeps it
+    a_and_b = _instance(0, 0.5, (100, 60, 230, 200))  # both chairs in one box: IoU 0.46 with each
+    table_on_a = _instance(1, 0.6, (100, 60, 160, 200))  # another class: not a duplicate
+    instances = [chair_a, chair_b, back_of_a, table_on_a, a_and_b]
+    det, frame = _stub_detector(tmp_path, instances)
+    found = det.detect(frame)
+    assert [(d.class_name, d.confidence) for d in found] == [("chair", 0.9), ("chair", 0.8), ("table", 0.6)]
+    det, frame = _stub_detector(tmp_path, instances, duplicate_overlap=1.0)
+    assert len(det.detect(frame)) == 5
+
+
+def test_centroid_height_from_the_box_when_the_mask_misses_the_legs(tmp_path: Path) -> None:
+    seat_and_back = _instance(0, 0.9, (100, 60, 160, 200), rows=slice(60, 120))
+    det, frame = _stub_detector(tmp_path, [seat_and_back])
+    (d,) = det.detect(frame)
+    fy, cy = frame.K[1, 1], frame.K[1, 2]
+    assert d.centroid_cam[1] == pytest.approx((130.0 - 0.5 - cy) / fy * 3.0)  # the box's middle row
+    assert d.centroid_cam[2] == pytest.approx(3.0)
+    det, frame = _stub_detector(tmp_path, [seat_and_back], centroid_height="mask")
+    (d,) = det.detect(frame)
+    assert d.centroid_cam[1] == pytest.approx((89.5 - cy) / fy * 3.0)  # the median of rows 60–119
+    # a box cut by the image's bottom edge does not show the object's height: the mask's median
+    cut = _instance(0, 0.9, (100, 160, 160, 240), rows=slice(160, 200))
+    det, frame = _stub_detector(tmp_path, [cut])
+    (d,) = det.detect(frame)
+    assert d.centroid_cam[1] == pytest.approx((179.5 - cy) / fy * 3.0)
