@@ -11,6 +11,7 @@
     amslam experiment pams MISSION [MISSION ...] [--seeds N]
     amslam characterise [MISSION] --out MODELS.npz [--poses N] [--seed S]
     amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous] [--seeds N]
+        [--reuse DIR]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
 are printed as ``error: ...`` lines with exit status 2, never as a traceback.
@@ -281,7 +282,15 @@ def cmd_experiment(args) -> int:
 
         robots = [int(n) for n in args.robots.split(",")]
         folder = multirobot.multi_robot(
-            args.mission, registry, seeds, Path(args.out), robots, args.mode, args.set or [], args.schedule
+            args.mission,
+            registry,
+            seeds,
+            Path(args.out),
+            robots,
+            args.mode,
+            args.set or [],
+            args.schedule,
+            reuse=[Path(d) for d in args.reuse or []],
         )
     else:
         folder = experiments.planner_comparison(
@@ -376,6 +385,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["simultaneous", "sequential"],
         default="simultaneous",
         help="multi-robot: team time = longest robot's (simultaneous) or the sum (sequential)",
+    )
+    exp.add_argument(
+        "--reuse",
+        action="append",
+        metavar="DIR",
+        help="multi-robot: reuse robot runs under DIR (earlier experiments) that fly the same flight",
     )
     exp.set_defaults(func=cmd_experiment)
     return parser

@@ -113,6 +113,63 @@ def _build_platform(mission: Mission, registry: Registry, run_dir: Path) -> Any:
     return platform
 
 
+def overhead_seed(seed: int, j: int = 0) -> int:
+    """Mission seed of the ``j``-th overhead robot of a heterogeneous team (the same in every team size)."""
+    return seed * 1000 + 100 + j
+
+
+def lawnmower(
+    world: Any,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    base: np.ndarray,
+    altitude: float,
+    spacing: float,
+    clearance: float,
+    margin: float = 1.5,
+) -> list[list[float]]:
+    """Lanes along the longer side of ``[lo, hi]`` at ``altitude``, ``spacing`` apart, clear of obstacles.
+
+    Each lane is moved across (up to ±1.5 m in 0.25 m steps) to where the whole lane, and the
+    leg to it from the previous point, keep ``clearance`` from every surface (light poles and tree
+    trunks reach above the overhead altitude); a lane that finds no such place is left out.
+    Returns the waypoints relative to ``base`` (``tree: waypoints``), starting with the climb.
+    """
+    axis = 0 if hi[0] - lo[0] >= hi[1] - lo[1] else 1
+    other = 1 - axis
+    a0, a1 = lo[axis] + margin, hi[axis] - margin
+    c0, c1 = lo[other] + margin, hi[other] - margin
+    n = max(1, int(np.ceil((c1 - c0) / spacing)) + 1)
+    offsets = np.linspace(c0, c1, n) if n > 1 else np.array([(c0 + c1) / 2])
+
+    def point(a: float, c: float) -> np.ndarray:
+        q = np.zeros(3)
+        q[axis], q[other], q[2] = a, c, altitude
+        return q
+
+    def clear(p: np.ndarray, q: np.ndarray) -> bool:
+        k = max(2, int(np.linalg.norm(q - p) / 0.25) + 1)
+        seg = p[None] + np.linspace(0, 1, k)[:, None] * (q - p)[None]
+        return bool(np.all(world.distance(seg) > clearance))
+
+    here = np.array([base[0], base[1], altitude])
+    pts = [here]
+    forward = True
+    for c in offsets:
+        for shift in [0.0, *[s * d for d in np.arange(0.25, 1.51, 0.25) for s in (1, -1)]]:
+            ends = (point(a0, c + shift), point(a1, c + shift))
+            if not forward:
+                ends = ends[::-1]
+            if clear(*ends) and clear(pts[-1], ends[0]):
+                pts += list(ends)
+                forward = not forward
+                break
+    rel = [
+        [round(float(q[0] - base[0]), 2), round(float(q[1] - base[1]), 2), round(float(q[2]), 2)] for q in pts
+    ]
+    return rel
+
+
 def team_overrides(
     spec: str,
     registry: Registry,
@@ -120,35 +177,45 @@ def team_overrides(
     mode: Mode,
     seed: int,
     overrides: Sequence[str] = (),
-    overhead_altitude: float = 2.0,
-    overhead_pitch: float = 35.0,
+    overhead_altitude: float | None = None,
+    overhead_pitch: float = 60.0,
+    overhead_spacing: float = 6.0,
     base_spacing: float = 1.0,
     split: bool | None = None,
     scratch: Path = Path("."),
 ) -> list[list[str]]:
     """The ``--set`` overrides of each robot of a team: seed, world pin, start, area, altitude.
 
+    Homogeneous: ``n`` low-altitude robots, each exploring its own strip of the area. Heterogeneous
+    (paper 2 Fig. 10): ``n − 1`` low-altitude robots exactly as a homogeneous team of ``n − 1``
+    (same seeds, strips and bases, so each low robot alone is a homogeneous run), plus one
+    **overhead** robot (the last; ``n = 1`` is the overhead robot alone). Outdoors (a world
+    without a roof) the overhead robot flies a lawnmower (``tree: waypoints``) over the whole
+    area at ``overhead_altitude`` with its camera pitched ``overhead_pitch`` down, holding its
+    altitude; elsewhere it explores the whole area like a low robot from that altitude.
+
     Args:
         spec: the mission.
         registry: the plugins.
         n: robots in the team.
-        mode: homogeneous (same robots) or heterogeneous (low-altitude and overhead alternate).
-        seed: the experiment seed (robot 0 flies it; the others fly in the same world).
+        mode: homogeneous (same robots) or heterogeneous (low-altitude robots and an overhead one).
+        seed: the experiment seed (robot 1 flies it; the others fly in the same world).
         overrides: applied to every robot first.
-        overhead_altitude: take-off altitude of overhead robots (m); when it is not above the
-            mission's altitude (outdoor missions fly at 3.5 m), overhead robots fly at 1.5 × that
-            altitude instead, so that they are always the higher robots.
-        overhead_pitch: their camera's downward tilt (degrees).
+        overhead_altitude: the overhead robot's altitude (m); default: twice the mission's altitude,
+            at most 1 m below the top of the world's flight volume.
+        overhead_pitch: its camera's downward tilt (degrees).
+        overhead_spacing: distance between its lawnmower lanes (m).
         base_spacing: smallest distance between two bases (m).
-        split: give each robot its own strip of the area (default: homogeneous only).
+        split: give each low robot its own strip of the area (default: yes).
         scratch: a folder for the throw-away run context of the world look-up.
     """
     if split is None:
-        split = mode == "homogeneous"
+        split = True
     base = [*overrides, f"seed={seed}"]
     mission = load_mission(spec, registry, base)
     if mission.backends["platform"].plugin != "sim":
         raise ValueError("the multi-robot experiment needs the simulator platform (plugin sim)")
+    n_low = n if mode == "homogeneous" else n - 1
     platform = _build_platform(mission, registry, scratch)
     try:
         world = platform.world_summary()
@@ -157,39 +224,59 @@ def team_overrides(
         hi = np.array(area.hi if area else world.bounds_hi, float)
         radius = mission.model.robot.radius
         low_alt = mission.model.robot.altitude
-        high_alt = overhead_altitude if overhead_altitude > low_alt else round(1.5 * low_alt, 2)
-        alts = [low_alt if mode == "homogeneous" or k % 2 == 0 else high_alt for k in range(n)]
-        boxes = split_area(lo, hi, n) if split else [(lo, hi)] * n
-        start = np.asarray(platform.ground_truth())[:2, 3]
+        top = float(world.bounds_hi[2]) - float(world.floor_heights[0])
+        high_alt = (
+            overhead_altitude if overhead_altitude is not None else round(min(2 * low_alt, top - 1.0), 2)
+        )
+        boxes = split_area(lo, hi, n_low) if split and n_low > 0 else [(lo, hi)] * n_low
         bases: list[np.ndarray] = []
-        for k in range(n):
-            spots = open_spots(platform, boxes[k][0], boxes[k][1], max(alts), radius)
-            if not split:  # nearby bases around the default start
-                spots = spots[np.linalg.norm(spots - start, axis=1) <= 4.0] if len(spots) else spots
-                if k == 0 or len(spots) == 0:
-                    spots = np.vstack([start[None], spots]) if len(spots) else start[None]
+        for k in range(n_low):
+            spots = open_spots(platform, boxes[k][0], boxes[k][1], low_alt, radius)
             far = [s for s in spots if all(np.linalg.norm(s - b) >= base_spacing for b in bases)]
             if not far:
                 raise ValueError(
                     f"no free base for robot {k + 1} of {n} in {boxes[k][0][:2]}–{boxes[k][1][:2]}"
                 )
             bases.append(np.asarray(far[0], float))
+        overhead_flags: list[str] = []
+        if mode == "heterogeneous":
+            spots = open_spots(platform, lo, hi, high_alt, radius)
+            # the lawnmower starts at the area's low corner: take off from the open spot nearest it
+            spots = spots[np.argsort(np.linalg.norm(spots - (lo[:2] + 1.5), axis=1), kind="stable")]
+            far = [s for s in spots if all(np.linalg.norm(s - b) >= base_spacing for b in bases)]
+            if not far:
+                raise ValueError(f"no free base for the overhead robot in {lo[:2]}–{hi[:2]}")
+            bases.append(np.asarray(far[0], float))
+            overhead_flags = [
+                f"robot.altitude={high_alt}",
+                f"platform.camera.pitch_deg={overhead_pitch}",
+            ]
+            world_params = mission.backends["platform"].params.world
+            if getattr(world_params, "kind", None) == "outdoor":
+                wps = lawnmower(platform.world, lo, hi, bases[-1], high_alt, overhead_spacing, radius + 0.75)
+                overhead_flags += [
+                    "tree=waypoints",
+                    f"waypoints.points={wps}",
+                    "waypoints.heading=travel",
+                    "waypoints.tolerance=0.3",
+                ]
     finally:
         platform.close()
     pin = sim_world_seed(seed)
     teams = []
     for k in range(n):
-        s = robot_seed(seed, k)
-        flags = [*base, f"seed={s}", f"name={mission.name}-r{k + 1}"]
+        overhead = mode == "heterogeneous" and k == n - 1
+        s = overhead_seed(seed) if overhead else robot_seed(seed, k)
+        flags = [*base, f"seed={s}", f"name={mission.name}-{'overhead' if overhead else f'r{k + 1}'}"]
         world_params = mission.backends["platform"].params.world
         if hasattr(world_params, "seed_offset"):  # a generated world: pin it to robot 1's
             flags.append(f"platform.world.seed_offset={pin - sim_world_seed(s) + world_params.seed_offset}")
         flags.append(f"platform.start=[{bases[k][0]:.2f}, {bases[k][1]:.2f}]")
-        if split:
+        if overhead:
+            flags += overhead_flags
+        elif split:
             blo, bhi = boxes[k]
             flags.append(f"area={{lo: {np.round(blo, 2).tolist()}, hi: {np.round(bhi, 2).tolist()}}}")
-        if alts[k] != low_alt:
-            flags += [f"robot.altitude={alts[k]}", f"platform.camera.pitch_deg={overhead_pitch}"]
         teams.append(flags)
     return teams
 
@@ -227,8 +314,16 @@ def shape_fitter(models: dict[str, str]) -> Callable[[str, np.ndarray], dict | N
 def score(landmarks: Sequence[Any], world: WorldSummary, gate: float = 1.0) -> dict[str, Any]:
     """Objects mapped, spurious landmarks, position and dimension errors against the truth."""
     from amslam.plugins.gtsam_slam.merge import position_errors
+    from amslam.plugins.gtsam_slam.shapes import shape_center
 
-    truth = {k: np.asarray(v, float) for k, v in world.object_positions.items()}
+    # an object with a true cuboid / cylinder is scored at its shape's reference point (box
+    # centre, cylinder root), as the merge reports shape landmarks at their fitted shape's
+    truth = {
+        k: shape_center(world.object_shapes[k])
+        if world.object_shapes.get(k, {}).get("model") in ("cuboid", "cylinder")
+        else np.asarray(v, float)
+        for k, v in world.object_positions.items()
+    }
     err, pairs = position_errors(landmarks, truth, dict(world.object_classes), gate)
     out: dict[str, Any] = {
         "objects": len(truth),
@@ -256,15 +351,84 @@ def score(landmarks: Sequence[Any], world: WorldSummary, gate: float = 1.0) -> d
 # -- the experiment ----------------------------------------------------------------------------
 
 
-def _fly(spec: str, registry: Registry, flags: list[str], runs: Path, log: Callable[[str], None]) -> dict:
+def flight_key(mission: Mission) -> str:
+    """What makes two robot runs the same flight: seed, world, base, area, altitude, camera, tree.
+
+    The name and the plugins' other settings are left out, so a robot of one team (a low robot of
+    a heterogeneous team is a homogeneous team's robot) or of an earlier experiment is reused.
+    """
+    m = mission.model
+    plat = mission.backends["platform"].params
+    world = getattr(plat, "world", None)
+    return json.dumps(
+        {
+            "seed": m.seed,
+            "world": [getattr(world, "name", None), getattr(world, "seed_offset", None)],
+            "start": list(plat.start) if getattr(plat, "start", None) is not None else None,
+            "area": [list(m.area.lo), list(m.area.hi)] if m.area else None,
+            "altitude": m.robot.altitude,
+            "pitch": getattr(getattr(plat, "camera", None), "pitch_deg", None),
+            "tree": m.tree,
+            "waypoints": [list(q) for q in m.waypoints.points] if m.tree == "waypoints" else None,
+            "planner": mission.backends["planner"].plugin,
+            "max_time": m.limits.max_time,
+        },
+        default=float,
+    )
+
+
+def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
+    """Earlier robot runs (folders holding run folders, searched recursively) by :func:`flight_key`."""
+    out: dict[str, dict] = {}
+    for folder in folders:
+        for log in sorted(Path(folder).rglob("measurements.jsonl")):
+            run = log.parent
+            if not (run / "mission.yaml").exists() or not (run / "metrics.json").exists():
+                continue  # a run still flying, or killed
+            mission = load_mission(str(run / "mission.yaml"), registry, [])
+            metrics = json.loads((run / "metrics.json").read_text())
+            out.setdefault(
+                flight_key(mission), {"flags": None, "run_dir": run, "metrics": metrics, "world": None}
+            )
+    return out
+
+
+def _world_of(run_dir: Path, registry: Registry) -> WorldSummary:
+    """The world summary of a run, rebuilt from its mission (same seed, same pin)."""
+    mission = load_mission(str(Path(run_dir) / "mission.yaml"), registry, [])
+    platform = _build_platform(mission, registry, Path(run_dir).parent)
+    try:
+        return platform.world_summary()
+    finally:
+        platform.close()
+
+
+def _fly(
+    spec: str,
+    registry: Registry,
+    flags: list[str],
+    runs: Path,
+    log: Callable[[str], None],
+    reuse: dict[str, dict] | None = None,
+) -> dict:
     mission = load_mission(spec, registry, flags)
+    key = flight_key(mission)
+    if reuse is not None and key in reuse:
+        done = reuse[key]
+        log(f"    {mission.name:<28} reused {done['run_dir']}")
+        if done["world"] is None:
+            done["world"] = _world_of(done["run_dir"], registry)
+        return done
     started = time.perf_counter()
     runner = Runner(mission, registry, runs)
     result = runner.run()
     took = time.perf_counter() - started
     log(f"    {mission.name:<28} {result.verdict:<10} ({took:.0f} s) {result.run_dir}")
     world = getattr(getattr(runner, "context", None), "world", None)
-    return {"flags": flags, "run_dir": result.run_dir, "metrics": result.metrics, "world": world}
+    flown = {"flags": flags, "run_dir": result.run_dir, "metrics": result.metrics, "world": world}
+    if reuse is not None:
+        reuse[key] = flown
+    return flown
 
 
 def fly_team(
@@ -277,14 +441,18 @@ def fly_team(
     overrides: Sequence[str] = (),
     schedule: Schedule = "simultaneous",
     log: Callable[[str], None] = print,
+    reuse: dict[str, dict] | None = None,
     **setup: Any,
 ) -> dict[str, Any]:
-    """Fly one team, merge at the base, score each robot alone and the merged map."""
-    from amslam.plugins.gtsam_slam.merge import merge_runs, write_landmarks
+    """Fly one team, merge at the base, score each robot alone and the merged map.
+
+    ``reuse`` (:func:`flight_key` → flight) holds robots already flown; new flights are added.
+    """
+    from amslam.plugins.gtsam_slam.merge import MergeParams, merge_runs, write_landmarks
 
     runs.mkdir(parents=True, exist_ok=True)
     teams = team_overrides(spec, registry, n, mode, seed, overrides, scratch=runs, **setup)
-    flown = [_fly(spec, registry, flags, runs, log) for flags in teams]
+    flown = [_fly(spec, registry, flags, runs, log, reuse) for flags in teams]
     world: WorldSummary = flown[0]["world"]
     for f in flown[1:]:
         same = f["world"] is not None and set(f["world"].object_positions) == set(world.object_positions)
@@ -295,13 +463,18 @@ def fly_team(
             raise RuntimeError(
                 f"robot run {f['run_dir']} did not fly in the same world as {flown[0]['run_dir']}"
             )
-    fit = shape_fitter(class_models(world))
+    models = class_models(world)
+    fit = shape_fitter(models)
+    params = MergeParams(landmark_models=models)  # shape classes merge by their shapes
     times = [float(f["metrics"].get("sim_duration_s") or 0.0) for f in flown]
+    names = [
+        "overhead" if mode == "heterogeneous" and k == n - 1 else f"robot {k + 1}" for k in range(len(flown))
+    ]
     rows = []
     for k, f in enumerate(flown):
-        alone = merge_runs([f["run_dir"]], shape_fitter=fit)
-        rows.append({"name": f"robot {k + 1}", "minutes": times[k] / 60.0, **score(alone.landmarks, world)})
-    merged = merge_runs([f["run_dir"] for f in flown], shape_fitter=fit)
+        alone = merge_runs([f["run_dir"]], params, shape_fitter=fit)
+        rows.append({"name": names[k], "minutes": times[k] / 60.0, **score(alone.landmarks, world)})
+    merged = merge_runs([f["run_dir"] for f in flown], params, shape_fitter=fit)
     team_dir = runs / f"merged-{mode}-n{n}-seed{seed}"
     team_dir.mkdir(exist_ok=True)
     write_landmarks(team_dir / "landmarks.json", merged.landmarks)
@@ -339,17 +512,25 @@ def multi_robot(
     overrides: Sequence[str] = (),
     schedule: Schedule = "simultaneous",
     log: Callable[[str], None] = print,
+    reuse: Sequence[Path] = (),
     **setup: Any,
 ) -> Path:
-    """The experiment: every team size for every seed; writes results.json and table.md."""
+    """The experiment: every team size for every seed; writes results.json and table.md.
+
+    A robot flight is flown once and reused by every team it belongs to; ``reuse`` adds the
+    robot runs found under earlier experiment folders (:func:`index_runs`).
+    """
     folder = Path(out) / f"multi-robot-{mode}-{Path(spec).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
     (folder / "runs").mkdir(parents=True)
     results = []
+    flights = index_runs(reuse, registry)
     for seed in seeds:
         for n in robots:
             log(f"  seed {seed}, {n} robot(s), {mode}")
             results.append(
-                fly_team(spec, registry, n, mode, seed, folder / "runs", overrides, schedule, log, **setup)
+                fly_team(
+                    spec, registry, n, mode, seed, folder / "runs", overrides, schedule, log, flights, **setup
+                )
             )
             (folder / "results.json").write_text(json.dumps(results, indent=2, default=str))
     (folder / "table.md").write_text(tables(results))
@@ -388,6 +569,7 @@ def tables(results: list[dict]) -> str:
         measures = [
             ("Num. of obj. / min", "objects_per_minute"),
             ("Objects mapped", "mapped"),
+            ("Landmarks", "landmarks"),
             ("Spurious landmarks", "spurious"),
             ("Pos. err. mean (m)", "position_error_mean"),
             ("Pos. err. std (m)", "position_error_std"),

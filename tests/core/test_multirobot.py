@@ -11,7 +11,15 @@ import yaml
 
 from amslam.measurements import read_measurements
 from amslam.mission import load_mission
-from amslam.multirobot import _build_platform, fly_team, score, split_area, tables, team_overrides
+from amslam.multirobot import (
+    _build_platform,
+    flight_key,
+    fly_team,
+    score,
+    split_area,
+    tables,
+    team_overrides,
+)
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
 from amslam.types import Landmark, WorldSummary
@@ -77,11 +85,45 @@ def test_team_flies_one_world_from_own_bases(registry, tmp_path: Path) -> None: 
 
 def test_heterogeneous_team_has_an_overhead_robot(registry, tmp_path: Path) -> None:  # noqa: ANN001
     spec = str(mission_file(tmp_path))
-    teams = team_overrides(spec, registry, 2, "heterogeneous", 5, overhead_altitude=2.0, scratch=tmp_path)
-    low, high = (load_mission(spec, registry, flags) for flags in teams)
-    assert low.model.robot.altitude == 1.2 and high.model.robot.altitude == 2.0
-    assert high.backends["platform"].params.camera.pitch_deg > 0
-    assert low.model.area is None and high.model.area is None  # both map the whole area
+    hom = team_overrides(spec, registry, 2, "homogeneous", 5, scratch=tmp_path)
+    het = team_overrides(spec, registry, 3, "heterogeneous", 5, overhead_altitude=2.0, scratch=tmp_path)
+    # the low robots of a heterogeneous team of 3 are the homogeneous team of 2, flight for flight
+    missions = [load_mission(spec, registry, flags) for flags in [*hom, *het]]
+    assert [flight_key(m) for m in missions[:2]] == [flight_key(m) for m in missions[2:4]]
+    high = missions[-1]
+    assert high.name == "tiny-overhead" and high.model.robot.altitude == 2.0
+    assert high.backends["platform"].params.camera.pitch_deg == 60.0
+    assert high.model.area is None  # the overhead robot covers the whole area
+    assert high.model.tree == "exploration"  # indoors (a roof): it explores from its altitude
+    assert flight_key(high) not in {flight_key(m) for m in missions[:-1]}
+
+
+def test_overhead_lawnmower_stays_high_and_clear(registry, tmp_path: Path) -> None:  # noqa: ANN001
+    spec = tmp_path / "lot.yaml"
+    spec.write_text(
+        MISSION.replace("MAX_TIME", "240")
+        .replace("altitude: 1.2", "altitude: 3.0")
+        .replace(
+            "world: {size: [12, 8], floors: 1}", "world: {kind: outdoor, size: [24, 14], ground_class: null}"
+        )
+    )
+    (flags,) = team_overrides(str(spec), registry, 1, "heterogeneous", 5, scratch=tmp_path)
+    mission = load_mission(str(spec), registry, flags)
+    assert mission.model.tree == "waypoints" and mission.model.robot.altitude == 6.0  # 2 × 3 m
+    platform = _build_platform(mission, registry, tmp_path)
+    try:
+        start = np.array([*mission.backends["platform"].params.start, 0.0])
+        pts = np.array(mission.model.waypoints.points) + start
+        assert np.all(pts[:, 2] == 6.0)  # climbs at its base, then holds its altitude
+        legs = [
+            a + (b - a) * t for a, b in zip(pts[:-1], pts[1:], strict=True) for t in np.linspace(0, 1, 40)
+        ]
+        assert platform.world.distance(np.array(legs)).min() > mission.model.robot.radius + 0.5
+        # lanes across the whole lot (along its longer side, x), at most 6 m apart
+        lanes = sorted({round(float(y), 2) for y in pts[1:, 1]})
+        assert np.ptp(pts[:, 0]) > 18.0 and max(np.diff(lanes)) <= 6.0 + 3.0 and np.ptp(lanes) > 8.0
+    finally:
+        platform.close()
 
 
 def world_summary() -> WorldSummary:
