@@ -130,7 +130,7 @@ def lawnmower(
 ) -> list[list[float]]:
     """Lanes along the longer side of ``[lo, hi]`` at ``altitude``, ``spacing`` apart, clear of obstacles.
 
-    Each lane is moved across (up to ±1.5 m in 0.25 m steps) to where the whole lane, and the
+    Each lane is moved across (up to half the spacing, in 0.25 m steps) to where the whole lane, and the
     leg to it from the previous point, keep ``clearance`` from every surface (light poles and tree
     trunks reach above the overhead altitude); a lane that finds no such place is left out.
     Returns the waypoints relative to ``base`` (``tree: waypoints``), starting with the climb.
@@ -156,7 +156,7 @@ def lawnmower(
     pts = [here]
     forward = True
     for c in offsets:
-        for shift in [0.0, *[s * d for d in np.arange(0.25, 1.51, 0.25) for s in (1, -1)]]:
+        for shift in [0.0, *[s * d for d in np.arange(0.25, spacing / 2 + 0.01, 0.25) for s in (1, -1)]]:
             ends = (point(a0, c + shift), point(a1, c + shift))
             if not forward:
                 ends = ends[::-1]

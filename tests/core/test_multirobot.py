@@ -15,6 +15,7 @@ from amslam.multirobot import (
     _build_platform,
     flight_key,
     fly_team,
+    index_runs,
     score,
     split_area,
     tables,
@@ -124,6 +125,24 @@ def test_overhead_lawnmower_stays_high_and_clear(registry, tmp_path: Path) -> No
         assert np.ptp(pts[:, 0]) > 18.0 and max(np.diff(lanes)) <= 6.0 + 3.0 and np.ptp(lanes) > 8.0
     finally:
         platform.close()
+
+
+def test_earlier_flights_are_found_by_what_they_fly(registry, tmp_path: Path) -> None:  # noqa: ANN001
+    spec = str(mission_file(tmp_path))
+    teams = team_overrides(spec, registry, 2, "homogeneous", 5, scratch=tmp_path)
+    for k, flags in enumerate(teams):  # two finished runs as the runner leaves them
+        run = tmp_path / "earlier" / f"run{k}"
+        run.mkdir(parents=True)
+        (run / "mission.yaml").write_text(yaml.safe_dump(load_mission(spec, registry, flags).resolved()))
+        (run / "metrics.json").write_text('{"sim_duration_s": 100.0}')
+        (run / "measurements.jsonl").write_text("")
+    found = index_runs([tmp_path / "earlier"], registry)
+    assert len(found) == 2
+    # robot 2 of the pair is found from its flags, whatever its name; a 1-robot team is not
+    again = load_mission(spec, registry, [*teams[1], "name=renamed"])
+    assert found[flight_key(again)]["run_dir"] == tmp_path / "earlier" / "run1"
+    (alone,) = team_overrides(spec, registry, 1, "homogeneous", 5, scratch=tmp_path)
+    assert flight_key(load_mission(spec, registry, alone)) not in found
 
 
 def world_summary() -> WorldSummary:
