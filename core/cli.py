@@ -10,7 +10,7 @@
     amslam experiment {slc-ablation,planners} MISSION [--seeds N]
     amslam experiment pams MISSION [MISSION ...] [--seeds N]
     amslam characterise [MISSION] --out MODELS.npz [--poses N] [--seed S]
-    amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous] [--seeds N]
+    amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous|both] [--seeds N]
         [--reuse DIR]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
@@ -376,9 +376,9 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--robots", default="1,2,3", help="multi-robot: team sizes (default 1,2,3)")
     exp.add_argument(
         "--mode",
-        choices=["homogeneous", "heterogeneous"],
+        choices=["homogeneous", "heterogeneous", "both"],
         default="homogeneous",
-        help="multi-robot: same robots on split areas, or low-altitude + overhead robots on one area",
+        help="multi-robot: same robots on split areas, low-altitude robots + an overhead robot, or both",
     )
     exp.add_argument(
         "--schedule",

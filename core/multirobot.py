@@ -442,11 +442,13 @@ def fly_team(
     schedule: Schedule = "simultaneous",
     log: Callable[[str], None] = print,
     reuse: dict[str, dict] | None = None,
+    merges: dict[tuple[str, ...], Any] | None = None,
     **setup: Any,
 ) -> dict[str, Any]:
     """Fly one team, merge at the base, score each robot alone and the merged map.
 
     ``reuse`` (:func:`flight_key` → flight) holds robots already flown; new flights are added.
+    ``merges`` (run folders → merge result) likewise keeps merges of the same robots.
     """
     from amslam.plugins.gtsam_slam.merge import MergeParams, merge_runs, write_landmarks
 
@@ -470,11 +472,19 @@ def fly_team(
     names = [
         "overhead" if mode == "heterogeneous" and k == n - 1 else f"robot {k + 1}" for k in range(len(flown))
     ]
+    cache = {} if merges is None else merges
+
+    def merge(dirs: list[Path]) -> Any:
+        key = tuple(str(d) for d in dirs)
+        if key not in cache:
+            cache[key] = merge_runs(dirs, params, shape_fitter=fit)
+        return cache[key]
+
     rows = []
     for k, f in enumerate(flown):
-        alone = merge_runs([f["run_dir"]], params, shape_fitter=fit)
+        alone = merge([f["run_dir"]])
         rows.append({"name": names[k], "minutes": times[k] / 60.0, **score(alone.landmarks, world)})
-    merged = merge_runs([f["run_dir"] for f in flown], params, shape_fitter=fit)
+    merged = merge([f["run_dir"] for f in flown])
     team_dir = runs / f"merged-{mode}-n{n}-seed{seed}"
     team_dir.mkdir(exist_ok=True)
     write_landmarks(team_dir / "landmarks.json", merged.landmarks)
@@ -508,7 +518,7 @@ def multi_robot(
     seeds: Sequence[int],
     out: Path,
     robots: Sequence[int] = (1, 2, 3),
-    mode: Mode = "homogeneous",
+    mode: Mode | Literal["both"] = "homogeneous",
     overrides: Sequence[str] = (),
     schedule: Schedule = "simultaneous",
     log: Callable[[str], None] = print,
@@ -517,23 +527,36 @@ def multi_robot(
 ) -> Path:
     """The experiment: every team size for every seed; writes results.json and table.md.
 
-    A robot flight is flown once and reused by every team it belongs to; ``reuse`` adds the
-    robot runs found under earlier experiment folders (:func:`index_runs`).
+    ``mode="both"`` runs the homogeneous and then the heterogeneous teams. A robot flight is flown
+    once and reused by every team it belongs to; ``reuse`` adds the robot runs found under
+    earlier experiment folders (:func:`index_runs`).
     """
+    modes: list[Mode] = ["homogeneous", "heterogeneous"] if mode == "both" else [mode]
     folder = Path(out) / f"multi-robot-{mode}-{Path(spec).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
     (folder / "runs").mkdir(parents=True)
     results = []
     flights = index_runs(reuse, registry)
-    for seed in seeds:
-        for n in robots:
-            log(f"  seed {seed}, {n} robot(s), {mode}")
-            results.append(
-                fly_team(
-                    spec, registry, n, mode, seed, folder / "runs", overrides, schedule, log, flights, **setup
-                )
+    merges: dict[tuple[str, ...], Any] = {}
+    for seed, m, n in ((seed, m, n) for seed in seeds for m in modes for n in robots):
+        log(f"  seed {seed}, {n} robot(s), {m}")
+        results.append(
+            fly_team(
+                spec,
+                registry,
+                n,
+                m,
+                seed,
+                folder / "runs",
+                overrides,
+                schedule,
+                log,
+                flights,
+                merges,
+                **setup,
             )
-            (folder / "results.json").write_text(json.dumps(results, indent=2, default=str))
-    (folder / "table.md").write_text(tables(results))
+        )
+        (folder / "results.json").write_text(json.dumps(results, indent=2, default=str))
+    (folder / "table.md").write_text("\n".join(tables([r for r in results if r["mode"] == m]) for m in modes))
     return folder
 
 
