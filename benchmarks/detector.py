@@ -17,6 +17,14 @@ for chairs and for all classes the landmarks paired one-to-one with the world's 
 1 m (``amslam.report.landmark_accuracy``), their mean distance to the true object centres, the
 matched fraction (paired / landmarks) and the objects mapped (paired / objects in the world). The
 world is rebuilt from the run's ``mission.yaml`` and seed, as the runner built it.
+
+``--objects RUN_DIR...`` says where a run's objects of one class (``--class``, default chair) are
+lost, from its measurement log (detections with the true key poses) and its landmarks: each
+object is *never in view* (never 60 px at 640×480, scaled, within 5 m from any key pose, rendered
+from the true pose), *in view, never detected* (no detection of its class within 0.5 m of it),
+*detected, no landmark* (detections, but no landmark within 0.5 m), or mapped (a landmark within
+0.5 m). The last column counts same-class landmark pairs closer than 0.5 m: duplicates, as no two
+objects are that close.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ import numpy as np
 import yaml
 
 from amslam.interfaces import BACKEND_KINDS, RunContext
+from amslam.measurements import read_measurements
 from amslam.plugins.onnx_detector import OnnxDetector
 from amslam.plugins.onnx_detector.decoder import decode, letterbox
 from amslam.plugins.sim import SimDetector, SimPlatform
@@ -63,6 +72,11 @@ def _frame(width: int, height: int) -> Frame:
 
 def _run_world(run_dir: Path) -> WorldSummary:
     """The world of a simulator run, rebuilt from its mission and seed as the runner does."""
+    return _run_platform(run_dir).world_summary()
+
+
+def _run_platform(run_dir: Path) -> SimPlatform:
+    """The simulator of a run (world and camera), rebuilt from its mission and seed as the runner does."""
     mission = yaml.safe_load((run_dir / "mission.yaml").read_text())
     section = {k: v for k, v in mission["platform"].items() if k != "plugin"}
     seed = np.random.SeedSequence(mission["seed"]).spawn(len(BACKEND_KINDS))[0]
@@ -73,7 +87,7 @@ def _run_world(run_dir: Path) -> WorldSummary:
         RunContext(rng=np.random.default_rng(seed), run_dir=run_dir, robot=robot),
     )
     plat.start()
-    return plat.world_summary()
+    return plat
 
 
 def compare(run_dirs: list[Path]) -> None:
@@ -112,15 +126,82 @@ def compare(run_dirs: list[Path]) -> None:
             )
 
 
+def objects(run_dirs: list[Path], class_name: str = "chair", near: float = 0.5) -> None:
+    """Where a run's objects of one class are lost (see the module docstring)."""
+    print(
+        f"| run | {class_name}s | never in view | in view, never detected | detected, no landmark "
+        f"| landmark ≤ {near} m | duplicate landmark pairs < {near} m |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    details = []
+    for run in run_dirs:
+        plat = _run_platform(run)
+        world = plat.world
+        objs = [o for o in world.objects if o.class_name == class_name]
+        log = read_measurements(run)
+        if log.truth is None:
+            raise SystemExit(f"{run}: the measurement log has no true poses (not a simulator run)")
+        T_bc = plat.camera.T_body_cam
+        rng = np.random.default_rng(0)
+        seen = np.zeros(len(objs), bool)
+        closest = np.full(len(objs), np.inf)
+        min_px = max(1, round(60 * plat.camera.width * plat.camera.height / (640 * 480)))
+        for T_wb in log.truth:  # every key pose's view, rendered from the true pose
+            T_wc = T_wb @ T_bc
+            r = plat._renderer.render(world, T_wc, rng)
+            ids, counts = np.unique(r.instance, return_counts=True)
+            px = dict(zip(ids.tolist(), counts.tolist(), strict=True))
+            for k, o in enumerate(objs):
+                if px.get(o.instance_id, 0) >= min_px:
+                    rng_m = float(np.linalg.norm(o.centroid - T_wc[:3, 3]))
+                    if rng_m <= 5.0:  # the detectors' depth range
+                        seen[k] = True
+                        closest[k] = min(closest[k], rng_m)
+        C = np.array([o.centroid for o in objs])
+        hits = np.zeros(len(objs), int)
+        for d in log.detections:
+            if d.class_name != class_name:
+                continue
+            T = log.truth[d.keypose]
+            dist = np.linalg.norm(C - (T[:3, :3] @ d.p_body + T[:3, 3]), axis=1)
+            if dist.min() <= near:
+                hits[int(dist.argmin())] += 1
+        lms = [d for d in json.loads((run / "landmarks.json").read_text()) if d["class"] == class_name]
+        L = np.array([d["position"] for d in lms]).reshape(-1, 3)
+        mapped = np.array([len(L) > 0 and np.linalg.norm(L - c, axis=1).min() <= near for c in C])
+        dl = np.linalg.norm(L[:, None] - L[None], axis=2) + np.eye(len(L)) * 1e9
+        dups = int(np.triu(dl < near).sum())
+        never = ~seen & (hits == 0) & ~mapped
+        missed = seen & (hits == 0) & ~mapped
+        lost = (hits > 0) & ~mapped
+        counts = (len(objs), never.sum(), missed.sum(), lost.sum(), mapped.sum(), dups)
+        print(f"| {run.name} | " + " | ".join(str(int(c)) for c in counts) + " |")
+        listed = {
+            label: ", ".join(f"{objs[k].name} ({closest[k]:.1f} m, {hits[k]})" for k in np.flatnonzero(sel))
+            for label, sel in (("in view, never detected", missed), ("detected, no landmark", lost))
+        }
+        for label, text in listed.items():
+            details.append(f"{run.name}: {label}: {text or '-'}")
+    print()
+    print("(object (closest range in view, detections within the radius))")
+    for line in details:
+        print(line)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", default="640x480", help="image WxH")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     ap.add_argument("--compare", type=Path, nargs="+", help="run folders to compare instead")
+    ap.add_argument("--objects", type=Path, nargs="+", help="run folders: where their objects are lost")
+    ap.add_argument("--class", dest="class_name", default="chair", help="class for --objects")
     args = ap.parse_args()
     if args.compare:
         compare(args.compare)
+        return
+    if args.objects:
+        objects(args.objects, args.class_name)
         return
     w, h = (int(v) for v in args.size.split("x"))
     frame = _frame(w, h)
