@@ -53,9 +53,15 @@ class RobotSection(_Strict):
     clearance: float = Field(
         0.15, ge=0, description="extra distance planned paths keep from obstacles (tracking error), m"
     )
+    base: tuple[float, float, float, float] | None = Field(
+        None,
+        description="real vehicles in a team: the take-off spot in the team's shared world frame, "
+        "[x, y, z, yaw_deg], written to the measurement log for merging at the base (paper 2 §IV-B4); "
+        "not for the simulator, whose odometry frame is the world frame (use platform.start)",
+    )
 
     def spec(self) -> RobotSpec:
-        return RobotSpec(**self.model_dump())
+        return RobotSpec(**self.model_dump(exclude={"base"}))
 
 
 class LimitsSection(_Strict):
@@ -307,6 +313,12 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
                 report((kind, *err["loc"]), _describe(err, cls.Params, err["loc"]))
             continue
         backends[kind] = BackendChoice(kind, plugin, params)
+        if kind == "platform" and model is not None and model.robot.base is not None and cls.simulated:
+            report(
+                ("robot", "base"),
+                f"the {plugin!r} platform is simulated: its odometry frame is the world frame already; "
+                "robot.base is for real vehicles (platform.start chooses where a simulated robot takes off)",
+            )
     if problems:
         raise MissionError(problems)
     assert model is not None

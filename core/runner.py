@@ -28,7 +28,7 @@ from py_trees.common import Status
 
 from amslam import __version__
 from amslam.errors import AmslamError, MissionError
-from amslam.geometry import invert
+from amslam.geometry import invert, pose_from
 from amslam.interfaces import BACKEND_KINDS, Backend, RunContext
 from amslam.measurements import FILENAME as MEASUREMENTS
 from amslam.measurements import MeasurementLog
@@ -171,7 +171,11 @@ class Runner:
         tree.setup(robot=self.robot)
         recorder = TreeRecorder(tree, self.rundir)
         # what this robot would send to the base for multi-robot merging (paper 2 §IV-B4)
-        measurements = MeasurementLog(self.rundir.path / MEASUREMENTS, self.mission.name, T_body_cam)
+        base = model.robot.base
+        T_world_odom = None if base is None else pose_from(np.array(base[:3]), float(np.radians(base[3])))
+        measurements = MeasurementLog(
+            self.rundir.path / MEASUREMENTS, self.mission.name, T_body_cam, T_world_odom=T_world_odom
+        )
         self._hook("amslam_run_start", run_dir=self.rundir.path, mission=self.mission.resolved())
         self.rundir.event(0.0, "run_start", mission=self.mission.name, amslam=__version__)
 

@@ -83,3 +83,14 @@ def test_resolved_mission_fills_every_default(registry):
     assert resolved["robot"]["radius"] > 0
     assert resolved["planner"]["plugin"]
     assert "replan_period" in resolved["exploration"]
+
+
+def test_robot_base_is_for_real_vehicles_only(registry):
+    real = load_mission("px4_square", registry, overrides=["robot.base=[1.0, 2.0, 0.0, 90]"])
+    assert real.model.robot.base == (1.0, 2.0, 0.0, 90.0)
+    assert "base" not in vars(real.model.robot.spec())
+    with pytest.raises(MissionError) as err:
+        load_mission("demo", registry, overrides=["robot.base=[1.0, 2.0, 0.0, 90]"])
+    assert "robot.base" in str(err.value) and "platform.start" in str(err.value)
+    with pytest.raises(MissionError, match="robot.base"):
+        load_mission("px4_square", registry, overrides=["robot.base=[1.0, 2.0]"])

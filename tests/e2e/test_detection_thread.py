@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
+
 import amslam
+from amslam.measurements import read_measurements
 from amslam.mission import load_mission
 from amslam.plugins.sim import SimDetector, SimPlatform
 from amslam.registry import build_plugin_manager
@@ -42,10 +45,16 @@ def test_a_real_vehicle_detects_off_the_control_thread(tmp_path):
     path = small_mission(tmp_path, max_time=40)
     text = path.read_text().replace("plugin: sim\n", "plugin: unsimulated\n", 1)
     path.write_text(text.replace("detector: {plugin: sim}", "detector: {plugin: recording}"))
-    mission = load_mission(path, registry)
+    # a real vehicle of a team names its base: the measurement log's T_world_odom
+    mission = load_mission(path, registry, overrides=["robot.base=[2.0, -1.0, 0.5, 90]"])
     result = Runner(mission, registry, tmp_path / "runs").run()
     assert result.verdict == "completed", result.verdict
     assert ThreadRecordingDetector.threads and all(
         name.startswith("amslam-detector") for name in ThreadRecordingDetector.threads
     )
     assert result.metrics["landmarks"]["count"] > 0
+    np.testing.assert_allclose(
+        read_measurements(result.run_dir).T_world_odom,
+        [[0, -1, 0, 2.0], [1, 0, 0, -1.0], [0, 0, 1, 0.5], [0, 0, 0, 1]],
+        atol=1e-9,
+    )
