@@ -170,8 +170,8 @@ class ShapeLandmarks:
             if cls != class_name or rec is None or rec.last_world is None:
                 continue
             inside = self._inside(rec.last_world, points_world)
-            if rec.est_world is not None:
-                inside |= self._inside(rec.est_world, points_world)
+            if rec.est_world is not None:  # not inflated: it already holds every view
+                inside |= self._inside(rec.est_world, points_world, 0.0)
             recent = [q for t, q in rec.points if stamp - t <= self.p.window]
             if recent:
                 tree = cKDTree(np.concatenate(recent)[:: max(1, sum(map(len, recent)) // 3000)])

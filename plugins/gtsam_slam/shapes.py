@@ -397,11 +397,13 @@ def complete_cuboid(
         shape: a cuboid fitted by :func:`fit_cuboid` (``b1`` the longer fitted side).
         cameras: K×3 camera positions of the views the points came from (same frame).
         prior: the class's typical ``[length, width, height]`` (length ≥ width).
-        reference: a shape of the same object (same frame), e.g. the current estimate: its
-            longer horizontal axis tells which fitted axis is the length (unless the fitted extent
-            along the other is longer than the prior's width). Without it, a box shorter than the prior's
-            width in both directions (one end seen) takes the axis closer to the viewing
-            direction as its length — a car seen end-on shows its full width across the view.
+        reference: a shape of the same object (same frame), e.g. the current estimate: if it is
+            elongated (long side ≥ 1.5 × short side), its longer horizontal axis tells which
+            fitted axis is the length — unless the fitted extent along one is longer than the
+            prior's width: that one is. Without either cue, a box seen end-on (mean viewing
+            direction within 30° of a box axis) takes that axis as its length — a car seen
+            end-on shows its full width across the view; otherwise nothing is extended and the
+            short axes are flagged ``ambiguous``.
         tolerance: shortfalls up to this are measurement noise, not missing parts (m).
     """
     R = np.asarray(shape["rotation"], float)
@@ -410,17 +412,22 @@ def complete_cuboid(
     pr = np.asarray(prior, float).copy()
     cams = np.asarray(cameras, float).reshape(-1, 3)
     local = (cams - c) @ R  # camera positions along b1, b2, b3
-    if reference is not None:
-        Rr, dr = np.asarray(reference["rotation"], float), np.asarray(reference["dims"], float)
-        length = Rr[:, int(np.argmax(dr[:2]))]  # the reference's longer horizontal axis
-        swapped = abs(R[:, 0] @ length) < abs(R[:, 1] @ length)
-    elif d[0] < pr[1] + tolerance and len(cams):
-        view = -np.mean(local[:, :2], axis=0)  # mean viewing direction, box axes
-        swapped = abs(view[1]) > abs(view[0])
+    # which fitted axis is the length: a fitted extent longer than the object is wide is; else
+    # an elongated reference's longer axis; else, for a first view of one end, the axis within
+    # 30° of the viewing direction. Without a clear cue nothing is extended (a box grown along
+    # the wrong axis would cover the car in the next stall).
+    dr = None if reference is None else np.asarray(reference["dims"], float)
+    if d[0] > pr[1] + 2 * tolerance:
+        swapped, decided = False, True
+    elif dr is not None and max(dr[:2]) >= 1.5 * min(dr[:2]):
+        length = np.asarray(reference["rotation"], float)[:, int(np.argmax(dr[:2]))]
+        swapped, decided = bool(abs(R[:, 0] @ length) < abs(R[:, 1] @ length)), True
+    elif len(cams):
+        view = np.abs(np.mean(local[:, :2], axis=0))  # mean viewing direction, box axes
+        swapped = bool(view[1] > view[0])
+        decided = max(view) >= np.tan(np.radians(60.0)) * min(view)
     else:
-        swapped = False
-    if swapped and d[0] > pr[1] + 2 * tolerance:
-        swapped = False  # a fitted extent longer than the object is wide is its length
+        swapped, decided = False, False
     if swapped:
         pr[[0, 1]] = pr[[1, 0]]
     missing = np.zeros(3)
@@ -436,7 +443,7 @@ def complete_cuboid(
         if pos and neg:
             continue
         missing[a] = need
-        if pos or neg:
+        if (pos or neg) and decided:
             c_new -= (1.0 if pos else -1.0) * 0.5 * need * R[:, a]
             d_new[a] = pr[a]
             extended[a] = True

@@ -291,3 +291,14 @@ def test_reference_length_is_its_longer_axis_and_a_long_fit_is_never_a_width() -
     done = S.complete_cuboid(long_fit, (R @ np.array([6.0, 0.5, 3.0]))[None], [4.6, 1.85, 1.5], reference=ref)
     assert not done.swapped and done.extended[0] and not done.extended[1]
     assert done.shape["dims"][0] == pytest.approx(4.6) and done.shape["dims"][1] == pytest.approx(1.8)
+
+
+def test_no_clear_length_axis_extends_nothing() -> None:
+    R = rz(0.3)
+    fit = S.cuboid_shape(R, [0.0, 0.0, 0.75], [1.8, 1.5, 1.5])  # a corner of a car
+    cam = R @ np.array([5.0, 5.0, 3.0])  # seen diagonally: end-on along neither axis
+    done = S.complete_cuboid(fit, cam[None], [4.6, 1.85, 1.5])
+    assert not done.extended.any() and done.ambiguous.any() and done.shape is fit
+    square = S.cuboid_shape(R, [0.0, 0.0, 0.75], [2.0, 1.9, 1.5])  # neither is the reference
+    done = S.complete_cuboid(fit, cam[None], [4.6, 1.85, 1.5], reference=square)
+    assert not done.extended.any()
