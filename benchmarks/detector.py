@@ -30,6 +30,7 @@ objects are that close.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -81,7 +82,8 @@ def _run_platform(run_dir: Path) -> SimPlatform:
     section = {k: v for k, v in mission["platform"].items() if k != "plugin"}
     seed = np.random.SeedSequence(mission["seed"]).spawn(len(BACKEND_KINDS))[0]
     plat = SimPlatform()
-    robot = RobotSpec(**mission["robot"])
+    known = {f.name for f in dataclasses.fields(RobotSpec)}  # the mission's robot section has more (base)
+    robot = RobotSpec(**{k: v for k, v in mission["robot"].items() if k in known})
     plat.configure(
         SimPlatform.Params.model_validate(section),
         RunContext(rng=np.random.default_rng(seed), run_dir=run_dir, robot=robot),
