@@ -313,6 +313,8 @@ class GoTo(RobotBehaviour):
             self.blocked += 1
             if self.blocked > 2:
                 return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")
+            # The global map let this path through: teach it what blocks the way before replanning.
+            self.robot.copy_local_obstacles(near, ahead)
             self.path = self.robot.plan_path(self.goal.position)
             self.index = 1 if self.path is not None and len(self.path) > 1 else 0
             self.progress = (self.index, np.inf, self.robot.time())
