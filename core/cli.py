@@ -11,7 +11,7 @@
     amslam experiment pams MISSION [MISSION ...] [--seeds N]
     amslam characterise [MISSION] --out MODELS.npz [--poses N] [--seed S]
     amslam experiment multi-robot MISSION [--robots 1,2,3] [--mode homogeneous|heterogeneous|both] [--seeds N]
-        [--reuse DIR]
+        [--reuse DIR] [--odometry vio|slam]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``). Errors amslam can explain
 are printed as ``error: ...`` lines with exit status 2, never as a traceback.
@@ -291,6 +291,7 @@ def cmd_experiment(args) -> int:
             args.set or [],
             args.schedule,
             reuse=[Path(d) for d in args.reuse or []],
+            odometry=args.odometry,
         )
     else:
         folder = experiments.planner_comparison(
@@ -391,6 +392,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         metavar="DIR",
         help="multi-robot: reuse robot runs under DIR (earlier experiments) that fly the same flight",
+    )
+    exp.add_argument(
+        "--odometry",
+        choices=["vio", "slam"],
+        default="vio",
+        help="multi-robot: chain each robot's key poses with its VIO (default) or its onboard SLAM estimate",
     )
     exp.set_defaults(func=cmd_experiment)
     return parser

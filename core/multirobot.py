@@ -461,12 +461,15 @@ def fly_team(
     log: Callable[[str], None] = print,
     reuse: dict[str, dict] | None = None,
     merges: dict[tuple[str, ...], Any] | None = None,
+    odometry: Literal["vio", "slam"] = "vio",
     **setup: Any,
 ) -> dict[str, Any]:
     """Fly one team, merge at the base, score each robot alone and the merged map.
 
     ``reuse`` (:func:`flight_key` → flight) holds robots already flown; new flights are added.
     ``merges`` (run folders → merge result) likewise keeps merges of the same robots.
+    ``odometry="slam"`` merges the robots' onboard SLAM trajectories instead of their VIO
+    (:func:`amslam.plugins.gtsam_slam.merge.with_slam_odometry`).
     """
     from amslam.plugins.gtsam_slam.merge import MergeParams, merge_runs, write_landmarks
 
@@ -495,7 +498,7 @@ def fly_team(
     def merge(dirs: list[Path]) -> Any:
         key = tuple(str(d) for d in dirs)
         if key not in cache:
-            cache[key] = merge_runs(dirs, params, shape_fitter=fit)
+            cache[key] = merge_runs(dirs, params, shape_fitter=fit, odometry=odometry)
         return cache[key]
 
     rows = []
@@ -523,6 +526,7 @@ def fly_team(
         "n": n,
         "mode": mode,
         "schedule": schedule,
+        "odometry": odometry,
         "runs": [str(f["run_dir"]) for f in flown],
         "verdicts": [f["metrics"].get("verdict") for f in flown],
         "merged_dir": str(team_dir),
@@ -541,6 +545,7 @@ def multi_robot(
     schedule: Schedule = "simultaneous",
     log: Callable[[str], None] = print,
     reuse: Sequence[Path] = (),
+    odometry: Literal["vio", "slam"] = "vio",
     **setup: Any,
 ) -> Path:
     """The experiment: every team size for every seed; writes results.json and table.md.
@@ -570,6 +575,7 @@ def multi_robot(
                 log,
                 flights,
                 merges,
+                odometry,
                 **setup,
             )
         )

@@ -83,6 +83,7 @@ __all__ = [
     "position_errors",
     "chain_from_base",
     "robot_key",
+    "with_slam_odometry",
     "write_landmarks",
 ]
 
@@ -743,17 +744,62 @@ def merge_measurements(
     return _Merger(logs, params or MergeParams()).run(shape_fitter)
 
 
+def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps and 4×4 poses of a TUM trajectory file (``t x y z qx qy qz qw`` per line)."""
+    from scipy.spatial.transform import Rotation
+
+    rows = np.loadtxt(path, ndmin=2)
+    T = np.tile(np.eye(4), (len(rows), 1, 1))
+    if len(rows):
+        T[:, :3, :3] = Rotation.from_quat(rows[:, 4:8]).as_matrix()
+        T[:, :3, 3] = rows[:, 1:4]
+    return rows[:, 0] if len(rows) else np.zeros(0), T
+
+
+def with_slam_odometry(log: RobotMeasurements, run_dir: Path) -> RobotMeasurements:
+    """The log with the robot's onboard SLAM estimate as its odometry (``slam.tum``, ``vio.tum``).
+
+    A robot may send its own SLAM-corrected trajectory instead of raw VIO: its onboard graph
+    used everything it saw (eq. 1 / eq. 2 shape factors on all points, which the log's 24 points
+    per detection cannot give the base). Each key pose becomes the VIO pose corrected by the
+    latest SLAM correction at or before it, ``T_slam(t_k) · T_vio(t_k)⁻¹ · T_vio(t)`` (the SLAM
+    estimate is written at its key poses, the VIO at every tick), in the odometry frame (the
+    onboard graph is anchored at the robot's start).
+    """
+    ts, Ts = _read_tum(Path(run_dir) / "slam.tum")
+    tv, Tv = _read_tum(Path(run_dir) / "vio.tum")
+    if len(ts) == 0 or len(tv) == 0:
+        return log
+    out = []
+    for t, T in zip(log.stamps, log.T_odom_body, strict=True):
+        k = int(np.searchsorted(ts, t + 1e-6)) - 1
+        if k < 0:
+            out.append(T)
+            continue
+        j = int(np.argmin(np.abs(tv - ts[k])))
+        out.append(Ts[k] @ np.linalg.inv(Tv[j]) @ T)
+    poses = np.array(out).reshape(-1, 4, 4)
+    rel = np.array([np.eye(4)] + [np.linalg.inv(a) @ b for a, b in zip(poses[:-1], poses[1:], strict=True)])
+    log.T_odom_body, log.rel = poses, rel.reshape(-1, 4, 4)
+    return log
+
+
 def merge_runs(
     run_dirs: Sequence[Path],
     params: MergeParams | None = None,
     shape_fitter: ShapeFitter | None = None,
     bases: Sequence[np.ndarray] | None = None,
+    odometry: Literal["vio", "slam"] = "vio",
 ) -> MergeResult:
     """:func:`merge_measurements` of run folders' ``measurements.jsonl``.
 
-    ``bases`` overrides each log's ``T_world_odom`` (the robots' known base poses).
+    ``bases`` overrides each log's ``T_world_odom`` (the robots' known base poses);
+    ``odometry="slam"`` chains each robot's key poses with its onboard SLAM estimate
+    (:func:`with_slam_odometry`) instead of its VIO.
     """
     logs = [read_measurements(Path(d)) for d in run_dirs]
+    if odometry == "slam":
+        logs = [with_slam_odometry(log, Path(d)) for log, d in zip(logs, run_dirs, strict=True)]
     if bases is not None:
         for log, T in zip(logs, bases, strict=True):
             log.T_world_odom = np.asarray(T, float)

@@ -227,3 +227,30 @@ def test_shape_classes_merge_by_shape_one_landmark_per_car(tmp_path: Path) -> No
         logs, MergeParams(landmark_models={"car": "cuboid"}, shape_max_dims={"car": (12.0, 6.0, 3.0)})
     )
     assert len(loose.landmarks) < len(cars)
+
+
+def test_slam_odometry_replaces_the_vio_chain(
+    two_robots: tuple[LoopWorld, Path, Path], tmp_path: Path
+) -> None:
+    from amslam.geometry import tum_line
+    from amslam.plugins.gtsam_slam.merge import with_slam_odometry
+
+    _, a, _ = two_robots
+    log = read_measurements(a)
+    # the run folder's trajectories: VIO at every key pose, the onboard SLAM estimate at every
+    # other one (here: the truth, as a perfect SLAM would have it)
+    (tmp_path / "vio.tum").write_text(
+        "".join(tum_line(t, T) + "\n" for t, T in zip(log.stamps, log.T_odom_body, strict=True))
+    )
+    (tmp_path / "slam.tum").write_text(
+        "".join(tum_line(t, T) + "\n" for t, T in list(zip(log.stamps, log.truth, strict=True))[::2])
+    )
+    vio_err = np.linalg.norm(log.T_odom_body[:, :3, 3] - log.truth[:, :3, 3], axis=1)
+    fixed = with_slam_odometry(read_measurements(a), tmp_path)
+    err = np.linalg.norm(fixed.T_odom_body[:, :3, 3] - log.truth[:, :3, 3], axis=1)
+    assert vio_err.max() > 0.5 and err.max() < 0.05  # between SLAM poses: one step of VIO
+    np.testing.assert_allclose(fixed.T_odom_body[::2], log.truth[::2], atol=1e-5)
+    chained = fixed.T_odom_body[0].copy()
+    for rel in fixed.rel[1:]:
+        chained = chained @ rel
+    np.testing.assert_allclose(chained, fixed.T_odom_body[-1], atol=1e-6)
