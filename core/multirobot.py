@@ -350,6 +350,7 @@ def score(landmarks: Sequence[Any], world: WorldSummary, gate: float = 1.0) -> d
         "spurious": len(landmarks) - len(pairs),
         "position_error_mean": float(err.mean()) if len(err) else None,
         "position_error_std": float(err.std()) if len(err) else None,
+        "errors": {oid: float(e) for (_, oid), e in zip(pairs, err, strict=True)},
     }
     if world.object_shapes:
         from amslam.plugins.gtsam_slam.shapes import shape_errors
@@ -521,6 +522,12 @@ def fly_team(
     )
     for row in rows:
         row["objects_per_minute"] = row["mapped"] / row["minutes"] if row["minutes"] > 0 else None
+    comb = rows[-1]["errors"]
+    for row in rows[:-1]:  # each robot against the merged map on the objects both mapped
+        common = sorted(set(row["errors"]) & set(comb))
+        row["common"] = len(common)
+        row["common_error_alone"] = float(np.mean([row["errors"][k] for k in common])) if common else None
+        row["common_error_merged"] = float(np.mean([comb[k] for k in common])) if common else None
     return {
         "seed": seed,
         "n": n,
@@ -626,7 +633,12 @@ def tables(results: list[dict]) -> str:
                 ("Dim. err. mean (m)", "dimension_error_mean"),
                 ("Dim. err. std (m)", "dimension_error_std"),
             ]
-        measures.append(("Mission time (min)", "minutes"))
+        measures += [
+            ("Mission time (min)", "minutes"),
+            ("Objects also in the merged map", "common"),
+            ("Their pos. err. alone (m)", "common_error_alone"),
+            ("Their pos. err. merged (m)", "common_error_merged"),
+        ]
         lines += [
             f"### {n} robot(s)",
             "",

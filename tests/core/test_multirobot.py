@@ -187,6 +187,10 @@ def test_score_matches_by_class_within_the_gate() -> None:
     assert s["objects"] == 3 and s["mapped"] == 2 and s["spurious"] == 2
     assert s["position_error_mean"] == pytest.approx(0.2)
     assert s["dimension_error_mean"] == pytest.approx(0.1) and s["shapes_compared"] == 1
+    assert s["errors"] == {
+        "a": pytest.approx(0.1),
+        "b": pytest.approx(0.3),
+    }  # per object, for common-object rows
 
 
 def test_tables_like_figs_10_11() -> None:
