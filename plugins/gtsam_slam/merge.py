@@ -160,8 +160,9 @@ class MergeParams(BaseModel):
         _SHAPE.max_radius, gt=0, description="largest radius of one cylinder object (fusion), m"
     )
     shape_centroid_sigma: dict[str, float] = Field(
-        default_factory=lambda: {"cuboid": 5.0, "cylinder": 0.3},
-        description="extra std (m) of a shape-class detection's centroid as a range-bearing measurement: "
+        default_factory=lambda: {"car": 5.0, "cuboid": 0.5, "cylinder": 0.3},
+        description="extra std (m) of a shape-class detection's centroid as a range-bearing measurement, "
+        "by class, else by model (cuboid: furniture-sized, <= 1.5 m): "
         "the centroid of a visible surface is biased towards the viewer by up to half the object "
         "(a car's: metres, consistently along a pass), a pole's by its radius (docs/multirobot.md: on "
         "two lot_a logs, 1.0 m for cars bent the chains to 0.90 / 0.69 m mean error, VIO alone "
@@ -261,7 +262,9 @@ class _Merger:
         rng = float(np.linalg.norm(p_body))
         # a shape class's detection centroid (the median of the visible surface) lies anywhere
         # within about the object's size of its centre: widen range and bearing by that spread
-        spread = p.shape_centroid_sigma.get(self.model(self.lms[lm].class_name), 0.0)
+        cls = self.lms[lm].class_name
+        spread = p.shape_centroid_sigma.get(cls, p.shape_centroid_sigma.get(self.model(cls), 0.0))
+        spread = spread if self.is_shape(cls) else 0.0
         sb = float(np.hypot(p.bearing_sigma, np.arctan2(spread, max(rng, 1e-3))))
         base = gtsam.noiseModel.Diagonal.Sigmas(
             np.array([sb, sb, p.range_sigma + p.range_sigma_per_m * rng + spread])
