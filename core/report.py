@@ -208,6 +208,14 @@ def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
             "to": status.closest_to,
             "position": list(status.closest_position or ()),
         }
+    if robot is not None:
+        # where the flight ended against its take-off spot: a robot that could not get home lands
+        # where it is, and the verdict alone would not say so
+        if len(truth) > 1:
+            ended = float(np.linalg.norm(truth[-1][1][:2, 3] - truth[0][1][:2, 3]))
+        else:
+            ended = float(np.linalg.norm(robot.position_world()[:2] - robot.home_world[:2]))
+        metrics["ended_from_home_m"] = round(ended, 3)
     mapping = backends.get("mapping")
     world = platform.world_summary()
     if mapping is not None:
@@ -394,6 +402,7 @@ def write_report(runner: Runner, metrics: dict[str, Any], plots: list[str]) -> N
     row("backends", ", ".join(f"{k}={v}" for k, v in m.get("plugins", {}).items()))
     row("duration (s)", m.get("sim_duration_s"))
     row("distance travelled (m)", m.get("distance_m"))
+    row("ended this far from the take-off spot, horizontally (m)", m.get("ended_from_home_m"))
     row("explored volume (m³)", m.get("explored_volume_m3"))
     row("reachable free volume (m³)", m.get("reachable_free_volume_m3"))
     row("explored (% of reachable free volume)", m.get("explored_percent"))

@@ -98,12 +98,19 @@ class Robot:
 
     # -- motion --------------------------------------------------------------------------------
 
-    def send_setpoint_world(self, position: np.ndarray, yaw: float) -> None:
-        """Fly towards a world-frame goal, mapped into the odometry frame now (drift compensation)."""
-        T_odom_world = invert(self.slam.T_world_odom())
+    def send_setpoint_world(self, position: np.ndarray, yaw: float) -> np.ndarray:
+        """Fly towards a world-frame goal, mapped into the odometry frame now (drift compensation).
+
+        Returns the world-frame position actually sent: the guards below may have moved it, and a
+        behaviour waiting to reach the goal must know when it is as close as they allow.
+        """
+        T_world_odom = self.slam.T_world_odom()
+        T_odom_world = invert(T_world_odom)
         p_odom = transform_points(T_odom_world, np.asarray(position, float)[None])[0]
         yaw_odom = yaw + float(np.arctan2(T_odom_world[1, 0], T_odom_world[0, 0]))
-        self.platform.set_setpoint(self._clearance_guard(self._height_guard(p_odom)), yaw_odom)
+        sent = self._clearance_guard(self._height_guard(p_odom))
+        self.platform.set_setpoint(sent, yaw_odom)
+        return transform_points(T_world_odom, sent[None])[0]
 
     def _height_guard(self, p_odom: np.ndarray) -> np.ndarray:
         """Keep a setpoint inside the floor/ceiling band of the fresh local (odometry-frame) map.

@@ -226,6 +226,8 @@ class GoTo(RobotBehaviour):
         self.path = self.robot.plan_path(self.goal.position)
         self.index = 1 if self.path is not None and len(self.path) > 1 else 0
         self.blocked = 0
+        self.retried = False  # one new path after a stall
+        self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
         self.progress = (self.index, np.inf, self.robot.time())  # (waypoint, distance, since)
 
     #: how far ahead along the path the fresh local map is checked, m
@@ -256,6 +258,24 @@ class GoTo(RobotBehaviour):
         self.feedback_message = why
         return Status.FAILURE
 
+    #: how far the guards may hold the robot off a waypoint for it still to count as reached, m
+    HELD_OFF = 0.6
+
+    def _held_off(self, here: np.ndarray) -> bool:
+        """At the setpoint the guards made of the current waypoint, which they keep away from it.
+
+        The height guard keeps the robot below a ceiling or above a floor that the local map shows
+        nearer than the global map did, and the clearance guard off walls: that setpoint is as close
+        as the robot may come, so waiting for the waypoint itself would stall the goal.
+        """
+        index, sent = self.sent
+        if index != self.index or sent is None:
+            return False
+        moved = float(np.linalg.norm(sent - self.path[self.index]))
+        return self.WAYPOINT_TOLERANCE <= moved <= self.HELD_OFF and (
+            float(np.linalg.norm(sent - here)) < self.WAYPOINT_TOLERANCE
+        )
+
     def _stalled(self, here: np.ndarray) -> bool:
         """No waypoint passed and no 0.1 m gained on the current one for NO_PROGRESS seconds."""
         now = self.robot.time()
@@ -274,8 +294,21 @@ class GoTo(RobotBehaviour):
             self.feedback_message = f"stopped: {reason}"
             return Status.FAILURE
         if self._stalled(here):
-            # A goal the height guard or the controller cannot reach must not hold the robot forever.
-            return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
+            # A goal the guards or the controller cannot reach must not hold the robot forever. The
+            # clearance guard holds it off what the local map shows in the way, which the global
+            # map may have lost: copy that across and try one new path before giving up.
+            to_target = self.path[self.index] - here
+            ahead = here + to_target * min(1.0, self.LOOKAHEAD / max(float(np.linalg.norm(to_target)), 1e-9))
+            if self.retried or not self.robot.copy_local_obstacles(here, ahead):
+                return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
+            self.retried = True
+            self.path = self.robot.plan_path(self.goal.position)
+            if self.path is None:
+                return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s, and no other path")
+            self.index = 1 if len(self.path) > 1 else 0
+            self.progress = (self.index, np.inf, self.robot.time())
+            self.feedback_message = "stalled: new path"
+            return Status.RUNNING
         if self.early_exit and self.goal.kind == TourItemKind.EXPLORE and self.robot.plans_frontiers:
             # Clusters are re-made as the map grows, so their ids change; the goal is still
             # worth reaching while some viewpoint remains near it.
@@ -286,15 +319,16 @@ class GoTo(RobotBehaviour):
                 return self._done("tour stale: replan")
         # Intermediate waypoints are passed tightly: cutting a corner near a door frame is how
         # a drone hits it.
-        while (
-            self.index < len(self.path) - 1
-            and np.linalg.norm(self.path[self.index] - here) < self.WAYPOINT_TOLERANCE
+        while self.index < len(self.path) - 1 and (
+            np.linalg.norm(self.path[self.index] - here) < self.WAYPOINT_TOLERANCE or self._held_off(here)
         ):
             self.index += 1
         target = self.path[self.index]
         to_target = target - here
         last_leg = self.index == len(self.path) - 1
-        arrived = last_leg and np.linalg.norm(to_target) < exploration.goal_tolerance
+        arrived = last_leg and (
+            np.linalg.norm(to_target) < exploration.goal_tolerance or self._held_off(here)
+        )
         if arrived:
             err = abs(wrap_angle(self.goal.yaw - self.robot.yaw_world()))
             self.robot.send_setpoint_world(target, self.goal.yaw)
@@ -328,7 +362,7 @@ class GoTo(RobotBehaviour):
             self.robot.send_setpoint_world(here, heading)
             self.feedback_message = "turning towards the path"
         else:
-            self.robot.send_setpoint_world(target, heading)
+            self.sent = (self.index, self.robot.send_setpoint_world(target, heading))
             self.feedback_message = f"waypoint {self.index}/{len(self.path) - 1}"
         return Status.RUNNING
 

@@ -36,6 +36,8 @@ def test_small_mission_completes_and_explores(small_run):
     assert metrics["explored_percent"] >= 90.0
     assert metrics["reachable_free_volume_m3"] > 50
     assert metrics["distance_m"] > 5
+    assert metrics["ended_from_home_m"] < 0.8  # back where it took off, give or take its VIO drift (~0.4 m)
+    assert metrics["closest_approach"]["clearance_m"] > metrics["closest_approach"]["robot_radius_m"]
     report = (small_run.run_dir / "report.md").read_text()
     assert "**Verdict: completed**" in report and "top_view.png" in report
     events = [json.loads(line) for line in (small_run.run_dir / "events.jsonl").read_text().splitlines()]
