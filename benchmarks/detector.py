@@ -25,6 +25,13 @@ from the true pose), *in view, never detected* (no detection of its class within
 *detected, no landmark* (detections, but no landmark within 0.5 m), or mapped (a landmark within
 0.5 m). The last column counts same-class landmark pairs closer than 0.5 m: duplicates, as no two
 objects are that close.
+
+``--replay RUN_DIR...`` feeds each run's logged detections, frame by frame, through a fresh SLAM
+front end (``GtsamSlam``, default parameters, no loop closure), once with the true key poses and
+once with the VIO ones: what the detections make of the map without drift, and with it.
+``--openloop RUN_DIR... --detectors sim onnx[:key=value,...]`` re-renders the run's detection
+key poses from their true poses, runs each detector on them and feeds the front end (true poses,
+no loop closure): detectors compared on one trajectory, without the flights diverging.
 """
 
 from __future__ import annotations
@@ -190,6 +197,103 @@ def objects(run_dirs: list[Path], class_name: str = "chair", near: float = 0.5) 
         print(line)
 
 
+def _chair_summary(lms: list[Landmark], world: WorldSummary, class_name: str) -> str:
+    """Landmarks of a class, paired (≤ 1 m) and their mean distance, and duplicate pairs (< 0.5 m)."""
+    keep = [k for k, c in world.object_classes.items() if c == class_name]
+    sub = WorldSummary(
+        world.name, world.bounds_lo, world.bounds_hi, 0.0, world.floor_heights, (), {},
+        object_positions={k: world.object_positions[k] for k in keep},
+        object_classes={k: world.object_classes[k] for k in keep},
+    )  # fmt: skip
+    mine = [lm for lm in lms if lm.class_name == class_name]
+    acc = landmark_accuracy(mine, sub)
+    P = np.array([lm.position for lm in mine]).reshape(-1, 3)
+    dl = np.linalg.norm(P[:, None] - P[None], axis=2) + np.eye(len(P)) * 1e9
+    err = acc.get("mean_error_m")
+    return (
+        f"{len(mine)} | {acc['matched']} | {err if err is not None else float('nan'):.3f} "
+        f"| {int(np.triu(dl < 0.5).sum())}"
+    )
+
+
+def _slam():
+    from amslam.plugins.gtsam_slam.backend import GtsamSlam
+
+    slam = GtsamSlam()
+    slam.configure(GtsamSlam.Params(), RunContext(rng=np.random.default_rng(0), run_dir=Path(".")))
+    return slam
+
+
+def replay(run_dirs: list[Path], class_name: str = "chair") -> None:
+    """Each run's logged detections through the SLAM front end, frame by frame, no loop closure."""
+    from amslam.measurements import pose_from_list
+    from amslam.types import Detection, Odometry
+
+    print(f"| run | poses | {class_name} landmarks | paired ≤ 1 m | mean distance, m | pairs < 0.5 m |")
+    print("|---|---|---:|---:|---:|---:|")
+    for run in run_dirs:
+        world = _run_world(run)
+        records = [json.loads(line) for line in (run / "measurements.jsonl").read_text().splitlines()]
+        for truth in (True, False):
+            slam, kps = _slam(), {}
+            for r in records:
+                if r["type"] == "keypose":
+                    T = pose_from_list(r["truth"] if truth else r["T_odom_body"])
+                    kps[r["id"]] = T
+                    slam.add_odometry(Odometry(r["t"], T))
+                elif r["type"] == "detections":  # one frame: detections in the key pose's body frame
+                    dets = [
+                        Detection(o["class"], o["confidence"], np.asarray(o["p_body"], float))
+                        for o in r["objects"]
+                    ]
+                    slam.add_detections(Odometry(r["t"], kps[r["keypose"]]), np.eye(4), dets)
+            label = "true" if truth else "VIO"
+            print(f"| {run.name} | {label} | {_chair_summary(slam.landmarks(), world, class_name)} |")
+
+
+def openloop(run_dirs: list[Path], specs: list[str], class_name: str = "chair") -> None:
+    """Re-render each run's detection key poses from the true pose, detect, feed the SLAM front end."""
+    from amslam.types import Odometry
+
+    print(
+        f"| run | detector | detections | {class_name} landmarks | paired ≤ 1 m | mean distance, m "
+        "| pairs < 0.5 m |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for run in run_dirs:
+        plat = _run_platform(run)
+        world, cam = plat.world_summary(), plat.camera
+        log = read_measurements(run)
+        if log.truth is None:
+            raise SystemExit(f"{run}: the measurement log has no true poses (not a simulator run)")
+        rng = np.random.default_rng(1)
+        frames = []
+        for k in sorted({d.keypose for d in log.detections}):
+            T_wc = log.truth[k] @ cam.T_body_cam
+            r = plat._renderer.render(plat.world, T_wc, rng)
+            frames.append(
+                Frame(float(log.stamps[k]), r.depth, cam.K.copy(), T_wc, r.rgb, r.instance, r.class_id,
+                      plat.world.class_names, T_wc)
+            )  # fmt: skip
+        for spec in specs:  # "sim" or "onnx[:key=value,...]"
+            name, _, rest = spec.partition(":")
+            kw = {
+                k: yaml.safe_load(v)
+                for k, v in (item.split("=", 1) for item in filter(None, rest.split(",")))
+            }
+            det = SimDetector() if name == "sim" else OnnxDetector()
+            ctx = RunContext(rng=np.random.default_rng(5), run_dir=Path("."), camera=cam, world=world)
+            det.configure(type(det).Params(**kw), ctx)
+            slam, n = _slam(), 0
+            for f in frames:
+                dets = det.detect(f)
+                n += len(dets)
+                odom = Odometry(f.stamp, f.T_odom_cam @ np.linalg.inv(cam.T_body_cam))
+                slam.add_odometry(odom)
+                slam.add_detections(odom, cam.T_body_cam, dets)
+            print(f"| {run.name} | {spec} | {n} | {_chair_summary(slam.landmarks(), world, class_name)} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", default="640x480", help="image WxH")
@@ -197,8 +301,19 @@ def main() -> None:
     ap.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     ap.add_argument("--compare", type=Path, nargs="+", help="run folders to compare instead")
     ap.add_argument("--objects", type=Path, nargs="+", help="run folders: where their objects are lost")
-    ap.add_argument("--class", dest="class_name", default="chair", help="class for --objects")
+    ap.add_argument("--replay", type=Path, nargs="+", help="run folders: their logs through the SLAM")
+    ap.add_argument("--openloop", type=Path, nargs="+", help="run folders: re-render, detect, SLAM")
+    ap.add_argument(
+        "--detectors", nargs="+", default=["sim", "onnx"], help="for --openloop: sim, onnx[:key=value,...]"
+    )
+    ap.add_argument("--class", dest="class_name", default="chair", help="class for --objects etc.")
     args = ap.parse_args()
+    if args.replay:
+        replay(args.replay, args.class_name)
+        return
+    if args.openloop:
+        openloop(args.openloop, args.detectors, args.class_name)
+        return
     if args.compare:
         compare(args.compare)
         return
