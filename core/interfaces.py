@@ -205,16 +205,6 @@ class Mapping(Backend):
     def voxel_size(self) -> float:
         """Edge of a global voxel in metres."""
 
-    def add_obstacles(self, points_world: np.ndarray) -> None:
-        """Mark the global voxels holding ``points_world`` (N×3) occupied, whatever they held.
-
-        For what the fresh local map has shown and the global map contradicts: a global map
-        integrated with poses that were later corrected can carve a thin slab or a door jamb away,
-        and paths planned through the gap must not be planned again. A backend that cannot do this
-        raises NotImplementedError and the robot keeps failing such goals instead.
-        """
-        raise NotImplementedError(f"{type(self).__name__} cannot add obstacles")
-
     def save(self, path: Path) -> None:
         """Write the whole map to a compressed file."""
         raise NotImplementedError(f"{type(self).__name__} cannot save maps")

@@ -208,30 +208,6 @@ class Robot:
         a, b = transform_points(T_odom_world, np.stack([a_world, b_world]))
         return self.mapping.segment_free(a, b, local=True)
 
-    def copy_local_obstacles(self, a_world: np.ndarray, b_world: np.ndarray) -> int:
-        """Write the local map's occupied voxels near a segment into the global map; how many.
-
-        For a path the global map let through and the fresh local map shows blocked: a global map
-        integrated with poses that SLAM later corrected can have carved a 0.2 m slab or a door
-        jamb away (demo seed 1 planned from one floor to the next through such a gap), and every
-        replan would send the robot into the same gap.
-        """
-        T_world_odom = self.slam.T_world_odom()
-        a, b = transform_points(invert(T_world_odom), np.stack([a_world, b_world]))
-        steps = max(2, int(np.ceil(np.linalg.norm(b - a) / self.GUARD_STEP)) + 1)
-        ball = self._guard_offsets()
-        ball = ball[np.linalg.norm(ball, axis=1) <= self.spec.radius]  # what blocks the robot's sphere
-        samples = (np.linspace(a, b, steps)[:, None, :] + ball[None]).reshape(-1, 3)
-        occupied = samples[self.mapping.states(samples, local=True) == VoxelState.OCCUPIED]
-        if not len(occupied):
-            return 0
-        try:
-            self.mapping.add_obstacles(transform_points(T_world_odom, occupied))
-        except NotImplementedError:
-            return 0
-        self.emit("local_obstacles_copied", samples=len(occupied), near=np.round(b_world, 2).tolist())
-        return len(occupied)
-
     # -- planning ------------------------------------------------------------------------------
 
     def mark_unreachable(self, position: np.ndarray) -> None:

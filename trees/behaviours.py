@@ -226,7 +226,6 @@ class GoTo(RobotBehaviour):
         self.path = self.robot.plan_path(self.goal.position)
         self.index = 1 if self.path is not None and len(self.path) > 1 else 0
         self.blocked = 0
-        self.retried = False  # one new path after a stall
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
         self.progress = (self.index, np.inf, self.robot.time())  # (waypoint, distance, since)
 
@@ -294,21 +293,8 @@ class GoTo(RobotBehaviour):
             self.feedback_message = f"stopped: {reason}"
             return Status.FAILURE
         if self._stalled(here):
-            # A goal the guards or the controller cannot reach must not hold the robot forever. The
-            # clearance guard holds it off what the local map shows in the way, which the global
-            # map may have lost: copy that across and try one new path before giving up.
-            to_target = self.path[self.index] - here
-            ahead = here + to_target * min(1.0, self.LOOKAHEAD / max(float(np.linalg.norm(to_target)), 1e-9))
-            if self.retried or not self.robot.copy_local_obstacles(here, ahead):
-                return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
-            self.retried = True
-            self.path = self.robot.plan_path(self.goal.position)
-            if self.path is None:
-                return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s, and no other path")
-            self.index = 1 if len(self.path) > 1 else 0
-            self.progress = (self.index, np.inf, self.robot.time())
-            self.feedback_message = "stalled: new path"
-            return Status.RUNNING
+            # A goal the guards or the controller cannot reach must not hold the robot forever.
+            return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
         if self.early_exit and self.goal.kind == TourItemKind.EXPLORE and self.robot.plans_frontiers:
             # Clusters are re-made as the map grows, so their ids change; the goal is still
             # worth reaching while some viewpoint remains near it.
@@ -347,8 +333,6 @@ class GoTo(RobotBehaviour):
             self.blocked += 1
             if self.blocked > 2:
                 return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")
-            # The global map let this path through: teach it what blocks the way before replanning.
-            self.robot.copy_local_obstacles(near, ahead)
             self.path = self.robot.plan_path(self.goal.position)
             self.index = 1 if self.path is not None and len(self.path) > 1 else 0
             self.progress = (self.index, np.inf, self.robot.time())

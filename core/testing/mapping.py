@@ -265,27 +265,6 @@ class MappingContract:
         assert wall_map.plan_path(start, np.array([4.55, 0.05, 0.05])) is None
         assert wall_map.plan_path(start, np.array([WALL_X, 0.05, 0.05])) is None
 
-    def test_added_obstacles_block_paths(self, wall_map: Mapping) -> None:
-        start, goal = np.array([0.55, 0.05, 0.05]), np.array([2.3, 0.05, 0.05])
-        assert wall_map.plan_path(start, goal) is not None
-        # a plate across the frustum at x = 1.5, known free until now
-        ys, zs = np.meshgrid(np.arange(-1.5, 1.55, 0.1), np.arange(-1.0, 1.05, 0.1))
-        plate = np.column_stack([np.full(ys.size, 1.5), ys.ravel(), zs.ravel()])
-        plate = plate[wall_map.states(plate) == FREE]
-        assert len(plate) > 300
-        try:
-            wall_map.add_obstacles(plate)
-        except NotImplementedError:
-            pytest.skip("optional: this backend cannot add obstacles")
-        assert np.all(wall_map.states(plate) == OCCUPIED)
-        assert np.all(wall_map.states(plate, local=True) != OCCUPIED)  # the local map is untouched
-        assert not wall_map.segment_free(start, goal)
-        path = wall_map.plan_path(start, goal)
-        assert path is None or all(
-            wall_map.segment_free(a, b) for a, b in zip(path[:-1], path[1:], strict=True)
-        )
-        wall_map.add_obstacles(np.zeros((0, 3)))  # nothing to add is fine
-
     # ------------------------------------------------------------------ persistence
     def test_save_load_round_trip(self, wall_map: Mapping, tmp_path: Path) -> None:
         path = tmp_path / "map.npz"

@@ -26,7 +26,6 @@ from amslam.plugins.voxel_numpy.grid import (
     LogOddsModel,
     centres,
     index_box,
-    logit,
     to_index,
     union,
 )
@@ -150,7 +149,6 @@ class VoxelStorage(Protocol):
         self, depth: np.ndarray, K: np.ndarray, T: np.ndarray, stride: int, max_range: float
     ) -> BoundingBox: ...
     def states_at_index(self, index: np.ndarray) -> np.ndarray: ...
-    def hit_indices(self, index: np.ndarray) -> BoundingBox: ...
     def dense_states(self, lo: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray: ...
     def voxels(self) -> tuple[np.ndarray, np.ndarray]: ...
     def extent(self) -> tuple[np.ndarray, np.ndarray]: ...
@@ -278,22 +276,6 @@ class VoxelMapBase(Mapping):
             self._local_centre = cam.copy()
         stride = p.local_stride or auto_stride(K, p.local_voxel, p.max_range)
         return self.local_map.integrate_depth(depth, K, T_odom_cam, stride, p.max_range)
-
-    def add_obstacles(self, points_world: np.ndarray) -> None:
-        """Mark global voxels occupied: hits until occupied from any state (clamped log-odds)."""
-        self._require()
-        pts = np.asarray(points_world, dtype=float).reshape(-1, 3)
-        if not len(pts):
-            return
-        index = np.unique(to_index(pts, self.global_map.voxel), axis=0)
-        model = self.global_map.model
-        hits = int(np.ceil((model.l_occ - logit(model.p_min)) / model.l_hit)) + 1
-        box = BoundingBox.nothing()
-        for _ in range(hits):
-            box = self.global_map.hit_indices(index)
-        if not box.empty:
-            self._pending = union(self._pending, box)
-            self._version += 1
 
     def _local_shape(self) -> tuple[int, int, int]:
         return tuple(int(np.ceil(s / self.params.local_voxel)) for s in self.params.local_size)

@@ -245,14 +245,6 @@ class DenseGrid:
         k[flat] = True
         return box_of_indices(index[inside], self.voxel)
 
-    def hit_indices(self, index: np.ndarray) -> BoundingBox:
-        """Apply one hit to each voxel index (N×3, unique); return the touched box."""
-        flat, inside = self._flat(np.asarray(index, dtype=np.int64).reshape(-1, 3))
-        v, k = self.value.reshape(-1), self.known.reshape(-1)
-        v[flat] = self.model.update(v[flat], k[flat], np.ones(len(flat), dtype=bool))
-        k[flat] = True
-        return box_of_indices(np.asarray(index).reshape(-1, 3)[inside], self.voxel)
-
     def states_at_index(self, index: np.ndarray) -> np.ndarray:
         """int8 VoxelState of voxel indices (N×3); UNKNOWN outside the block."""
         out = np.full(len(index), UNKNOWN, dtype=np.int8)

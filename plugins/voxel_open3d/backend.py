@@ -126,11 +126,6 @@ class HashGrid:
         values[buf] = self.model.update(values[buf], found, is_hit)
         return box_of_indices(index, self.voxel)
 
-    def hit_indices(self, index: np.ndarray) -> BoundingBox:
-        """Apply one hit to each voxel index (N×3, unique); return the touched box."""
-        index = np.asarray(index, dtype=np.int64).reshape(-1, 3)
-        return self.integrate_indices(index, np.ones(len(index), dtype=bool))
-
     def integrate_depth(
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int, max_range: float
     ) -> BoundingBox:

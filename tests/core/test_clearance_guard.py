@@ -29,9 +29,6 @@ class BoxMap:
             out[inside] = VoxelState.OCCUPIED
         return out
 
-    def add_obstacles(self, points_world):
-        self.added = np.asarray(points_world)
-
     def clearance(self, p):
         """True distance from p to the nearest box surface."""
         return min(
@@ -116,15 +113,3 @@ def test_sliding_along_a_wall_keeps_the_safe_distance():
     clearances = fly(robot, (-0.5, 1.9, 1.2), ticks=40)
     assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
     assert robot.platform.p[0] > -1.0  # still made progress along the wall
-
-
-def test_what_blocks_a_segment_in_the_local_map_is_copied_to_the_global_map():
-    world = BoxMap(DOOR.boxes)
-    robot = make_robot(world, (0.55, 1.0, 1.2))
-    assert robot.copy_local_obstacles(np.array([1.0, 1.0, 1.2]), np.array([1.0, 1.5, 1.2])) == 0
-    assert not hasattr(world, "added")  # nothing blocks: nothing written
-    # through the west jamb: its voxels within the robot radius of the segment are written
-    count = robot.copy_local_obstacles(np.array([0.3, 1.5, 1.2]), np.array([0.3, 2.5, 1.2]))
-    assert count == len(world.added) > 0
-    assert np.all(world.states(world.added) == VoxelState.OCCUPIED)
-    assert np.all(np.abs(world.added[:, 0] - 0.3) <= RADIUS + 1e-9)
