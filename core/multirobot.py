@@ -50,24 +50,6 @@ Schedule = Literal["simultaneous", "sequential"]
 # -- the robots' set-up ---------------------------------------------------------------------------
 
 
-def base_transform(base: Sequence[float] | None) -> np.ndarray:
-    """``T_world_odom`` of a robot's known base ``[x, y, z, yaw_deg]`` (identity when not given).
-
-    For real vehicles, whose odometry starts at their own take-off spot: the base is where that
-    spot lies in the shared world frame (surveyed, or the team's take-off layout), written into
-    the measurement log's header so that the base station can place each robot's chain. In the
-    simulator the odometry frame is the world frame, so the base is identity.
-    """
-    T = np.eye(4)
-    if base is None:
-        return T
-    x, y, z, yaw_deg = (float(v) for v in base)
-    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    T[:3, 3] = [x, y, z]
-    return T
-
-
 def sim_world_seed(seed: int) -> int:
     """The world seed the ``sim`` platform derives from a mission seed (see its ``configure``)."""
     ss = np.random.SeedSequence(seed).spawn(len(BACKEND_KINDS))[list(BACKEND_KINDS).index("platform")]

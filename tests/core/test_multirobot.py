@@ -13,7 +13,6 @@ from amslam.measurements import read_measurements
 from amslam.mission import load_mission
 from amslam.multirobot import (
     _build_platform,
-    base_transform,
     flight_key,
     fly_team,
     index_runs,
@@ -144,12 +143,6 @@ def test_earlier_flights_are_found_by_what_they_fly(registry, tmp_path: Path) ->
     assert found[flight_key(again)]["run_dir"] == tmp_path / "earlier" / "run1"
     (alone,) = team_overrides(spec, registry, 1, "homogeneous", 5, scratch=tmp_path)
     assert flight_key(load_mission(spec, registry, alone)) not in found
-
-
-def test_base_transform_places_the_odometry_frame() -> None:
-    np.testing.assert_allclose(base_transform(None), np.eye(4))
-    T = base_transform([10.0, -2.0, 0.5, 90.0])
-    np.testing.assert_allclose(T @ [1.0, 0.0, 0.0, 1.0], [10.0, -1.0, 0.5, 1.0], atol=1e-12)
 
 
 def world_summary() -> WorldSummary:
