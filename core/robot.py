@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from amslam.errors import AmslamError
 from amslam.geometry import invert, transform_points, yaw_of
 from amslam.interfaces import Detector, Mapping, Planner, Platform, Slam
 from amslam.mission import ExplorationSection, LimitsSection
@@ -105,6 +106,16 @@ class Robot:
         behaviour waiting to reach the goal must know when it is as close as they allow.
         """
         T_world_odom = self.slam.T_world_odom()
+        if not (np.all(np.isfinite(T_world_odom)) and np.all(np.isfinite(position)) and np.isfinite(yaw)):
+            # A NaN setpoint would fly the vehicle nowhere the log can say (a simulated run once
+            # ended in an SVD error three modules later): hold, and fail the run by name.
+            self.hold()
+            culprit = (
+                f"the SLAM backend {type(self.slam).__name__} returned T_world_odom {T_world_odom.tolist()}"
+                if not np.all(np.isfinite(T_world_odom))
+                else f"a behaviour asked for setpoint {np.asarray(position).tolist()}, yaw {yaw}"
+            )
+            raise AmslamError(f"non-finite setpoint: {culprit}; holding position")
         T_odom_world = invert(T_world_odom)
         p_odom = transform_points(T_odom_world, np.asarray(position, float)[None])[0]
         yaw_odom = yaw + float(np.arctan2(T_odom_world[1, 0], T_odom_world[0, 0]))

@@ -5,7 +5,9 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
+from amslam.errors import AmslamError
 from amslam.mission import ExplorationSection, LimitsSection
 from amslam.robot import Robot
 from amslam.types import Odometry, RobotSpec, VoxelState
@@ -113,3 +115,13 @@ def test_sliding_along_a_wall_keeps_the_safe_distance():
     clearances = fly(robot, (-0.5, 1.9, 1.2), ticks=40)
     assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
     assert robot.platform.p[0] > -1.0  # still made progress along the wall
+
+
+def test_a_non_finite_setpoint_holds_and_names_the_culprit():
+    robot = make_robot(DOOR, (1.0, 0.5, 1.2))
+    with pytest.raises(AmslamError, match="behaviour asked for setpoint"):
+        robot.send_setpoint_world(np.array([np.nan, 0.0, 1.2]), 0.0)
+    np.testing.assert_allclose(robot.platform.setpoints[-1], [1.0, 0.5, 1.2])  # held where it was
+    robot.slam = SimpleNamespace(T_world_odom=lambda: np.full((4, 4), np.nan))
+    with pytest.raises(AmslamError, match="SLAM backend"):
+        robot.send_setpoint_world(np.array([1.0, 0.0, 1.2]), 0.0)
