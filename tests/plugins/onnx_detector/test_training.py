@@ -11,6 +11,7 @@ from amslam.plugins.onnx_detector.dataset import CLASSES, Dataset, render_datase
 from amslam.plugins.onnx_detector.decoder import SegmentationModel
 from amslam.plugins.onnx_detector.evaluate import evaluate
 from amslam.plugins.onnx_detector.train import P2_STRIDES, STRIDES, anchors, assign, make_batch
+from amslam.plugins.onnx_detector.train import main as train_main
 from tests.plugins.onnx_detector.graphs import candidates, constant_model
 
 
@@ -112,3 +113,14 @@ def test_evaluation_counts_on_a_known_model(tmp_path: Path) -> None:
         assert res["chair"].mask_iou == pytest.approx(1.0)
         assert (res["table"].tp, res["table"].fp) == (0, 1)
         assert res["all"].precision == pytest.approx(0.5) and res["all"].recall == pytest.approx(1.0)
+
+
+def test_a_cached_training_set_of_other_buildings_is_refused(tiny_set: Dataset, tmp_path: Path) -> None:
+    cache = tmp_path / "train.npz"
+    tiny_set.save(cache)  # seed 100, 6 frames
+    out = tmp_path / "m.onnx"
+    with pytest.raises(SystemExit, match="other buildings or frames"):
+        train_main(["--data", str(cache), "--seeds", "2", "--frames", "6", "--out", str(out)])
+    with pytest.raises(SystemExit, match="other buildings or frames"):
+        train_main(["--data", str(cache), "--seeds", "1", "--frames", "4", "--out", str(out)])
+    assert not out.exists()
