@@ -360,7 +360,10 @@ class SimPlatform(Platform):
     def status(self) -> VehicleStatus:
         world = self.world
         clearance, where, what = self._closest
-        if where is not None and not what:
+        if where is not None and not what and not self._airborne:
+            # Named once the vehicle is down: a closest-point query of the raycasting scene during
+            # the flight changed later depth renderings in the last bits, and runs lost their
+            # determinism (same seed, different trajectory).
             what = world.closest(where)[2]
             self._closest = (clearance, where, what)
         if where is None:
