@@ -215,3 +215,37 @@ def test_goto_gives_up_a_goal_it_makes_no_progress_towards():
     assert statuses[-1] == Status.FAILURE and "no progress for 20 s" in go.feedback_message
     assert 19.5 < robot.t < 21.0 and robot.unreachable_marked
     assert robot.paths == 1
+
+
+class CeilingRobot(StuckRobot):
+    """Flies straight to what it is sent, but a guard keeps it 0.3 m below every setpoint."""
+
+    def __init__(self):
+        super().__init__()
+        self.here = np.array([0.0, 0.0, 1.0])
+
+    def position_world(self):
+        return self.here.copy()
+
+    def send_setpoint_world(self, position, yaw):
+        self.here = np.asarray(position, float) - [0.0, 0.0, 0.3]
+        return self.here.copy()
+
+
+def test_goto_counts_a_goal_the_guards_hold_it_off_as_reached():
+    from amslam.trees.behaviours import GoTo
+
+    robot = CeilingRobot()
+    py_trees.blackboard.Blackboard.set(
+        "/goal", TourItem(TourItemKind.SLC, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
+    )
+    go = GoTo("GoToSLC", early_exit=False)
+    go.setup(robot=robot)
+    statuses = []
+    for _ in range(100):
+        statuses.append(tick(go))
+        robot.t += 0.1
+        if statuses[-1] != Status.RUNNING:
+            break
+    assert statuses[-1] == Status.SUCCESS and go.feedback_message == "arrived"
+    assert robot.t < 1.0 and not robot.unreachable_marked
