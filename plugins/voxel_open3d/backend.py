@@ -118,6 +118,7 @@ class HashGrid:
             need = self.map.size() + int(new.sum())
             if need > self.map.capacity():
                 self.map.reserve(max(2 * self.map.capacity(), need))
+                buf, found = self._find(index)  # a rehash moves every slot: the old ones are stale
             ins_buf, _ = self.map.insert(
                 self._keys(index[new]), o3d.core.Tensor(np.zeros((int(new.sum()), 1), np.float32))
             )
