@@ -361,9 +361,8 @@ class SimPlatform(Platform):
         world = self.world
         clearance, where, what = self._closest
         if where is not None and not what and not self._airborne:
-            # Named once the vehicle is down: a closest-point query of the raycasting scene during
-            # the flight changed later depth renderings in the last bits, and runs lost their
-            # determinism (same seed, different trajectory).
+            # Named once the vehicle is down: the closest-point query is not free, and nothing
+            # during the flight needs the name.
             what = world.closest(where)[2]
             self._closest = (clearance, where, what)
         if where is None:

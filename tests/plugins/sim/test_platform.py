@@ -211,7 +211,7 @@ def test_closest_approach_is_tracked_between_take_off_and_landing(tmp_path, room
     fly_to(plat, np.array([9.4, 6.0, 1.2]))  # 0.6 m from the x = 10 wall by VIO, which drifts
     st = plat.status()
     assert not st.crashed
-    assert st.closest_to == ""  # named once down (a query mid-flight would perturb the renderer)
+    assert st.closest_to == ""  # named once the vehicle is down
     assert st.closest_approach < 1.0
     assert st.closest_approach == pytest.approx(10.0 - st.closest_position[0], abs=0.01)
     plat.land()
