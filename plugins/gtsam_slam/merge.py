@@ -469,7 +469,7 @@ class _Merger:
         d, _ = lm.tree.query(pts, distance_upper_bound=self.p.shape_margin)
         inside = np.isfinite(d)
         if lm.shape is not None:
-            inside |= _inside(lm.shape, pts, self.p.shape_margin)
+            inside |= shapes.points_inside(lm.shape, pts, self.p.shape_margin)
         return float(inside.mean())
 
     def one_object(self, a: _Lm, b: _Lm) -> bool:
@@ -704,22 +704,6 @@ class _Merger:
         return MergeResult(
             out, trajectories, [log.robot for log in self.logs], contributors, fused, graph, values
         )
-
-
-def _inside(shape: dict, pts: np.ndarray, margin: float) -> np.ndarray:
-    """Which points lie inside a cuboid / cylinder shape inflated by ``margin`` (world frame).
-
-    The test of the onboard front end (``ShapeLandmarks._inside``), with the margin explicit.
-    """
-    if shape["model"] == "cuboid":
-        T = shapes.cuboid_pose(shape)
-        local = (pts - T[:3, 3]) @ T[:3, :3]
-        return np.all(np.abs(local) <= np.asarray(shape["dims"]) / 2 + margin, axis=1)
-    root, n = np.asarray(shape["root"]), np.asarray(shape["axis"])
-    v = pts - root
-    along = v @ n
-    radial = np.linalg.norm(v - np.outer(along, n), axis=1)
-    return (radial <= shape["radius"] + margin) & (along >= -margin)
 
 
 def _is_pose(key: int) -> bool:

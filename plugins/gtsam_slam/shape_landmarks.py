@@ -183,16 +183,7 @@ class ShapeLandmarks:
         return best
 
     def _inside(self, shape: dict, pts: np.ndarray, margin: float | None = None) -> np.ndarray:
-        m = self.p.association_margin if margin is None else margin
-        if shape["model"] == "cuboid":
-            T = shapes.cuboid_pose(shape)
-            local = (pts - T[:3, 3]) @ T[:3, :3]
-            return np.all(np.abs(local) <= np.asarray(shape["dims"]) / 2 + m, axis=1)
-        root, n = np.asarray(shape["root"]), np.asarray(shape["axis"])
-        v = pts - root
-        along = v @ n
-        radial = np.linalg.norm(v - np.outer(along, n), axis=1)
-        return (radial <= shape["radius"] + m) & (along >= -m)
+        return shapes.points_inside(shape, pts, self.p.association_margin if margin is None else margin)
 
     # ------------------------------------------------------------------ measurements
     def measure(

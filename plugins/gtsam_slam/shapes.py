@@ -465,6 +465,19 @@ def cuboid_shape(R: np.ndarray, center: np.ndarray, dims: np.ndarray | list[floa
     }
 
 
+def points_inside(shape: dict, pts: np.ndarray, margin: float) -> np.ndarray:
+    """Which points (N×3) lie inside a cuboid / cylinder shape inflated by ``margin``."""
+    if shape["model"] == "cuboid":
+        T = cuboid_pose(shape)
+        local = (pts - T[:3, 3]) @ T[:3, :3]
+        return np.all(np.abs(local) <= np.asarray(shape["dims"]) / 2 + margin, axis=1)
+    root, n = np.asarray(shape["root"]), np.asarray(shape["axis"])
+    v = pts - root
+    along = v @ n
+    radial = np.linalg.norm(v - np.outer(along, n), axis=1)
+    return (radial <= shape["radius"] + margin) & (along >= -margin)
+
+
 def cuboid_pose(shape: dict) -> np.ndarray:
     """4×4 pose ``T_frame_cuboid`` of a cuboid shape (from ``rotation``, or ``yaw`` if absent)."""
     T = np.eye(4)
