@@ -478,6 +478,23 @@ class GtsamSlam(Slam):
             self._add_factor(sh.factor(X(k), k, lm.id, s, T, est, self._robust))
         rec.pending = []
 
+    @staticmethod
+    def _fusion_order(a: _LandmarkRec, b: _LandmarkRec) -> tuple[_LandmarkRec, _LandmarkRec] | None:
+        """(survivor, fused) for two landmarks of one object, or None when they must stay apart.
+
+        Two landmarks a single key pose observed are two objects. Otherwise the one seen first
+        survives, unless only the other is in the graph; two tentative landmarks are left to the
+        front end.
+        """
+        if {o.keypose for o in a.observations} & {o.keypose for o in b.observations}:
+            return None
+        old, new = (a, b) if a.first_distance <= b.first_distance else (b, a)
+        if not old.in_graph:
+            if not new.in_graph:
+                return None
+            old, new = new, old
+        return old, new
+
     def _fuse_shape_twins(self) -> None:
         """Fuse shape landmarks found to be one object (:meth:`.ShapeLandmarks.twins`).
 
@@ -494,13 +511,10 @@ class GtsamSlam(Slam):
             la, lb = self._lms[a], self._lms[b]
             if la.alias_of is not None or lb.alias_of is not None:
                 continue
-            if {o.keypose for o in la.observations} & {o.keypose for o in lb.observations}:
+            order = self._fusion_order(la, lb)
+            if order is None:
                 continue
-            old, new = (la, lb) if la.first_distance <= lb.first_distance else (lb, la)
-            if not old.in_graph:
-                if not new.in_graph:
-                    continue
-                old, new = new, old
+            old, new = order
             keep, gone = sh.recs[old.id], sh.recs[new.id]
             keep.points = sorted(keep.points + gone.points, key=lambda tq: tq[0])
             keep.cameras = sorted(keep.cameras + gone.cameras, key=lambda tq: tq[0])
@@ -1064,14 +1078,10 @@ class GtsamSlam(Slam):
                 var = a.var_sum / a.count**2 + b.var_sum / b.count**2
                 if d2 > (p.slc_fuse_ratio * p.slc_tolerance) ** 2 or d2 > p.association_chi2 * var:
                     continue
-                if {o.keypose for o in a.observations} & {o.keypose for o in b.observations}:
+                order = self._fusion_order(a, b)
+                if order is None:
                     continue
-                old, new = (a, b) if a.first_distance <= b.first_distance else (b, a)
-                if not old.in_graph:
-                    if not new.in_graph:
-                        continue  # two tentative landmarks: the front end settles them
-                    old, new = new, old
-                self._fuse(old, new)
+                self._fuse(*order)
                 fused = True
         if fused:
             self._flush(extra_iterations=2)
