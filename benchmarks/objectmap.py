@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from amslam.objectmap import ObjectMap, load_objectmap, save_objectmap
+from amslam.apps.objectmap import ObjectMap, load_objectmap, save_objectmap
 
 CLASSES = ["light_pole", "tree_trunk", "vehicle"]
 

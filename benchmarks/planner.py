@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from amslam.plugins.planners.common import planning_graph
+from amslam.lib.tours import planning_graph
 from amslam.plugins.planners.cop import CopPlanner, cop_tour, refine_with_slc
 from amslam.plugins.planners.correlation import fov_correlation
 from amslam.plugins.planners.greedy import GreedyPlanner

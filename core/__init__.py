@@ -5,7 +5,7 @@ Plugins import :data:`hookimpl` from here to implement the hooks of :mod:`amslam
 
 import pluggy
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 hookimpl = pluggy.HookimplMarker("amslam")
 

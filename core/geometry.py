@@ -6,9 +6,19 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 
-def wrap_angle(a: float) -> float:
-    """Wrap an angle to (-π, π]."""
-    return float(np.pi - (np.pi - a) % (2.0 * np.pi))
+def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
+    """Wrap an angle (or an array of angles) to (-π, π]; a float for a scalar, an array for an array.
+
+    The one angle-wrapping helper of the project: every module imports this one.
+    """
+    w = np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+    return float(w) if np.ndim(w) == 0 else w
+
+
+def yaw_matrix(yaw: float) -> np.ndarray:
+    """The 3×3 rotation about the vertical axis by ``yaw`` (rad)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def yaw_of(T: np.ndarray) -> float:

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     import numpy as np
     import py_trees
 
+    from amslam.cli import Command, Experiment
     from amslam.interfaces import Detector, Mapping, Planner, Platform, Slam
     from amslam.types import KeyPose, LoopClosureResult, TourItem
 
@@ -159,4 +160,28 @@ def amslam_run_end(run_dir: Path, verdict: str, metrics: dict[str, Any], traject
     """The run ended with ``verdict``; ``metrics`` is what ``metrics.json`` holds.
 
     Since: 0.1
+    """
+
+
+# --------------------------------------------------------------------------------------------
+# Applications: command-line subcommands and experiments (since 0.2). Called once when the
+# plugin manager is built, like the backend hooks; a name provided twice is an error.
+# --------------------------------------------------------------------------------------------
+
+
+@hookspec
+def amslam_cli_commands() -> dict[str, Command]:
+    """``amslam`` subcommands this plugin provides, by name (:class:`amslam.cli.Command`).
+
+    The built-in ``run``, ``fly``, ``tree``, ``view``, … come through this hook too.
+
+    Since: 0.2
+    """
+
+
+@hookspec
+def amslam_experiments() -> dict[str, Experiment]:
+    """``amslam experiment NAME`` experiments this plugin provides (:class:`amslam.cli.Experiment`).
+
+    Since: 0.2
     """

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.metadata
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import pluggy
 
@@ -27,6 +28,10 @@ class Registry:
     backends: dict[str, dict[str, Callable[[], Backend]]] = field(default_factory=dict)
     providers: dict[str, dict[str, str]] = field(default_factory=dict)  # kind -> name -> plugin
     behaviours: dict[str, Callable] = field(default_factory=dict)
+    #: ``amslam`` subcommands by name (:class:`amslam.cli.Command`)
+    commands: dict[str, Any] = field(default_factory=dict)
+    #: ``amslam experiment`` names (:class:`amslam.cli.Experiment`)
+    experiments: dict[str, Any] = field(default_factory=dict)
     distributions: dict[str, str] = field(default_factory=dict)  # plugin name -> "dist version"
     #: plugin name -> one-line reason it was left out (failed to import, rejected hooks, raised in a hook)
     load_errors: dict[str, str] = field(default_factory=dict)
@@ -97,6 +102,8 @@ def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[o
     for kind in BACKEND_KINDS:
         registry.backends[kind], registry.providers[kind] = _collect(pm, f"amslam_{kind}_backends", registry)
     registry.behaviours, _ = _collect(pm, "amslam_behaviours", registry)
+    registry.commands, _ = _collect(pm, "amslam_cli_commands", registry)
+    registry.experiments, _ = _collect(pm, "amslam_experiments", registry)
     return registry
 
 

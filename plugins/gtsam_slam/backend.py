@@ -33,7 +33,8 @@ from scipy.optimize import linear_sum_assignment
 
 from amslam.geometry import invert, wrap_angle, yaw_of
 from amslam.interfaces import BackendParams, RunContext, Slam
-from amslam.plugins.gtsam_slam import shapes, slc
+from amslam.lib import shapes
+from amslam.plugins.gtsam_slam import slc
 from amslam.plugins.gtsam_slam.information import LinearizedGraph, virtual_factor
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
 from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate

@@ -67,8 +67,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from amslam.geometry import transform_points, wrap_angle, yaw_of
+from amslam.lib import shapes
 from amslam.measurements import RobotMeasurements, read_measurements
-from amslam.plugins.gtsam_slam import shapes
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeParams
 from amslam.rundir import jsonable
 from amslam.types import Landmark

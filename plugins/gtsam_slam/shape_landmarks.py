@@ -25,8 +25,8 @@ import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from amslam.plugins.gtsam_slam import shapes
-from amslam.plugins.gtsam_slam.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
+from amslam.lib import shapes
+from amslam.lib.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
 
 __all__ = ["ShapeLandmarks", "ShapeParams", "SizePrior"]
 

@@ -22,16 +22,12 @@ import math
 
 import numpy as np
 
+from amslam.geometry import wrap_angle
+
 #: Rotation taking NED vectors to ENU (a swap of x and y and a flip of z; its own inverse).
 R_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: Rotation taking FLU body vectors to FRD (flip y and z; its own inverse).
 R_FRD_FLU = np.diag([1.0, -1.0, -1.0])
-
-
-def _wrap(a: float) -> float:
-    """Angle in (-π, π]."""
-    a = math.remainder(a, 2.0 * math.pi)
-    return math.pi if a == -math.pi else a
 
 
 def ned_to_enu(p_ned: np.ndarray) -> np.ndarray:
@@ -48,12 +44,12 @@ def enu_to_ned(p_enu: np.ndarray) -> np.ndarray:
 
 def yaw_ned_to_enu(yaw_ned: float) -> float:
     """Heading from north-clockwise (PX4) to east-counter-clockwise (amslam), radians."""
-    return _wrap(math.pi / 2.0 - yaw_ned)
+    return wrap_angle(math.pi / 2.0 - yaw_ned)
 
 
 def yaw_enu_to_ned(yaw_enu: float) -> float:
     """Heading from east-counter-clockwise (amslam) to north-clockwise (PX4), radians."""
-    return _wrap(math.pi / 2.0 - yaw_enu)
+    return wrap_angle(math.pi / 2.0 - yaw_enu)
 
 
 def rotation_ned_frd(roll: float, pitch: float, yaw: float) -> np.ndarray:

@@ -42,7 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Platform, RunContext
-from amslam.plugins.camera_sources import CameraSource, CameraSourceParams, make_camera_source
+from amslam.plugins.mavsdk_platform.camera_sources import CameraSource, CameraSourceParams, make_camera_source
 from amslam.plugins.mavsdk_platform.frames import enu_to_ned, pose_enu_from_ned, yaw_enu_to_ned
 from amslam.types import CameraModel, Failsafe, Frame, Odometry, RobotSpec, VehicleStatus
 

@@ -24,8 +24,8 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from amslam.errors import AmslamError
 from amslam.interfaces import BackendParams, Detector, RunContext
+from amslam.lib.camera import backproject
 from amslam.plugins.onnx_detector.decoder import Instance, ModelError, SegmentationModel, inspect_model
-from amslam.plugins.sim.detector import _backproject as backproject
 from amslam.types import Detection, Frame
 
 #: File name of the shipped model, inside this package's ``models`` folder.

@@ -4,7 +4,7 @@
 run (or ``world``: the simulated world's ground truth); without one, the objects the SLAM backend
 has mapped so far (``PlanRequest.landmarks``). Only ``target_classes`` (default: every class the
 uncertainty models know) are targets. Their visiting order is an open travelling-salesman tour
-from the robot (exact below 13 targets, 2-opt beyond: :mod:`amslam.plugins.planners.common`).
+from the robot (exact below 13 targets, 2-opt beyond: :mod:`amslam.lib.tours`).
 
 **Viewpoints per target.** Around the current target a polar grid of candidate positions (horizontal
 distance × bearing, at the flight height) is scored with the fitted models
@@ -49,8 +49,8 @@ from scipy import ndimage
 
 from amslam.errors import PlanningError
 from amslam.interfaces import BackendParams, Planner, RunContext
+from amslam.lib.tours import exact_open_tour, nearest_neighbour_tour, two_opt
 from amslam.plugins.pams.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
-from amslam.plugins.planners.common import exact_open_tour, nearest_neighbour_tour, two_opt
 from amslam.types import BoundingBox, PlanRequest, TourItem, TourItemKind
 
 # -- targets -----------------------------------------------------------------------------------
@@ -70,7 +70,7 @@ class Target:
 
 
 def _shape_radius_yaw(shape: dict | None, default_radius: float) -> tuple[float, float]:
-    from amslam.plugins.sim.detector import object_yaw
+    from amslam.lib.viewing import object_yaw
 
     if not shape:
         return default_radius, 0.0

@@ -40,6 +40,8 @@ FORMAT = "amslam-uncertainty-1"
 DEFAULT_MODELS_PATH = Path(__file__).with_name("models") / "default.npz"
 
 #: Components that are positions (the rest are dimensions), for the planner's region thresholds.
+#: the geometric error components a characterisation measures per detection, in the object frame
+COMPONENTS: tuple[str, ...] = ("x", "y", "length", "width")
 POSITION_COMPONENTS = frozenset({"x", "y", "z"})
 
 
@@ -385,7 +387,7 @@ def fit_models(
     """Fit the confidence MLP and the variance splines of every class in ``samples``.
 
     Args:
-        samples: :class:`amslam.plugins.sim.characterise.Samples` (or anything with its fields).
+        samples: :class:`amslam.apps.characterise.Samples` (or anything with its fields).
         range_bin: width of the range cells of the variance estimates, m.
         angle_bin_deg: width of the angle cells, degrees.
         min_count: fewest samples for a cell's variance to be used.
@@ -394,8 +396,6 @@ def fit_models(
         min_component_share: an error component is modelled when at least this share of the
             detections measured it (cuboid dimensions need a cuboid fit).
     """
-    from amslam.plugins.sim.characterise import COMPONENTS
-
     models = UncertaintyModels(
         meta={"range_bin": range_bin, "angle_bin_deg": angle_bin_deg, "min_count": min_count}
     )
@@ -486,68 +486,3 @@ def plot_models(models: UncertaintyModels, path: Path, samples=None) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
-
-
-def characterise(
-    out: Path,
-    *,
-    mission=None,
-    poses_per_spiral: int | None = None,
-    seed: int = 0,
-    samples_in: Path | None = None,
-    log=print,
-) -> UncertaintyModels:
-    """``amslam characterise``: fly the spirals, fit the models, write models, samples and a plot.
-
-    Args:
-        out: the models file to write (``.npz``); ``<stem>-samples.npz`` and ``<stem>.png`` go
-            beside it.
-        mission: a loaded :class:`amslam.mission.Mission` whose simulated camera and detector
-            are the ones to characterise (its world is not used: every class is characterised on
-            its own specimen, see :mod:`amslam.plugins.sim.characterise`); None = the defaults.
-        poses_per_spiral: frames per spiral (default: the characterisation default).
-        seed: seed of the rendering and detector noise and of the MLP.
-        samples_in: refit samples saved by an earlier call instead of flying again.
-    """
-    from amslam.plugins.sim.characterise import CharacteriseConfig, Samples, collect
-
-    out = Path(out)
-    config = CharacteriseConfig(seed=seed)
-    if mission is not None:
-        platform, detector = mission.backends.get("platform"), mission.backends.get("detector")
-        if platform is not None and hasattr(platform.params, "camera"):
-            config.camera = platform.params.camera.model_copy(update={"rgb": False})
-        if detector is not None and detector.plugin == "sim":
-            config.detector = detector.params.model_copy(update={"false_positive_rate": 0.0})
-            if config.detector.classes is not None:  # only what the mission's detector reports
-                config.targets = [t for t in config.targets if t.class_name in config.detector.classes]
-        # the mission's sensor as it is: spirals reach a little beyond what it can detect
-        reach = min(config.camera.max_range, config.detector.max_range)
-        config.range_max = min(config.range_max, reach + 1.0)
-        config.targets = [t.model_copy(update={"range_max": None}) for t in config.targets]
-    if poses_per_spiral is not None:
-        config.poses_per_spiral = poses_per_spiral
-    if samples_in is not None:
-        samples = Samples.load(samples_in)
-        log(f"samples: {len(samples)} from {samples_in}")
-    else:
-        log(
-            f"flying {len(config.heights)} spirals of {config.poses_per_spiral} frames around each of "
-            f"{', '.join(t.class_name for t in config.targets)}"
-        )
-        samples = collect(config, log)
-        samples.save(out.with_name(out.stem + "-samples.npz"))
-    models = fit_models(samples, seed=seed)
-    models.meta.update(
-        {"samples": len(samples), "seed": seed, "camera": config.camera.model_dump(mode="json")}
-    )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    models.save(out)
-    plot_models(models, out.with_suffix(".png"), samples)
-    for name, m in models.classes.items():
-        log(
-            f"  {name}: {m.samples} samples, components {m.components}, range {m.range_bounds[0]:.1f}–"
-            f"{m.range_bounds[1]:.1f} m{', angle-dependent' if m.angle_dependent else ''}"
-        )
-    log(f"models: {out}")
-    return models

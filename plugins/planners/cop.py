@@ -34,7 +34,7 @@ import numpy as np
 from pydantic import Field
 
 from amslam.interfaces import BackendParams, Planner, RunContext
-from amslam.plugins.planners.common import (
+from amslam.lib.tours import (
     PlanningGraph,
     budget_from_nearest,
     cheapest_insertion,

@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import Field
 
 from amslam.interfaces import BackendParams, Planner, RunContext
-from amslam.plugins.planners.common import explore_item, planning_graph
+from amslam.lib.tours import explore_item, planning_graph
 from amslam.types import PlanRequest, TourItem
 
 

@@ -1,7 +1,7 @@
 """The ``tsp`` planner: every reachable viewpoint, shortest open tour from the robot (like FUEL).
 
 The baseline of issue #6. Up to ``exact_max`` viewpoints the tour is optimal (Held–Karp dynamic
-programming, :func:`~amslam.plugins.planners.common.exact_open_tour`); beyond, it is built by
+programming, :func:`~amslam.lib.tours.exact_open_tour`); beyond, it is built by
 nearest neighbour and improved with 2-opt and or-opt moves (typically within a few percent of the
 optimum on Euclidean instances). Gains only decide which viewpoints are kept (``min_gain``).
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from amslam.interfaces import BackendParams, Planner, RunContext
-from amslam.plugins.planners.common import (
+from amslam.lib.tours import (
     exact_open_tour,
     explore_item,
     nearest_neighbour_tour,

@@ -41,6 +41,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.interfaces import BackendParams, Detector, RunContext
+from amslam.lib.camera import backproject
+from amslam.lib.viewing import object_yaw, viewing_angle
 from amslam.types import Detection, Frame, WorldSummary
 
 
@@ -196,7 +198,7 @@ class SimDetector(Detector):
             cls = names[cls_id] if cls_id < len(names) else str(cls_id)
             if wanted is not None and cls not in wanted:
                 continue
-            pts = _backproject(mask, depth, Kinv)
+            pts = backproject(mask, depth, Kinv)
             centroid = np.median(pts, axis=0)
             rng_m = float(np.linalg.norm(centroid))
             angle = self._viewing_angle(cls, centroid, frame.T_world_cam_truth)
@@ -220,7 +222,7 @@ class SimDetector(Detector):
             patch = np.zeros_like(valid)
             patch[max(0, ys[k] - r) : ys[k] + r, max(0, xs[k] - r) : xs[k] + r] = True
             patch &= valid
-            pts = _backproject(patch, depth, Kinv)
+            pts = backproject(patch, depth, Kinv)
             cls = classes[int(self.rng.integers(len(classes)))]
             conf = float(self.rng.uniform(0.3, 0.7))
             out.append(Detection(cls, conf, np.median(pts, axis=0), self._subsample(pts)))
@@ -253,47 +255,3 @@ class SimDetector(Detector):
             return pts
         idx = self.rng.choice(len(pts), size=m, replace=False)
         return pts[np.sort(idx)]
-
-
-def viewing_angle(object_position: np.ndarray, object_yaw_rad: float, sensor: np.ndarray) -> float:
-    """Horizontal angle in [0, π] between the object's forward axis and the direction to the sensor.
-
-    0 = the sensor is in front of the object, π/2 = beside it, π = behind it.
-    """
-    d = np.asarray(sensor, float)[:2] - np.asarray(object_position, float)[:2]
-    return abs(_wrap(math.atan2(d[1], d[0]) - object_yaw_rad))
-
-
-def object_yaw(shape: dict | None) -> float:
-    """Yaw of an object's frame from its shape parameters (0 = world axes, e.g. procedural boxes).
-
-    Understands ``yaw``, a 3×3 ``rotation``/``R`` matrix and a ``rotvec``/``r`` rotation vector.
-    A cylinder has no forward axis: its yaw is 0 and its models should not depend on the angle.
-    """
-    if not shape:
-        return 0.0
-    if "yaw" in shape:
-        return float(shape["yaw"])
-    for key in ("rotation", "R"):
-        if key in shape:
-            R = np.asarray(shape[key], float).reshape(3, 3)
-            return math.atan2(R[1, 0], R[0, 0])
-    for key in ("rotvec", "r"):
-        if key in shape:
-            from scipy.spatial.transform import Rotation
-
-            R = Rotation.from_rotvec(np.asarray(shape[key], float).reshape(3)).as_matrix()
-            return math.atan2(R[1, 0], R[0, 0])
-    return 0.0
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _backproject(mask: np.ndarray, depth: np.ndarray, Kinv: np.ndarray) -> np.ndarray:
-    """Camera-frame points (N×3) of the masked depth pixels."""
-    v, u = np.nonzero(mask)
-    z = depth[v, u].astype(np.float64)
-    pix = np.stack([u, v, np.ones_like(u)], axis=1).astype(np.float64)
-    return (pix @ Kinv.T) * z[:, None]

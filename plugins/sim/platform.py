@@ -9,12 +9,13 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag
 
 from amslam.errors import PlatformError
+from amslam.geometry import wrap_angle
 from amslam.interfaces import BackendParams, Platform, RunContext
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
 from amslam.plugins.sim.outdoor import OutdoorWorldParams, generate_outdoor
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
-from amslam.plugins.sim.vio import VioParams, VioState, wrap_angle
+from amslam.plugins.sim.vio import VioParams, VioState
 from amslam.plugins.sim.world import World, WorldSpec
 from amslam.types import CameraModel, Frame, Odometry, RobotSpec, VehicleStatus, WorldSummary
 

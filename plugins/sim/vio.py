@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import Field
 
+from amslam.geometry import wrap_angle
 from amslam.interfaces import BackendParams
 
 
@@ -44,13 +45,6 @@ class VioParams(BackendParams):
         description="the position random walk is drawn at nodes this far apart (m) and interpolated"
         " linearly in between, so the estimate drifts smoothly instead of jittering every step",
     )
-
-
-def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
-    """Wrap to (-π, π]."""
-    w = np.mod(np.asarray(a) + np.pi, 2 * np.pi) - np.pi
-    w = np.where(w == -np.pi, np.pi, w)
-    return float(w) if np.ndim(w) == 0 else w
 
 
 @dataclass

@@ -88,7 +88,7 @@ class WorldObject:
     centroid: np.ndarray  # centre of the axis-aligned bounds
     lo: np.ndarray
     hi: np.ndarray
-    #: true shape model (paper 2): a cuboid or cylinder dict, see amslam.plugins.gtsam_slam.shapes
+    #: true shape model (paper 2): a cuboid or cylinder dict, see amslam.lib.shapes
     shape: dict | None = None
 
 

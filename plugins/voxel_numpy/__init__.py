@@ -1,14 +1,15 @@
 """``numpy`` mapping backend: the simple, obviously correct reference voxel map.
 
-Also home of the pieces every voxel backend shares (one copy of each concept): the lattice and
-log-odds model (:mod:`.grid`), frontier clustering and viewpoint sampling (:mod:`.frontiers`), and
-collision checks and graph search (:mod:`.search`), and the Mapping base class (:mod:`.backend`).
+The pieces every voxel backend shares live in the library: the lattice and log-odds model
+(:mod:`amslam.lib.voxel_grid`), frontier clustering and viewpoint sampling
+(:mod:`amslam.lib.frontiers`), collision checks and graph search (:mod:`amslam.lib.free_space`),
+and the Mapping base class (:mod:`amslam.lib.voxel_map`).
 """
 
 import amslam
-from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap, VoxelMapBase, VoxelMapParams
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 
-__all__ = ["NumpyVoxelMap", "VoxelMapBase", "VoxelMapParams"]
+__all__ = ["NumpyVoxelMap"]
 
 
 @amslam.hookimpl

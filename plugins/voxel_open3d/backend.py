@@ -26,13 +26,13 @@ import open3d as o3d
 from pydantic import Field
 
 from amslam.interfaces import BackendParams
-from amslam.plugins.voxel_numpy.backend import VoxelMapBase, VoxelMapParams
-from amslam.plugins.voxel_numpy.grid import (
+from amslam.lib.voxel_grid import (
     UNKNOWN,
     LogOddsModel,
     box_of_indices,
     to_index,
 )
+from amslam.lib.voxel_map import VoxelMapBase, VoxelMapParams
 from amslam.types import BoundingBox
 
 _CPU = o3d.core.Device("CPU:0")

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from amslam.plugins.gtsam_slam import shapes
+from amslam.lib import shapes
 from amslam.report import landmark_accuracy, object_accuracy
 from amslam.types import Landmark, WorldSummary
 

@@ -6,9 +6,9 @@
   (voxels left outside the window are deleted). The occupancy model is OctoMap's own, with its
   defaults (hit 0.7, miss 0.4, threshold 0.5, clamping 0.1192–0.971).
 * **Frontiers, viewpoints and paths** reuse amslam's backend-independent helpers as a library:
-  :class:`amslam.plugins.voxel_numpy.frontiers.FrontierTracker` (incremental frontier clustering and
+  :class:`amslam.lib.frontiers.FrontierTracker` (incremental frontier clustering and
   ray-fan viewpoint sampling, paper 1 §VI-A) reads the tree through ``dense_states``, and
-  :mod:`amslam.plugins.voxel_numpy.search` (robot-radius inflation, 26-connected Dijkstra, line-of-sight
+  :mod:`amslam.lib.free_space` (robot-radius inflation, 26-connected Dijkstra, line-of-sight
   smoothing) works on a dense state block read from the tree. Both only need voxel states on
   amslam's lattice, which OctoMap's keys share.
 """
@@ -22,8 +22,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from amslam.interfaces import BackendParams, Mapping, RunContext
-from amslam.plugins.voxel_numpy.frontiers import FrontierConfig, FrontierTracker
-from amslam.plugins.voxel_numpy.search import (
+from amslam.lib.free_space import (
     FreeSpaceGraph,
     known_along,
     samples_clear,
@@ -31,6 +30,7 @@ from amslam.plugins.voxel_numpy.search import (
     smooth_path,
     traversable,
 )
+from amslam.lib.frontiers import FrontierConfig, FrontierTracker
 from amslam.types import BoundingBox, Viewpoint
 from amslam_octomap.store import OCCUPIED, OctreeStore, SensorModel
 

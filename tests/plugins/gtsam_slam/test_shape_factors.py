@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import X
 
-from amslam.plugins.gtsam_slam.shape_factors import (
+from amslam.lib.shape_factors import (
     cuboid_error,
     cuboid_factor,
     cuboid_keys,

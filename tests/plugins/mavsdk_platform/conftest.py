@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from amslam.mission import load_mission
+from amslam.plugins.mavsdk_platform.emulator import MavlinkVehiclePeer, free_udp_port
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner, RunResult
-from amslam.testing.mavlink_peer import MavlinkVehiclePeer, free_udp_port
 
 #: Fast enough to keep each flight to a few seconds of wall-clock time.
 FAST = {"max_speed": 4.0, "max_vertical_speed": 3.0, "position_gain": 4.0, "land_speed": 2.0}

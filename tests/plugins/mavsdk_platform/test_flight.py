@@ -11,8 +11,8 @@ import signal
 import numpy as np
 
 from amslam.cli import main
+from amslam.plugins.mavsdk_platform.emulator import MavlinkVehiclePeer
 from amslam.runner import RunResult
-from amslam.testing.mavlink_peer import MavlinkVehiclePeer
 
 from .conftest import QUICK, assert_complete_run_folder, events, when
 

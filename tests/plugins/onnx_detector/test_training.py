@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amslam.plugins.onnx_detector.dataset import CLASSES, Dataset, render_dataset
+from amslam.apps.detector_training.dataset import CLASSES, Dataset, render_dataset
+from amslam.apps.detector_training.evaluate import evaluate
+from amslam.apps.detector_training.train import P2_STRIDES, STRIDES, anchors, assign, make_batch
+from amslam.apps.detector_training.train import main as train_main
 from amslam.plugins.onnx_detector.decoder import SegmentationModel
-from amslam.plugins.onnx_detector.evaluate import evaluate
-from amslam.plugins.onnx_detector.train import P2_STRIDES, STRIDES, anchors, assign, make_batch
-from amslam.plugins.onnx_detector.train import main as train_main
 from tests.plugins.onnx_detector.graphs import candidates, constant_model
 
 

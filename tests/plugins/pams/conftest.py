@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.plugins.pams.uncertainty import UncertaintyModels, fit_models
-from amslam.plugins.sim.characterise import COMPONENTS, Samples
+from amslam.apps.characterise import Samples
+from amslam.plugins.pams.uncertainty import COMPONENTS, UncertaintyModels, fit_models
 
 
 def true_confidence(r: np.ndarray, a: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.experiments import pams_table, pool_errors
+from amslam.apps.experiments import pams_table, pool_errors
 
 
 def test_pooled_errors_equal_the_errors_of_all_objects_together():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.plugins.planners.common import PlanningGraph, tour_cost
+from amslam.lib.tours import PlanningGraph, tour_cost
 from amslam.plugins.planners.cop import CopParams, CopPlanner, cop_reward, cop_tour, refine_with_slc
 from amslam.plugins.planners.correlation import fov_correlation
 from amslam.types import SlcCandidate, TourItemKind

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from amslam.plugins.planners.common import (
+from amslam.lib.tours import (
     exact_open_tour,
     metric_closure,
     nearest_neighbour_tour,

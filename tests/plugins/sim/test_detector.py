@@ -195,7 +195,7 @@ def test_localisation_noise_grows_with_range(tmp_path):
 
 
 def test_viewing_angle_and_object_yaw():
-    from amslam.plugins.sim.detector import object_yaw, viewing_angle
+    from amslam.lib.viewing import object_yaw, viewing_angle
 
     assert viewing_angle(np.zeros(3), 0.0, np.array([5.0, 0.0, 1.0])) == pytest.approx(0.0)
     assert viewing_angle(np.zeros(3), 0.0, np.array([0.0, -5.0, 1.0])) == pytest.approx(np.pi / 2)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.plugins.gtsam_slam import shapes as S  # noqa: N812
+from amslam.lib import shapes as S  # noqa: N812
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.outdoor import OutdoorWorldParams, generate_outdoor
 from amslam.plugins.sim.platform import SimPlatform

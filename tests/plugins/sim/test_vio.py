@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from amslam.plugins.sim.vio import VioParams, VioState, drift_covariance, wrap_angle
+from amslam.geometry import wrap_angle
+from amslam.plugins.sim.vio import VioParams, VioState, drift_covariance
 
 from .conftest import fly_to, make_platform
 

@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from amslam.lib.frontiers import FrontierConfig, FrontierTracker, exact_gain
+from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN
 from amslam.plugins.voxel_numpy import NumpyVoxelMap
-from amslam.plugins.voxel_numpy.frontiers import FrontierConfig, FrontierTracker, exact_gain
-from amslam.plugins.voxel_numpy.grid import OCCUPIED, UNKNOWN
 from amslam.testing.mapping import (
     CAMERA,
     ROOM_POSE,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from amslam.plugins.voxel_numpy.grid import FREE
-from amslam.plugins.voxel_numpy.search import FreeSpaceGraph
+from amslam.lib.free_space import FreeSpaceGraph
+from amslam.lib.voxel_grid import FREE
 
 
 def graph(penalty=None):

@@ -1,0 +1,583 @@
+"""Train the shipped detector: a tiny YOLOv8-seg-like network on the simulator's images.
+
+The network follows YOLOv8-seg's structure at a fraction of its width: a strided convolutional
+backbone with residual blocks, a top-down feature pyramid, anchor-free heads at strides 8, 16
+and 32 (box distances to the four sides, class logits, 32 mask coefficients per cell) and a
+prototype head at stride 4. Its ONNX export has exactly the layout of an ultralytics
+YOLOv8-seg export, so the plugin's decoder runs either:
+
+* input ``images`` [1, 3, S, S], float RGB in 0..1, letterboxed (grey 114 padding);
+* ``output0`` [1, 4 + nc + 32, N]: cx, cy, w, h in input pixels, class scores after the sigmoid,
+  mask coefficients;
+* ``output1`` [1, 32, S/4, S/4]: mask prototypes;
+* metadata ``names`` ("{0: 'chair', ...}"), ``imgsz``, ``stride``, ``task`` as ultralytics writes.
+
+Training (simplified from YOLOv8 to fit a CPU budget): each ground-truth instance is assigned
+the cells of its size's pyramid levels whose centres lie inside its box and within 2.5 strides
+of its centre (FCOS/YOLOX-style centre sampling; YOLOv8's task-aligned assigner needs a trained
+network to rank cells). Losses: binary cross-entropy for the classes (summed over all cells,
+normalised by the positives, as YOLOv8 does) against IoU-aware targets (a positive cell's
+target is the IoU of its box with the object's, like YOLOv8's task-aligned scores), generalised
+IoU for the boxes, and YOLOv8's mask
+loss: per-pixel cross-entropy of ``sigmoid(coeffs @ protos)`` against the instance mask at
+prototype resolution, inside the box, normalised by the box area.
+
+Re-train (about 20 minutes on one core, plus 2.5 minutes to render the frames; torch is needed
+for training only)::
+
+    pip install torch==2.13.0
+    python -m amslam.apps.detector_training.train --out plugins/onnx_detector/models/sim_yolov8seg.onnx
+
+then measure it on held-out buildings with ``python -m amslam.apps.detector_training.evaluate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from amslam.apps.detector_training.dataset import CLASSES, Dataset, render_dataset
+
+#: Strides of the detection levels (YOLOv8's P3–P5) and the prototype stride.
+STRIDES: tuple[int, ...] = (8, 16, 32)
+#: With the extra stride-4 level (YOLOv8's "-p2" variant) for small, far objects.
+P2_STRIDES: tuple[int, ...] = (4, 8, 16, 32)
+PROTO_STRIDE = 4
+#: Box size ranges (longest side, input pixels at 320) that each level learns, overlapping.
+LEVEL_SIZES: tuple[tuple[float, float], ...] = ((0.0, 80.0), (40.0, 160.0), (100.0, 1e9))
+#: The same with the stride-4 level, which takes the boxes under 40 px (a chair beyond ~4 m).
+P2_LEVEL_SIZES: tuple[tuple[float, float], ...] = ((0.0, 40.0), (16.0, 80.0), (40.0, 160.0), (100.0, 1e9))
+
+
+def level_sizes(strides: tuple[int, ...]) -> dict[int, tuple[float, float]]:
+    """Box size range of each detection level, by stride, for the levels ``strides``."""
+    if tuple(strides) == STRIDES:
+        return dict(zip(STRIDES, LEVEL_SIZES, strict=True))
+    if tuple(strides) == P2_STRIDES:
+        return dict(zip(P2_STRIDES, P2_LEVEL_SIZES, strict=True))
+    raise ValueError(f"detection levels must be {STRIDES} or {P2_STRIDES}, got {strides}")
+
+
+NUM_MASKS = 32
+PAD_VALUE = 114
+
+#: The shipped model's training buildings (``--seeds N`` takes the first N of seeds 100, 101, …; never
+#: the held-out 900–903, nor the demo's 7).
+TRAIN_SEEDS = tuple(range(100, 136))
+HELDOUT_SEEDS = (900, 901, 902, 903)
+
+
+def _torch():
+    """torch, imported lazily: only training needs it."""
+    try:
+        import torch
+    except ImportError as exc:  # pragma: no cover — depends on the environment
+        raise ImportError(
+            "training the detector needs PyTorch (CPU build): pip install torch==2.13.0"
+        ) from exc
+    return torch
+
+
+def build_model(
+    nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64), strides: tuple[int, ...] = STRIDES
+) -> Any:
+    """The tiny YOLOv8-seg-like network (a ``torch.nn.Module``) for ``nc`` classes.
+
+    With ``strides=P2_STRIDES`` the feature pyramid goes one step further down, to the stride-4
+    features, and a fourth head detects there (as YOLOv8's ``-p2`` models do).
+    """
+    level_sizes(strides)  # validates the levels
+    p2 = strides[0] == 4
+    torch = _torch()
+    nn = torch.nn
+    F = torch.nn.functional
+
+    class Conv(nn.Module):
+        """Convolution, batch norm, SiLU: YOLOv8's basic block."""
+
+        def __init__(self, c1: int, c2: int, k: int = 3, s: int = 1):
+            super().__init__()
+            self.conv = nn.Conv2d(c1, c2, k, s, k // 2, bias=False)
+            self.bn = nn.BatchNorm2d(c2)
+            self.act = nn.SiLU()
+
+        def forward(self, x):
+            return self.act(self.bn(self.conv(x)))
+
+    class Res(nn.Module):
+        """Two 3×3 convolutions with a shortcut (the bottleneck of YOLOv8's C2f)."""
+
+        def __init__(self, c: int):
+            super().__init__()
+            self.a = Conv(c, c)
+            self.b = Conv(c, c)
+
+        def forward(self, x):
+            return x + self.b(self.a(x))
+
+    class Head(nn.Module):
+        """Head of one level: a shared 3×3 convolution, then box distances, class logits and mask
+        coefficients by 1×1 convolutions (YOLOv8 has one branch per output; one is enough here)."""
+
+        def __init__(self, c: int, nc: int, stride: int):
+            super().__init__()
+            self.stem = Conv(c, c)
+            self.box = nn.Conv2d(c, 4, 1)
+            self.cls = nn.Conv2d(c, nc, 1)
+            self.coef = nn.Conv2d(c, NUM_MASKS, 1)
+            # YOLOv8's class-bias prior: few objects per cell at the start of training
+            nn.init.constant_(self.cls.bias, math.log(5 / nc / (320 / stride) ** 2))
+
+        def forward(self, x):
+            x = self.stem(x)
+            return self.box(x), self.cls(x), self.coef(x)
+
+    class TinyYoloSeg(nn.Module):
+        def __init__(self, nc: int):
+            super().__init__()
+            c0, c1, c2, c3, c4 = width
+            self.nc = nc
+            self.s1 = Conv(3, c0, 3, 2)
+            self.s2 = Conv(c0, c1, 3, 2)
+            self.s3 = nn.Sequential(Conv(c1, c2, 3, 2), Res(c2))
+            self.s4 = nn.Sequential(Conv(c2, c3, 3, 2), Res(c3))
+            self.s5 = nn.Sequential(Conv(c3, c4, 3, 2), Res(c4))
+            self.top4 = nn.Sequential(Conv(c4 + c3, c3, 1), Res(c3))
+            self.top3 = nn.Sequential(Conv(c3 + c2, c2, 1), Res(c2))
+            chans = ((c1,) if p2 else ()) + (c2, c3, c4)
+            self.heads = nn.ModuleList([Head(c, nc, s) for c, s in zip(chans, strides, strict=True)])
+            self.top2 = nn.Sequential(Conv(c2 + c1, c1, 1), Res(c1)) if p2 else None
+            # prototypes as in YOLOv8 (convolution, ×2 upsampling, convolution, 1×1 to 32 maps),
+            # with the stride-4 features added back for sharper mask edges
+            cp = c1
+            self.proto_in = Conv(c2, cp, 3)
+            self.proto_skip = Conv(c1, cp, 1)
+            self.proto_out = nn.Sequential(Conv(cp, cp, 3), nn.Conv2d(cp, NUM_MASKS, 1))
+
+        def forward(self, x):
+            p2 = self.s2(self.s1(x))
+            p3 = self.s3(p2)
+            p4 = self.s4(p3)
+            p5 = self.s5(p4)
+            n4 = self.top4(torch.cat([F.interpolate(p5, scale_factor=2.0, mode="nearest"), p4], 1))
+            n3 = self.top3(torch.cat([F.interpolate(n4, scale_factor=2.0, mode="nearest"), p3], 1))
+            feats = [n3, n4, p5]
+            if self.top2 is not None:
+                feats.insert(
+                    0, self.top2(torch.cat([F.interpolate(n3, scale_factor=2.0, mode="nearest"), p2], 1))
+                )
+            levels = [h(f) for h, f in zip(self.heads, feats, strict=True)]
+            up = F.interpolate(self.proto_in(n3), scale_factor=2.0, mode="nearest")
+            protos = self.proto_out(up + self.proto_skip(p2))
+            return levels, protos
+
+    return TinyYoloSeg(nc)
+
+
+def anchors(size: int, levels: tuple[int, ...] = STRIDES) -> tuple[np.ndarray, np.ndarray]:
+    """Cell centres (N×2, input pixels) and strides (N,) of all levels, level by level, row-major."""
+    pts, strides = [], []
+    for s in levels:
+        n = size // s
+        ys, xs = np.mgrid[0:n, 0:n]
+        pts.append(np.stack([(xs.ravel() + 0.5) * s, (ys.ravel() + 0.5) * s], 1))
+        strides.append(np.full(n * n, s, dtype=np.float32))
+    return np.concatenate(pts).astype(np.float32), np.concatenate(strides)
+
+
+def flatten_levels(levels):
+    """Per-level (box, cls, coef) maps → (B, 4, N), (B, nc, N), (B, 32, N)."""
+    torch = _torch()
+    return tuple(torch.cat([lv[i].flatten(2) for lv in levels], 2) for i in range(3))
+
+
+def decode_boxes(box_raw, anchor_xy, stride):
+    """Distances to the four sides (softplus · stride) → xyxy in input pixels, shape (B, 4, N)."""
+    torch = _torch()
+    d = torch.nn.functional.softplus(box_raw) * stride
+    x, y = anchor_xy[:, 0], anchor_xy[:, 1]
+    return torch.stack([x - d[:, 0], y - d[:, 1], x + d[:, 2], y + d[:, 3]], 1)
+
+
+# -------------------------------------------------------------------------------------------
+# data
+# -------------------------------------------------------------------------------------------
+def make_batch(
+    data: Dataset, idx: np.ndarray, size: int, rng: np.random.Generator | None
+) -> tuple[np.ndarray, list[dict[str, np.ndarray]]]:
+    """Letterboxed images (B, 3, S, S) in 0..1 and per-image targets.
+
+    With ``rng`` the images are augmented: random vertical placement inside the letterbox (in
+    steps of the prototype stride, so masks stay aligned), horizontal flips and a brightness and
+    colour-balance jitter. Without it the placement is the centred letterbox of inference.
+    """
+    B = len(idx)
+    H, W = data.images.shape[1:3]
+    r = min(size / H, size / W)
+    nh, nw = round(H * r), round(W * r)
+    imgs = np.full((B, size, size, 3), PAD_VALUE, dtype=np.float32)
+    targets = []
+    pm = size // PROTO_STRIDE
+    for b, i in enumerate(idx):
+        img = data.images[i]
+        inst = data.instance[i]
+        if (nh, nw) != (H, W):
+            img = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_AREA)
+            inst = cv2.resize(inst, (nw, nh), interpolation=cv2.INTER_NEAREST)
+        img = img.astype(np.float32)
+        flip = False
+        if rng is not None:
+            oy = int(rng.integers(0, (size - nh) // PROTO_STRIDE + 1)) * PROTO_STRIDE
+            ox = int(rng.integers(0, (size - nw) // PROTO_STRIDE + 1)) * PROTO_STRIDE
+            flip = bool(rng.random() < 0.5)
+            img = img * rng.uniform(0.7, 1.3) * rng.uniform(0.93, 1.07, 3) + rng.normal(0, 4)
+        else:
+            oy = (size - nh) // 2 // PROTO_STRIDE * PROTO_STRIDE
+            ox = (size - nw) // 2 // PROTO_STRIDE * PROTO_STRIDE
+        if flip:
+            img = img[:, ::-1]
+            inst = inst[:, ::-1]
+        imgs[b, oy : oy + nh, ox : ox + nw] = np.clip(img, 0, 255)
+        boxes, classes, masks = [], [], []
+        for iid in range(1, data.inst_class.shape[1]):
+            c = int(data.inst_class[i, iid])
+            if c < 0:
+                continue
+            m = inst == iid
+            if not m.any():
+                continue
+            ys, xs = np.nonzero(m)
+            boxes.append([xs.min() + ox, ys.min() + oy, xs.max() + 1 + ox, ys.max() + 1 + oy])
+            classes.append(c)
+            canvas = np.zeros((size, size), dtype=np.float32)
+            canvas[oy : oy + nh, ox : ox + nw] = m
+            masks.append(cv2.resize(canvas, (pm, pm), interpolation=cv2.INTER_AREA))
+        targets.append(
+            {
+                "boxes": np.asarray(boxes, dtype=np.float32).reshape(-1, 4),
+                "classes": np.asarray(classes, dtype=np.int64),
+                "masks": np.asarray(masks, dtype=np.float32).reshape(-1, pm, pm),
+            }
+        )
+    return imgs.transpose(0, 3, 1, 2) / 255.0, targets
+
+
+# -------------------------------------------------------------------------------------------
+# assignment and loss
+# -------------------------------------------------------------------------------------------
+def assign(boxes: np.ndarray, anchor_xy: np.ndarray, strides: np.ndarray, radius: float = 2.5) -> np.ndarray:
+    """Index of the ground-truth box each cell learns (−1 = background), shape (N,).
+
+    A cell is a candidate for a box when its centre lies inside the box, within ``radius``
+    strides of the box centre, on a level whose size range holds the box's longest side. A box
+    without candidate gets the nearest cell of its levels. A cell claimed by several boxes
+    learns the smallest one.
+    """
+    N = len(anchor_xy)
+    out = np.full(N, -1, dtype=np.int64)
+    if len(boxes) == 0:
+        return out
+    x, y = anchor_xy[:, 0][None], anchor_xy[:, 1][None]
+    x1, y1, x2, y2 = (boxes[:, k : k + 1] for k in range(4))
+    cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+    side = np.maximum(x2 - x1, y2 - y1)
+    level_ok = np.zeros((len(boxes), N), dtype=bool)
+    levels = tuple(int(s) for s in np.unique(strides))
+    for s, (lo, hi) in level_sizes(levels).items():
+        level_ok |= (strides[None] == s) & (side >= lo) & (side <= hi)
+    r = radius * strides[None]
+    cand = (x > x1) & (x < x2) & (y > y1) & (y < y2) & (np.abs(x - cx) < r) & (np.abs(y - cy) < r) & level_ok
+    for g in np.flatnonzero(~cand.any(1)):
+        d = np.hypot(anchor_xy[:, 0] - cx[g, 0], anchor_xy[:, 1] - cy[g, 0])
+        d[~level_ok[g]] = np.inf
+        cand[g, int(np.argmin(d))] = True
+    area = ((x2 - x1) * (y2 - y1)).ravel()
+    cost = np.where(cand, area[:, None], np.inf)
+    best = np.argmin(cost, axis=0)
+    pos = np.isfinite(cost[best, np.arange(N)])
+    out[pos] = best[pos]
+    return out
+
+
+def giou(a, b):
+    """Generalised IoU and IoU of matching rows of two (P, 4) xyxy tensors."""
+    torch = _torch()
+    lt = torch.maximum(a[:, :2], b[:, :2])
+    rb = torch.minimum(a[:, 2:], b[:, 2:])
+    inter = (rb - lt).clamp(min=0).prod(1)
+    area_a = (a[:, 2:] - a[:, :2]).clamp(min=0).prod(1)
+    area_b = (b[:, 2:] - b[:, :2]).clamp(min=0).prod(1)
+    union = area_a + area_b - inter + 1e-7
+    iou = inter / union
+    clt = torch.minimum(a[:, :2], b[:, :2])
+    crb = torch.maximum(a[:, 2:], b[:, 2:])
+    hull = (crb - clt).clamp(min=0).prod(1) + 1e-7
+    return iou - (hull - union) / hull, iou
+
+
+def _cap_per_group(groups: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices keeping at most ``cap`` random members of each group label."""
+    keep = []
+    for label in np.unique(groups):
+        members = np.flatnonzero(groups == label)
+        if len(members) > cap:
+            members = rng.choice(members, cap, replace=False)
+        keep.append(members)
+    return np.sort(np.concatenate(keep))
+
+
+def compute_loss(levels, protos, targets, anchor_xy, strides, gains=(5.0, 1.0, 5.0), mask_cells=6, rng=None):
+    """YOLOv8-seg-style loss of a batch; returns (total, {"box", "cls", "mask"}).
+
+    The mask loss is the mean over images of the per-instance, box-normalised cross-entropy.
+    """
+    torch = _torch()
+    F = torch.nn.functional
+    box_raw, cls_logit, coef = flatten_levels(levels)
+    B, nc, N = cls_logit.shape
+    a_xy = torch.from_numpy(anchor_xy)
+    st = torch.from_numpy(strides)
+    boxes = decode_boxes(box_raw, a_xy, st)  # (B, 4, N)
+    cls_target = torch.zeros_like(cls_logit)
+    box_losses, mask_losses = [], []
+    n_pos = n_mask = 0
+    rng = rng if rng is not None else np.random.default_rng(0)
+    pm = protos.shape[-1]
+    for b, t in enumerate(targets):
+        which = assign(t["boxes"], anchor_xy, strides)
+        pos = np.flatnonzero(which >= 0)
+        if len(pos) == 0:
+            continue
+        g = which[pos]
+        n_pos += len(pos)
+        pos_t = torch.from_numpy(pos)
+        gt_boxes = torch.from_numpy(t["boxes"][g])
+        pred_boxes = boxes[b, :, pos_t].T
+        g_iou, iou = giou(pred_boxes, gt_boxes)
+        box_losses.append((1.0 - g_iou).sum())
+        # IoU-aware class target (as YOLOv8's task-aligned targets and VarifocalNet): a cell's
+        # score learns how well its box fits, so NMS keeps the best box and the poorly placed
+        # boxes of a large object's edge cells fall below the confidence threshold
+        cls_target[b, torch.from_numpy(t["classes"][g]), pos_t] = iou.detach().clamp(0.0, 1.0)
+        # mask: coefficients of the positive cells on this image's prototypes; at most
+        # `mask_cells` random cells per instance (the mask loss dominated the step time otherwise)
+        keep = _cap_per_group(g, mask_cells, rng)
+        mpos, mg = pos_t[torch.from_numpy(keep)], g[keep]
+        logits = coef[b, :, mpos].T @ protos[b].reshape(NUM_MASKS, -1)  # (P, pm*pm)
+        gt_masks = torch.from_numpy(t["masks"][mg].reshape(len(mg), -1))
+        bce = F.binary_cross_entropy_with_logits(logits, gt_masks, reduction="none")
+        gb = t["boxes"][mg] / PROTO_STRIDE
+        ii = np.arange(pm) + 0.5
+        inside_x = (ii[None] >= gb[:, 0:1]) & (ii[None] <= gb[:, 2:3])
+        inside_y = (ii[None] >= gb[:, 1:2]) & (ii[None] <= gb[:, 3:4])
+        crop = (inside_y[:, :, None] & inside_x[:, None, :]).reshape(len(mg), -1).astype(np.float32)
+        crop_t = torch.from_numpy(crop)
+        area = crop_t.sum(1).clamp(min=1.0)
+        mask_losses.append(((bce * crop_t).sum(1) / area).mean())
+        n_mask += 1
+    norm = max(n_pos, 1)
+    l_cls = F.binary_cross_entropy_with_logits(cls_logit, cls_target, reduction="sum") / norm
+    l_box = torch.stack(box_losses).sum() / norm if box_losses else cls_logit.sum() * 0
+    l_mask = torch.stack(mask_losses).sum() / max(n_mask, 1) if mask_losses else cls_logit.sum() * 0
+    total = gains[0] * l_box + gains[1] * l_cls + gains[2] * l_mask
+    return total, {"box": float(l_box.detach()), "cls": float(l_cls.detach()), "mask": float(l_mask.detach())}
+
+
+# -------------------------------------------------------------------------------------------
+# export
+# -------------------------------------------------------------------------------------------
+def export_onnx(
+    model,
+    path: Path,
+    size: int,
+    names: tuple[str, ...],
+    extra: dict[str, str] | None = None,
+    levels: tuple[int, ...] = STRIDES,
+):
+    """Export in the YOLOv8-seg layout with ultralytics-style metadata."""
+    torch = _torch()
+    import onnx
+
+    anchor_xy, strides = anchors(size, levels)
+
+    class Exported(torch.nn.Module):
+        def __init__(self, net):
+            super().__init__()
+            self.net = net
+            self.register_buffer("a_xy", torch.from_numpy(anchor_xy))
+            self.register_buffer("st", torch.from_numpy(strides))
+
+        def forward(self, images):
+            levels, protos = self.net(images)
+            box_raw, cls_logit, coef = flatten_levels(levels)
+            xyxy = decode_boxes(box_raw, self.a_xy, self.st)
+            cxcy = (xyxy[:, :2] + xyxy[:, 2:]) / 2
+            wh = xyxy[:, 2:] - xyxy[:, :2]
+            return torch.cat([cxcy, wh, cls_logit.sigmoid(), coef], 1), protos
+
+    wrapped = Exported(model).eval()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    dummy = torch.zeros(1, 3, size, size)
+    with torch.no_grad():
+        torch.onnx.export(
+            wrapped,
+            (dummy,),
+            str(path),
+            input_names=["images"],
+            output_names=["output0", "output1"],
+            opset_version=17,
+            do_constant_folding=True,
+            dynamo=False,
+        )
+    m = onnx.load(str(path))
+    meta = {
+        "description": "amslam tiny YOLOv8-seg trained on simulator images",
+        "author": "amslam",
+        "task": "segment",
+        "stride": str(max(levels)),
+        "batch": "1",
+        "imgsz": str([size, size]),
+        "names": str(dict(enumerate(names))),
+        **(extra or {}),
+    }
+    del m.metadata_props[:]
+    for k, v in meta.items():
+        m.metadata_props.add(key=k, value=v)
+    onnx.checker.check_model(m)
+    onnx.save(m, str(path))
+    assert ast.literal_eval(meta["names"]) == dict(enumerate(names))
+
+
+# -------------------------------------------------------------------------------------------
+# main
+# -------------------------------------------------------------------------------------------
+def train(
+    data: Dataset,
+    out: Path,
+    *,
+    size: int = 320,
+    epochs: int = 12,
+    batch: int = 16,
+    lr: float = 2e-3,
+    threads: int = 2,
+    seed: int = 0,
+    log_every: int = 20,
+    levels: tuple[int, ...] = STRIDES,
+) -> Path:
+    """Train on ``data`` and export the network to ``out`` (ONNX); ``levels``: detection strides."""
+    torch = _torch()
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    model = build_model(len(data.names), strides=levels)
+    n_params = sum(p.numel() for p in model.parameters())
+    anchor_xy, strides = anchors(size, levels)
+    steps_per_epoch = max(1, len(data) // batch)
+    total = epochs * steps_per_epoch
+    warmup = min(200, total // 10)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=5e-4)
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt,
+        lambda k: (
+            (k + 1) / warmup
+            if k < warmup
+            else 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * (k - warmup) / max(1, total - warmup)))
+        ),
+    )
+    print(f"{len(data)} frames, {n_params / 1e6:.2f} M parameters, {total} steps", flush=True)
+    t0 = time.time()
+    step = 0
+    model.train()
+    for epoch in range(epochs):
+        order = rng.permutation(len(data))
+        for k in range(steps_per_epoch):
+            idx = order[k * batch : (k + 1) * batch]
+            imgs, targets = make_batch(data, idx, size, rng)
+            heads_out, protos = model(torch.from_numpy(imgs.astype(np.float32)))
+            loss, parts = compute_loss(heads_out, protos, targets, anchor_xy, strides, rng=rng)
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+            opt.step()
+            sched.step()
+            step += 1
+            if step % log_every == 0:
+                el = time.time() - t0
+                print(
+                    f"epoch {epoch + 1}/{epochs} step {step}/{total} loss {float(loss):.3f} "
+                    f"box {parts['box']:.3f} cls {parts['cls']:.3f} mask {parts['mask']:.3f} "
+                    f"lr {sched.get_last_lr()[0]:.2e} {el:.0f}s (eta {el / step * (total - step):.0f}s)",
+                    flush=True,
+                )
+    model.eval()
+    export_onnx(
+        model,
+        out,
+        size,
+        data.names,
+        extra={
+            "train_frames": str(len(data)),
+            "epochs": str(epochs),
+            "train_seeds": str(sorted(set(data.seeds.tolist()))),
+            "levels": str(list(levels)),
+        },
+        levels=levels,
+    )
+    print(f"exported {out} ({out.stat().st_size / 1e6:.2f} MB) after {time.time() - t0:.0f}s", flush=True)
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command line: render (or load) the training set, train, export."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("plugins/onnx_detector/models/sim_yolov8seg.onnx"))
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        help="training set cache: rendered once, reused when present "
+        "(default: runs/onnx_detector/train-SEEDSxFRAMES.npz)",
+    )
+    ap.add_argument("--seeds", type=int, default=len(TRAIN_SEEDS), help="training buildings (seeds 100..)")
+    ap.add_argument("--frames", type=int, default=64, help="frames per training building")
+    ap.add_argument("--epochs", type=int, default=10)
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--size", type=int, default=320, help="square network input (multiple of 32)")
+    ap.add_argument(
+        "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
+    )
+    ap.add_argument("--p2", action="store_true", help="add the stride-4 detection level (small, far objects)")
+    args = ap.parse_args(argv)
+    seeds = list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + args.seeds))
+    if args.data is None:
+        args.data = Path(f"runs/onnx_detector/train-{args.seeds}x{args.frames}.npz")
+    if args.data.exists():
+        data = Dataset.load(args.data)
+        if sorted(set(data.seeds.tolist())) != seeds or len(data) != len(seeds) * args.frames:
+            raise SystemExit(f"{args.data} holds other buildings or frames than --seeds/--frames ask for")
+        print(f"loaded {args.data}: {len(data)} frames", flush=True)
+    else:
+        t = time.time()
+        data = render_dataset(seeds, args.frames, progress=True, classes=CLASSES)
+        data.save(args.data)
+        print(f"rendered {len(data)} frames in {time.time() - t:.0f}s → {args.data}", flush=True)
+    train(
+        data,
+        args.out,
+        size=args.size,
+        epochs=args.epochs,
+        batch=args.batch,
+        threads=args.threads,
+        levels=P2_STRIDES if args.p2 else STRIDES,
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,432 @@
+"""Experiments: one mission flown several ways over several seeds, summarised in tables and plots.
+
+* ``slc-ablation`` — the mission with semantic loop closure on and off (paper 1 Tables I, II and
+  Fig. 7): end position and yaw error of VIO vs SLAM, pose and landmark uncertainty.
+* ``planners`` — the mission with each exploration planner (COP, TSP, greedy): explored volume
+  against distance travelled and time.
+
+Every run is an ordinary run folder under ``<out>/<experiment>-<mission>-<timestamp>/runs``; the
+experiment folder adds ``results.json``, ``table.md`` and PNG plots.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import amslam
+from amslam.cli import Experiment
+from amslam.mission import load_mission
+from amslam.registry import Registry
+from amslam.runner import Runner
+
+
+def _fly(
+    spec: str, registry: Registry, overrides: list[str], runs: Path, log: Callable[[str], None]
+) -> dict[str, Any]:
+    mission = load_mission(spec, registry, overrides)
+    started = time.perf_counter()
+    result = Runner(mission, registry, runs).run()
+    took = time.perf_counter() - started
+    log(f"  {' '.join(overrides):<60} {result.verdict:<12} ({took:.0f} s) {result.run_dir}")
+    return {"overrides": overrides, "run_dir": str(result.run_dir), "metrics": result.metrics}
+
+
+def _folder(out: Path, experiment: str, mission: str) -> Path:
+    folder = Path(out) / f"{experiment}-{Path(mission).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    (folder / "runs").mkdir(parents=True)
+    return folder
+
+
+def _pct_reduction(before: float, after: float) -> float:
+    return 100.0 * (before - after) / before if before else float("nan")
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "—"
+    return f"{x:.{digits}f}" if isinstance(x, float) else str(x)
+
+
+# -- SLC ablation ----------------------------------------------------------------------------
+
+
+def slc_ablation(
+    spec: str,
+    registry: Registry,
+    seeds: list[int],
+    out: Path,
+    overrides: list[str] = (),
+    log: Callable[[str], None] = print,
+) -> Path:
+    """Fly ``spec`` with SLC on and off for each seed; write tables and the Fig. 7 plot."""
+    folder = _folder(out, "slc-ablation", spec)
+    rows = []
+    for seed in seeds:
+        pair = {}
+        for slc in (True, False):
+            flags = [*overrides, f"seed={seed}", f"exploration.slc={'true' if slc else 'false'}"]
+            pair["on" if slc else "off"] = _fly(spec, registry, flags, folder / "runs", log)
+        rows.append({"seed": seed, **pair})
+    (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
+    (folder / "table.md").write_text(slc_tables(rows))
+    plot_fig7(rows, folder / "uncertainty_slc_on_off.png")
+    return folder
+
+
+def slc_tables(rows: list[dict]) -> str:
+    """Markdown tables like paper 1 Tables I and II from the runs of an ablation."""
+    lines = [
+        "## End-of-mission errors with SLC on (like paper 1 Table I)",
+        "",
+        "| seed | distance (m) | SLC accepted | VIO pos. err (m) | SLAM pos. err (m) | reduction | "
+        "VIO yaw err (rad) | SLAM yaw err (rad) | reduction |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    pos_red, yaw_red, pose_unc_red, lm_unc_red = [], [], [], []
+    for row in rows:
+        m = row["on"]["metrics"]
+        err = m.get("final_error", {})
+        vio_p, slam_p = err.get("vio_position_m"), err.get("slam_position_m")
+        vio_y, slam_y = err.get("vio_yaw_rad"), err.get("slam_yaw_rad")
+        rp = _pct_reduction(vio_p, slam_p) if vio_p is not None else float("nan")
+        ry = _pct_reduction(vio_y, slam_y) if vio_y is not None else float("nan")
+        pos_red.append(rp)
+        yaw_red.append(ry)
+        lines.append(
+            f"| {row['seed']} | {_fmt(m.get('distance_m'), 1)} | {m.get('slc', {}).get('accepted', 0)} | "
+            f"{_fmt(vio_p)} | {_fmt(slam_p)} | {_fmt(rp, 1)} % | "
+            f"{_fmt(vio_y)} | {_fmt(slam_y)} | {_fmt(ry, 1)} % |"
+        )
+    lines += [
+        f"| **mean** | | | | | **{_fmt(float(np.nanmean(pos_red)), 1)} %** | | | "
+        f"**{_fmt(float(np.nanmean(yaw_red)), 1)} %** |",
+        "",
+        "## Final mean uncertainty, SLC on vs off (like paper 1 Table II / Fig. 7)",
+        "",
+        "| seed | pose tr(Σ) on | pose tr(Σ) off | reduction | "
+        "landmark tr(Σ) on | landmark tr(Σ) off | reduction |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        on = row["on"]["metrics"].get("uncertainty", {})
+        off = row["off"]["metrics"].get("uncertainty", {})
+        p_on, p_off = on.get("final_mean_pose_trace"), off.get("final_mean_pose_trace")
+        l_on, l_off = on.get("final_mean_landmark_trace"), off.get("final_mean_landmark_trace")
+        rp = _pct_reduction(p_off, p_on) if p_on is not None and p_off else float("nan")
+        rl = _pct_reduction(l_off, l_on) if l_on is not None and l_off else float("nan")
+        pose_unc_red.append(rp)
+        lm_unc_red.append(rl)
+        lines.append(
+            f"| {row['seed']} | {_fmt(p_on, 4)} | {_fmt(p_off, 4)} | {_fmt(rp, 1)} % | "
+            f"{_fmt(l_on, 4)} | {_fmt(l_off, 4)} | {_fmt(rl, 1)} % |"
+        )
+    lines += [
+        f"| **mean** | | | **{_fmt(float(np.nanmean(pose_unc_red)), 1)} %** | | | "
+        f"**{_fmt(float(np.nanmean(lm_unc_red)), 1)} %** |",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def plot_fig7(rows: list[dict], path: Path) -> None:
+    """Mean pose and landmark covariance trace against distance, SLC on and off (paper 1 Fig. 7)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for row in rows:
+        for key, style in (("on", "-"), ("off", "--")):
+            series = row[key]["metrics"].get("uncertainty", {}).get("series")
+            if not series:
+                continue
+            s = np.array(series, dtype=float)
+            label = f"seed {row['seed']}, SLC {key}"
+            axes[0].plot(s[:, 1], s[:, 2], style, label=label)
+            axes[1].plot(s[:, 1], s[:, 3], style, label=label)
+            for ev in row[key]["metrics"].get("slc", {}).get("events", []):
+                if ev["accepted"]:
+                    axes[0].axvline(ev["distance"], color="0.7", lw=0.8)
+    axes[0].set_title("mean pose uncertainty")
+    axes[1].set_title("mean landmark uncertainty")
+    for ax in axes:
+        ax.set_xlabel("distance travelled (m)")
+        ax.set_ylabel("tr(Σ)")
+        ax.legend(fontsize=7)
+    fig.suptitle("Uncertainty with and without semantic loop closure (grey: accepted SLC)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# -- planner comparison ----------------------------------------------------------------------
+
+
+def planner_comparison(
+    spec: str,
+    registry: Registry,
+    seeds: list[int],
+    out: Path,
+    planners: tuple[str, ...] = ("cop", "tsp", "greedy"),
+    overrides: list[str] = (),
+    log: Callable[[str], None] = print,
+) -> Path:
+    """Fly ``spec`` with each planner for each seed; tabulate and plot exploration progress."""
+    folder = _folder(out, "planners", spec)
+    rows = []
+    for seed in seeds:
+        for planner in planners:
+            flags = [*overrides, f"seed={seed}", f"planner.plugin={planner}"]
+            rows.append(
+                {
+                    "seed": seed,
+                    "planner": planner,
+                    "world": Path(spec).stem,
+                    **_fly(spec, registry, flags, folder / "runs", log),
+                }
+            )
+    (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
+    (folder / "table.md").write_text(planner_table(rows))
+    plot_exploration(rows, folder / "explored_vs_distance.png")
+    return folder
+
+
+def progress_to(rows: list[dict], share: float = 0.9) -> list[tuple[float | None, float | None]]:
+    """Per run, the distance and time at which it had mapped ``share`` of the most volume any run of
+    the same world and seed mapped: how fast a planner explores, not counting the flight home."""
+    best: dict[Any, float] = {}
+    for row in rows:
+        key = (row.get("world"), row["seed"])
+        best[key] = max(best.get(key, 0.0), row["metrics"].get("explored_volume_m3") or 0.0)
+    out = []
+    for row in rows:
+        target = share * best[(row.get("world"), row["seed"])]
+        series = np.array(row["metrics"].get("explored_series") or np.zeros((0, 3)), dtype=float)
+        hit = np.flatnonzero(series[:, 2] >= target) if len(series) and target > 0 else []
+        out.append((float(series[hit[0], 1]), float(series[hit[0], 0])) if len(hit) else (None, None))
+    return out
+
+
+def planner_table(rows: list[dict]) -> str:
+    lines = [
+        "| planner | world | seed | verdict | explored (%) | distance (m) | time (s) | m³ per m "
+        "| distance to 90 % (m) | time to 90 % (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    to90 = progress_to(rows)
+    for row, (d90, t90) in zip(rows, to90, strict=True):
+        m = row["metrics"]
+        vol, dist = m.get("explored_volume_m3"), m.get("distance_m")
+        lines.append(
+            f"| {row['planner']} | {row.get('world', '')} | {row['seed']} | {m.get('verdict')} | "
+            f"{_fmt(m.get('explored_percent'), 1)} | {_fmt(dist, 1)} | {_fmt(m.get('sim_duration_s'), 1)} | "
+            f"{_fmt(vol / dist if vol and dist else None, 2)} | {_fmt(d90, 1)} | {_fmt(t90, 1)} |"
+        )
+    lines += [
+        "",
+        "| planner | runs | mean explored (%) | mean distance (m) | mean time (s) "
+        "| mean distance to 90 % (m) | mean time to 90 % (s) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for planner in dict.fromkeys(r["planner"] for r in rows):
+        ms = [r["metrics"] for r in rows if r["planner"] == planner]
+        p90 = np.array([x for r, x in zip(rows, to90, strict=True) if r["planner"] == planner], dtype=float)
+
+        def mean(key: str, ms=ms) -> float:
+            return float(np.nanmean([m.get(key) if m.get(key) is not None else np.nan for m in ms]))
+
+        lines.append(
+            f"| {planner} | {len(ms)} | {_fmt(mean('explored_percent'), 1)} | "
+            f"{_fmt(mean('distance_m'), 1)} | {_fmt(mean('sim_duration_s'), 1)} | "
+            f"{_fmt(float(np.nanmean(p90[:, 0])), 1)} | "
+            f"{_fmt(float(np.nanmean(p90[:, 1])), 1)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot_exploration(rows: list[dict], path: Path) -> None:
+    """Explored volume against distance travelled and against time, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {"cop": "tab:blue", "tsp": "tab:orange", "greedy": "tab:green"}
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for row in rows:
+        series = row["metrics"].get("explored_series")
+        if not series:
+            continue
+        s = np.array(series, dtype=float)
+        colour = colours.get(row["planner"])
+        label = f"{row['planner']} (seed {row['seed']})"
+        axes[0].plot(s[:, 1], s[:, 2], color=colour, label=label, alpha=0.8)
+        axes[1].plot(s[:, 0], s[:, 2], color=colour, label=label, alpha=0.8)
+    axes[0].set_xlabel("distance travelled (m)")
+    axes[1].set_xlabel("time (s)")
+    for ax in axes:
+        ax.set_ylabel("explored volume (m³)")
+        ax.legend(fontsize=7)
+    fig.suptitle("Exploration progress by planner")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# -- PAMS vs the prior-visit baseline (paper 2 Fig. 9) ----------------------------------------
+
+
+def pams_comparison(
+    specs: list[str],
+    registry: Registry,
+    seeds: list[int],
+    out: Path,
+    planners: tuple[str, ...] = ("pams", "prior_visit"),
+    overrides: list[str] = (),
+    log: Callable[[str], None] = print,
+) -> Path:
+    """Fly every mission (one simulated world each) with PAMS and the baseline for each seed.
+
+    The missions name a prior map of objects (``planner.prior_objects``); the ``objects`` block
+    of each run's metrics (shape landmarks against the world's true shapes) fills a table like
+    paper 2 Fig. 9: dimension error mean and standard deviation and the share of objects mapped,
+    per world, per class and over all data.
+    """
+    folder = _folder(out, "pams", specs[0] if len(specs) == 1 else "worlds")
+    rows = []
+    for spec in specs:
+        for seed in seeds:
+            for planner in planners:
+                flags = [*overrides, f"seed={seed}", f"planner.plugin={planner}"]
+                rows.append(
+                    {
+                        "world": Path(spec).stem,
+                        "seed": seed,
+                        "planner": planner,
+                        **_fly(spec, registry, flags, folder / "runs", log),
+                    }
+                )
+    (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
+    (folder / "table.md").write_text(pams_table(rows, planners))
+    return folder
+
+
+def pool_errors(blocks: list[dict], metric: str = "dims_error", mapped: str = "mapped") -> dict[str, float]:
+    """Pool per-run ``{mapped, objects, <metric>_mean_m, <metric>_std_m}`` over runs.
+
+    Means weight each run by its mapped objects; the pooled std comes from the pooled second
+    moment (``E[e²] = σ² + μ²`` per run), so it equals the std over all objects together.
+    ``mapped`` names the count that goes with ``metric`` (``fig9_mapped`` for the overall
+    ``fig9_error``, which counts vehicles only).
+    """
+    count = "objects" if mapped == "mapped" else mapped.replace("_mapped", "_objects")
+    n = np.array([b.get(mapped, 0) for b in blocks], float)
+    objects = float(sum(b.get(count, 0) for b in blocks))
+    has = [b for b in blocks if f"{metric}_mean_m" in b and b.get(mapped, 0) > 0]
+    out = {"mapped": float(n.sum()), "objects": objects}
+    if has:
+        w = np.array([b[mapped] for b in has], float)
+        m = np.array([b[f"{metric}_mean_m"] for b in has])
+        s = np.array([b[f"{metric}_std_m"] for b in has])
+        mean = float(np.sum(w * m) / w.sum())
+        second = float(np.sum(w * (s**2 + m**2)) / w.sum())
+        out["mean"], out["std"] = mean, float(np.sqrt(max(second - mean**2, 0.0)))
+    return out
+
+
+def pams_table(rows: list[dict], planners: tuple[str, ...] = ("pams", "prior_visit")) -> str:
+    """Markdown like paper 2 Fig. 9: one column per world and one for all data; ``a / b`` cells
+    compare the planners in the order given.
+
+    The error of the overall rows and of cuboid classes is paper 2 Fig. 9's: a vehicle's
+    |Δlength| and |Δwidth| averaged (``fig9_error`` of the ``objects`` metrics), over vehicles
+    only; cylinder classes get their diameter error (``dims_error``) in rows of their own.
+    """
+    worlds = list(dict.fromkeys(r["world"] for r in rows))
+    classes = sorted({c for r in rows for c in (r["metrics"].get("objects") or {}) if c != "overall"})
+    models = {
+        c: b.get("model")
+        for r in rows
+        for c, b in (r["metrics"].get("objects") or {}).items()
+        if c != "overall"
+    }
+
+    def pooled(world: str | None, planner: str, cls: str) -> dict[str, float]:
+        blocks = [
+            (r["metrics"].get("objects") or {}).get(cls, {})
+            for r in rows
+            if r["planner"] == planner and (world is None or r["world"] == world)
+        ]
+        if cls == "overall":
+            if any("fig9_mapped" in b for b in blocks):
+                return pool_errors(blocks, "fig9_error", "fig9_mapped")
+            return pool_errors(blocks)  # runs measured before the Fig. 9 metric existed
+        return pool_errors(blocks, "fig9_error" if models.get(cls) == "cuboid" else "dims_error")
+
+    def cell(world: str | None, cls: str, what: str) -> str:
+        vals = []
+        for p in planners:
+            d = pooled(world, p, cls)
+            if what == "mapped":
+                vals.append(f"{100 * d['mapped'] / d['objects']:.0f} %" if d["objects"] else "—")
+            else:
+                vals.append(f"{d[what]:.2f} m" if what in d else "—")
+        return " / ".join(vals)
+
+    cols = [*worlds, None]
+    head = " / ".join(planners)
+    lines = [
+        f"Object model error and objects mapped ({head}), like paper 2 Fig. 9. Err.: per vehicle"
+        " mean |Δlength|, |Δwidth| (overall = vehicles); for cylinder classes: |Δdiameter|",
+        "",
+        "| measure | " + " | ".join(w or "all data" for w in cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
+    for cls in ["overall", *classes]:
+        label = "" if cls == "overall" else f" — {cls}"
+        for what, name in (("mean", "Err. mean"), ("std", "Err. std. dev."), ("mapped", "Obj. mapped")):
+            lines.append(f"| {name}{label} | " + " | ".join(cell(w, cls, what) for w in cols) + " |")
+    dist = {
+        p: np.nanmean([r["metrics"].get("distance_m") or np.nan for r in rows if r["planner"] == p])
+        for p in planners
+    }
+    lines += ["", "Mean path length: " + ", ".join(f"{p} {_fmt(float(d), 1)} m" for p, d in dist.items()), ""]
+    return "\n".join(lines)
+
+
+# -- registration ------------------------------------------------------------------------------
+
+
+def _seeds(args) -> list[int]:
+    return list(range(args.first_seed, args.first_seed + args.seeds))
+
+
+@amslam.hookimpl
+def amslam_experiments():
+    return {
+        "slc-ablation": Experiment(
+            "the mission with semantic loop closure on and off (paper 1 Tables I, II, Fig. 7)",
+            lambda args, registry: slc_ablation(
+                args.mission, registry, _seeds(args), Path(args.out), args.set or []
+            ),
+        ),
+        "planners": Experiment(
+            "the mission with each exploration planner (COP, TSP, greedy)",
+            lambda args, registry: planner_comparison(
+                args.mission, registry, _seeds(args), Path(args.out), overrides=args.set or []
+            ),
+        ),
+        "pams": Experiment(
+            "PAMS against the prior-visit baseline on one or more worlds (paper 2 Fig. 9)",
+            lambda args, registry: pams_comparison(
+                [args.mission, *args.more], registry, _seeds(args), Path(args.out), overrides=args.set or []
+            ),
+        ),
+    }

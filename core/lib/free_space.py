@@ -1,0 +1,209 @@
+"""Collision checks and graph search over a dense block of voxel states (any backend).
+
+Backends hand over an int8 ``VoxelState`` block (indices ``[lo, lo + shape)`` of the shared lattice)
+and these functions do the rest: robot-radius inflation, the 26-connected free-space graph, multi
+source Dijkstra (``scipy.sparse.csgraph``), path extraction and line-of-sight smoothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
+
+from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, centres, to_index
+
+#: Half of the 26 neighbour offsets (the other half are their negatives).
+_HALF_OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o > (1, 1, 1)], dtype=np.int64) - 1
+
+
+def clearance_kernel(radius: float, voxel: float) -> np.ndarray:
+    """Offsets of voxels whose box comes closer than ``radius`` to a voxel centre, as a mask.
+
+    A robot of radius ``radius`` centred on a voxel centre touches exactly the voxels in this mask.
+    """
+    m = int(np.ceil(radius / voxel + 0.5))
+    g = np.arange(-m, m + 1)
+    off = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1)
+    gap = np.maximum(np.abs(off) - 0.5, 0.0) * voxel  # per-axis distance centre → voxel box
+    return np.sqrt((gap**2).sum(-1)) < radius
+
+
+def traversable(states: np.ndarray, radius: float, voxel: float, unknown_free: bool = False) -> np.ndarray:
+    """Known-free (or, with ``unknown_free``, not occupied) voxels with no occupied voxel within
+    ``radius`` of their centre."""
+    occ = states == OCCUPIED
+    if radius > 0 and occ.any():
+        occ = ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
+    return ((states != OCCUPIED) if unknown_free else (states == FREE)) & ~occ
+
+
+def segment_samples(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """Points along the segment a→b, both ends included, spaced at most ``step``."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    n = max(int(np.ceil(np.linalg.norm(b - a) / step)), 1)
+    return a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+
+
+def samples_clear(
+    samples: np.ndarray, radius: float, voxel: float, states_at: Callable[[np.ndarray], np.ndarray]
+) -> bool:
+    """Whether no occupied voxel comes within ``radius`` of any sample point (unknown counts as free)."""
+    m = int(np.ceil(radius / voxel)) + 1
+    g = np.arange(-m, m + 1)
+    offsets = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    cand = np.unique((to_index(samples, voxel)[:, None, :] + offsets[None]).reshape(-1, 3), axis=0)
+    occ = cand[states_at(cand) == OCCUPIED]
+    if len(occ) == 0:
+        return True
+    lo = occ * voxel
+    hi = lo + voxel
+    gap = np.maximum(np.maximum(lo[None] - samples[:, None], samples[:, None] - hi[None]), 0.0)
+    return bool(np.all(np.sqrt((gap**2).sum(-1)) >= radius))
+
+
+class FreeSpaceGraph:
+    """26-connected graph over the traversable voxels of a dense block, for shortest paths.
+
+    Args:
+        passable: boolean block (indices ``[lo, lo + shape)``) of voxels the robot may occupy.
+        lo: lattice index of the block's first voxel.
+        voxel: voxel edge in metres.
+        snap_radius: a query point off the graph connects to the nearest node within this distance,
+            provided its own voxel is not occupied (the robot's own cell is unseen at take-off).
+        states: the matching VoxelState block, used to refuse snapping from occupied voxels.
+        penalty: optional per-voxel cost multiplier (≥ 1); an edge costs its length times the mean
+            of its two ends' multipliers. Like a costmap's inflation layer, it keeps paths away from
+            walls where there is room without closing narrow doors.
+    """
+
+    def __init__(
+        self,
+        passable: np.ndarray,
+        lo: np.ndarray,
+        voxel: float,
+        snap_radius: float,
+        states: np.ndarray,
+        penalty: np.ndarray | None = None,
+    ):
+        self.lo = np.asarray(lo, dtype=np.int64)
+        self.voxel = voxel
+        self.snap_radius = snap_radius
+        self.states = states
+        self.shape = passable.shape
+        self.node_of_voxel = np.full(passable.shape, -1, dtype=np.int64)
+        self.node_index = np.argwhere(passable)
+        self.node_of_voxel[tuple(self.node_index.T)] = np.arange(len(self.node_index))
+        rows, cols, weights = [], [], []
+        for off in _HALF_OFFSETS:
+            # voxels a with a and a + off both inside the block and both passable
+            sa = tuple(slice(max(0, -o), s - max(0, o)) for o, s in zip(off, passable.shape, strict=True))
+            sb = tuple(slice(max(0, o), s - max(0, -o)) for o, s in zip(off, passable.shape, strict=True))
+            both = passable[sa] & passable[sb]
+            rows.append(self.node_of_voxel[sa][both])
+            cols.append(self.node_of_voxel[sb][both])
+            length = voxel * float(np.linalg.norm(off))
+            if penalty is None:
+                weights.append(np.full(int(both.sum()), length))
+            else:
+                weights.append(length * 0.5 * (penalty[sa][both] + penalty[sb][both]))
+        r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+        n = len(self.node_index)
+        self.graph = sparse.csr_matrix((w, (r, c)), shape=(n, n))
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.node_index)
+
+    def node_position(self, node: np.ndarray) -> np.ndarray:
+        """World positions of nodes (voxel centres)."""
+        return centres(self.node_index[node] + self.lo, self.voxel)
+
+    def snap(self, point: np.ndarray) -> int:
+        """Graph node for a point: its own voxel, or the nearest node within the snap radius; -1."""
+        point = np.asarray(point, dtype=float)
+        rel = to_index(point[None], self.voxel)[0] - self.lo
+        inside = bool(np.all((rel >= 0) & (rel < np.array(self.shape))))
+        if inside:
+            node = self.node_of_voxel[tuple(rel)]
+            if node >= 0:
+                return int(node)
+            if self.states[tuple(rel)] == OCCUPIED:
+                return -1
+        m = int(np.ceil(self.snap_radius / self.voxel))
+        a = np.maximum(rel - m, 0)
+        b = np.minimum(rel + m + 1, np.array(self.shape))
+        if np.any(b <= a):
+            return -1
+        block = self.node_of_voxel[a[0] : b[0], a[1] : b[1], a[2] : b[2]]
+        nodes = block[block >= 0]
+        if len(nodes) == 0:
+            return -1
+        dist = np.linalg.norm(self.node_position(nodes) - point, axis=1)
+        best = int(np.argmin(dist))
+        return int(nodes[best]) if dist[best] <= self.snap_radius + 1e-9 else -1
+
+    def costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """S×T shortest path lengths (m), point to point, inf where unreachable."""
+        sources = np.asarray(sources, dtype=float).reshape(-1, 3)
+        targets = np.asarray(targets, dtype=float).reshape(-1, 3)
+        out = np.full((len(sources), len(targets)), np.inf)
+        s_nodes = np.array([self.snap(p) for p in sources], dtype=np.int64)
+        t_nodes = np.array([self.snap(p) for p in targets], dtype=np.int64)
+        ok_s, ok_t = s_nodes >= 0, t_nodes >= 0
+        if not ok_s.any() or not ok_t.any() or self.n_nodes == 0:
+            return out
+        uniq, inverse = np.unique(s_nodes[ok_s], return_inverse=True)
+        dist = csgraph.dijkstra(self.graph, directed=False, indices=uniq)
+        s_off = np.linalg.norm(sources[ok_s] - self.node_position(s_nodes[ok_s]), axis=1)
+        t_off = np.linalg.norm(targets[ok_t] - self.node_position(t_nodes[ok_t]), axis=1)
+        sub = dist[inverse][:, t_nodes[ok_t]] + s_off[:, None] + t_off[None, :]
+        same = s_nodes[ok_s][:, None] == t_nodes[ok_t][None, :]  # same voxel: straight line
+        direct = np.linalg.norm(sources[ok_s][:, None] - targets[ok_t][None], axis=-1)
+        sub = np.where(same, direct, sub)
+        out[np.ix_(np.nonzero(ok_s)[0], np.nonzero(ok_t)[0])] = sub
+        return out
+
+    def shortest_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """Voxel-centre waypoints from start to goal (both included), or None."""
+        s, g = self.snap(start), self.snap(goal)
+        if s < 0 or g < 0:
+            return None
+        if s == g:
+            return np.array([start, goal], dtype=float)
+        _, pred = csgraph.dijkstra(self.graph, directed=False, indices=s, return_predecessors=True)
+        if pred[g] < 0:
+            return None
+        nodes = [g]
+        while nodes[-1] != s:
+            nodes.append(int(pred[nodes[-1]]))
+        pts = self.node_position(np.array(nodes[::-1]))
+        return np.vstack([np.asarray(start, float), pts, np.asarray(goal, float)])
+
+
+def smooth_path(path: np.ndarray, line_of_sight: Callable[[np.ndarray, np.ndarray], bool]) -> np.ndarray:
+    """Line-of-sight pruning: keep a waypoint only where the straight shortcut past it is blocked."""
+    out = [path[0]]
+    anchor = 0
+    k = 1
+    while k < len(path):
+        if k + 1 < len(path) and line_of_sight(path[anchor], path[k + 1]):
+            k += 1
+            continue
+        out.append(path[k])
+        anchor = k
+        k += 1
+    pruned = np.array(out)
+    # drop duplicated consecutive points (start/goal equal to their snapped voxel centre)
+    keep = np.ones(len(pruned), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(pruned, axis=0), axis=1) > 1e-9
+    return pruned[keep]
+
+
+def known_along(
+    samples: np.ndarray, voxel: float, states_at: Callable[[np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """Whether each sample lies in a known (non-UNKNOWN) voxel."""
+    return states_at(to_index(samples, voxel)) != UNKNOWN

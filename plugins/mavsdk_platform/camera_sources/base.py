@@ -1,0 +1,142 @@
+"""The camera source interface and its parameters."""
+
+from __future__ import annotations
+
+import abc
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from amslam.errors import PlatformError
+from amslam.types import CameraModel
+
+
+@dataclass(frozen=True)
+class RgbdImage:
+    """One RGB-D capture from a source.
+
+    Attributes:
+        stamp: arrival time on the host, ``time.monotonic()`` seconds (the platform maps it to
+            its clock and picks the odometry pose nearest in time).
+        depth: H×W float32 depth along the optical axis in metres, 0 where there is no return.
+        K: 3×3 intrinsics of ``depth`` (and of ``rgb``, which is aligned to it).
+        rgb: H×W×3 uint8, if the source has colour.
+    """
+
+    stamp: float
+    depth: np.ndarray
+    K: np.ndarray
+    rgb: np.ndarray | None = None
+
+
+class CameraSourceParams(BaseModel):
+    """Which camera a real platform reads, its nominal model and where it is mounted."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: Literal["none", "realsense", "replay"] = Field(
+        "none", description="none (no frames), realsense (pyrealsense2), replay (a folder of .npz frames)"
+    )
+    width: int = Field(640, gt=0, description="image width, px")
+    height: int = Field(480, gt=0, description="image height, px")
+    hfov_deg: float = Field(87.0, gt=0, lt=180, description="nominal horizontal field of view (D435: 87°)")
+    vfov_deg: float = Field(58.0, gt=0, lt=180, description="nominal vertical field of view (D435: 58°)")
+    rate_hz: float = Field(15.0, gt=0, description="frame rate")
+    min_range: float = Field(0.3, ge=0, description="closest valid depth, m")
+    max_range: float = Field(5.0, gt=0, description="farthest depth used, m")
+    mount_xyz: tuple[float, float, float] = Field(
+        (0.1, 0.0, 0.0), description="camera position in the body frame (FLU), m"
+    )
+    mount_pitch_deg: float = Field(0.0, description="downward tilt of the camera, degrees")
+    serial: str | None = Field(None, description="realsense: the device serial number (default: the first)")
+    folder: str | None = Field(None, description="replay: folder of .npz frames (relative to the mission)")
+
+    def T_body_cam(self) -> np.ndarray:
+        """Pose of the optical frame in the body: forward-looking, tilted down by the pitch."""
+        return CameraModel.forward_mount(self.mount_pitch_deg, self.mount_xyz)
+
+    def nominal_model(self) -> CameraModel:
+        """The camera model from the parameters (a source may refine K when it opens)."""
+        return CameraModel.from_fov(
+            self.width,
+            self.height,
+            self.hfov_deg,
+            self.vfov_deg,
+            min_range=self.min_range,
+            max_range=self.max_range,
+            rate_hz=self.rate_hz,
+            T_body_cam=self.T_body_cam(),
+        )
+
+
+class CameraSource(abc.ABC):
+    """A camera that delivers RGB-D frames; opened by the platform in ``start()``.
+
+    Sources never block the control loop: :meth:`read` returns the newest frame that arrived
+    since the last call, or None.
+    """
+
+    @abc.abstractmethod
+    def open(self) -> CameraModel:
+        """Start streaming; return the camera model (intrinsics from the device, extrinsics)."""
+
+    @abc.abstractmethod
+    def read(self) -> RgbdImage | None:
+        """The newest frame since the last call, or None (never waits)."""
+
+    def close(self) -> None:  # noqa: B027 — nothing to release by default
+        """Stop streaming; safe to call twice."""
+
+
+class ReplaySource(CameraSource):
+    """Frames from ``.npz`` files (``depth`` in metres; optional ``rgb``, ``K``), in name order."""
+
+    def __init__(self, params: CameraSourceParams, base: Path):
+        if not params.folder:
+            raise PlatformError("camera.source replay needs camera.folder: a folder of .npz frames")
+        self.params = params
+        self.folder = (base / params.folder).resolve()
+        self.files: list[Path] = []
+        self.index = 0
+        self.next_time = 0.0
+
+    def open(self) -> CameraModel:
+        self.files = sorted(self.folder.glob("*.npz"))
+        if not self.files:
+            raise PlatformError(f"camera.source replay: no .npz frames in {self.folder}")
+        self.model = self.params.nominal_model()
+        with np.load(self.files[0]) as first:
+            depth = first["depth"]
+            K = first.get("K", self.model.K)
+        self.model = CameraModel(
+            depth.shape[1], depth.shape[0], np.asarray(K, float), self.model.T_body_cam,
+            self.model.min_range, self.model.max_range, self.model.rate_hz,
+        )  # fmt: skip
+        self.next_time = time.monotonic()
+        return self.model
+
+    def read(self) -> RgbdImage | None:
+        now = time.monotonic()
+        if self.index >= len(self.files) or now < self.next_time:
+            return None
+        self.next_time = now + 1.0 / self.params.rate_hz
+        with np.load(self.files[self.index]) as data:
+            depth = np.asarray(data["depth"], np.float32)
+            rgb = np.asarray(data["rgb"], np.uint8) if "rgb" in data else None
+        self.index += 1
+        return RgbdImage(now, depth, self.model.K, rgb)
+
+
+def make_camera_source(params: CameraSourceParams, base: Path) -> CameraSource | None:
+    """The source the parameters name (None for ``none``); nothing is opened yet."""
+    if params.source == "none":
+        return None
+    if params.source == "replay":
+        return ReplaySource(params, base)
+    from amslam.plugins.mavsdk_platform.camera_sources.realsense import RealSenseSource
+
+    return RealSenseSource(params)
