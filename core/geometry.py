@@ -29,8 +29,7 @@ def yaw_of(T: np.ndarray) -> float:
 def pose_from(position: np.ndarray, yaw: float = 0.0) -> np.ndarray:
     """A level pose at ``position`` with heading ``yaw``."""
     T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, :3] = yaw_matrix(yaw)
     T[:3, 3] = position
     return T
 

@@ -37,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 import amslam
 from amslam.cli import Command
+from amslam.geometry import yaw_matrix
 from amslam.interfaces import RunContext
 from amslam.lib.viewing import viewing_angle
 from amslam.plugins.pams.uncertainty import COMPONENTS, UncertaintyModels, fit_models, plot_models
@@ -49,7 +50,6 @@ from amslam.plugins.sim.world import (
     WorldSpec,
     box_mesh,
     class_colour,
-    rot_z,
 )
 from amslam.types import CameraModel, Frame, WorldSummary
 
@@ -190,7 +190,7 @@ def specimen_world(target: TargetSpec, extent: float) -> tuple[World, WorldSumma
     if target.model == "cuboid":
         length, width, height = target.size
         v, t = box_mesh(np.array([-length / 2, -width / 2, 0.0]), np.array([length / 2, width / 2, height]))
-        v = v @ rot_z(target.yaw).T
+        v = v @ yaw_matrix(target.yaw).T
         shape = {
             "model": "cuboid",
             "center": [0.0, 0.0, height / 2],
@@ -273,7 +273,7 @@ def spiral_poses(
         for r, b in zip(radius, bearing, strict=True):
             T = np.eye(4)
             yaw = b + np.pi
-            T[:3, :3] = rot_z(yaw)
+            T[:3, :3] = yaw_matrix(yaw)
             T[:3, 3] = [centre[0] + r * np.cos(b), centre[1] + r * np.sin(b), h]
             poses.append(T)
     return poses
@@ -353,7 +353,7 @@ def collect(config: CharacteriseConfig, log: Callable[[str], None] = lambda s: N
             if dets:
                 d = max(dets, key=lambda x: len(x.points_cam))
                 c_world = T_wc[:3, :3] @ d.centroid_cam + T_wc[:3, 3]
-                R_obj = rot_z(target.yaw if target.model == "cuboid" else 0.0)
+                R_obj = yaw_matrix(target.yaw if target.model == "cuboid" else 0.0)
                 e = R_obj.T @ (c_world - centre)
                 err[0], err[1] = e[0], e[1]
                 fit = fitters.get(target.model)

@@ -51,7 +51,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import ConvexHull, QhullError
 
-from amslam.geometry import wrap_angle
+from amslam.geometry import wrap_angle, yaw_matrix
 
 __all__ = [
     "GroundPlane",
@@ -486,8 +486,7 @@ def cuboid_pose(shape: dict) -> np.ndarray:
     if "rotation" in shape:
         T[:3, :3] = np.asarray(shape["rotation"], float)
     else:
-        c, s = np.cos(shape["yaw"]), np.sin(shape["yaw"])
-        T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        T[:3, :3] = yaw_matrix(shape["yaw"])
     T[:3, 3] = shape["center"]
     return T
 

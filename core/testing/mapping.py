@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from amslam.geometry import yaw_matrix
 from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.types import R_BODY_CAM, BoundingBox, CameraModel, RobotSpec, VoxelState
 
@@ -36,9 +37,8 @@ WALL_X = 3.15
 
 def camera_pose(position: tuple[float, float, float] = (0.0, 0.0, 0.0), yaw: float = 0.0) -> np.ndarray:
     """``T_world_cam`` of a camera at ``position`` looking horizontally at heading ``yaw``."""
-    c, s = np.cos(yaw), np.sin(yaw)
     T = np.eye(4)
-    T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R_BODY_CAM
+    T[:3, :3] = yaw_matrix(yaw) @ R_BODY_CAM
     T[:3, 3] = position
     return T
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from amslam.geometry import pose_from
 from amslam.interfaces import Slam
 from amslam.testing.contract import BackendContract
 from amslam.types import R_BODY_CAM, Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
@@ -31,11 +32,7 @@ OBJECTS = {"chair": np.array([4.0, 1.5, 0.5]), "table": np.array([7.0, -1.0, 0.6
 
 def body_pose(x: float, y: float, yaw: float, z: float = 1.2) -> np.ndarray:
     """``T_odom_body`` of a level vehicle at (x, y, z) heading ``yaw``."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    T = np.eye(4)
-    T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    T[:3, 3] = (x, y, z)
-    return T
+    return pose_from(np.array([x, y, z], float), yaw)
 
 
 def flight(rate_hz: float = 10.0) -> list[Odometry]:

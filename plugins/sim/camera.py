@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field
 
+from amslam.geometry import pose_from
 from amslam.interfaces import BackendParams
 from amslam.plugins.sim.world import World
 from amslam.types import CameraModel
@@ -181,8 +182,4 @@ def viewing_pose(
             best = (d, pos, a + np.pi)
     assert best is not None
     _, pos, yaw = best
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    T[:3, 3] = pos
-    return T @ T_body_cam
+    return pose_from(pos, yaw) @ T_body_cam

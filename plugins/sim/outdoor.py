@@ -38,6 +38,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
+from amslam.geometry import yaw_matrix
 from amslam.interfaces import BackendParams
 from amslam.plugins.sim.world import MeshPart, WorldObject, WorldSpec, box_mesh, merge_meshes
 
@@ -88,11 +89,6 @@ class OutdoorWorldParams(BackendParams):
 # -------------------------------------------------------------------------------------------
 # geometry helpers
 # -------------------------------------------------------------------------------------------
-def _rot_z(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 class _Ground:
     """The ground surface ``z = g·(x, y)``: a plane through the origin rising along a direction."""
 
@@ -117,7 +113,7 @@ class _Ground:
 
     def frame(self, x: float, y: float, yaw: float) -> tuple[np.ndarray, np.ndarray]:
         """Rotation and origin of an object standing on the ground at (x, y) with heading ``yaw``."""
-        R = self.R @ _rot_z(yaw)
+        R = self.R @ yaw_matrix(yaw)
         return R, np.array([x, y, float(self.z(np.array([x, y])))])
 
 

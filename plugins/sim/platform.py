@@ -9,7 +9,7 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag
 
 from amslam.errors import PlatformError
-from amslam.geometry import wrap_angle
+from amslam.geometry import pose_from, wrap_angle
 from amslam.interfaces import BackendParams, Platform, RunContext
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
@@ -303,10 +303,10 @@ class SimPlatform(Platform):
     # poses
     # ---------------------------------------------------------------------------------------
     def _T_world_body(self) -> np.ndarray:
-        return _pose(self._p, self._yaw)
+        return pose_from(self._p, self._yaw)
 
     def _T_odom_body(self) -> np.ndarray:
-        return _pose(self._vio.position, self._vio.yaw)
+        return pose_from(self._vio.position, self._vio.yaw)
 
     def ground_truth(self) -> np.ndarray:
         _ = self.world
@@ -411,11 +411,3 @@ class SimPlatform(Platform):
     def stats(self) -> dict[str, Any]:
         """Counters for profiling and reports."""
         return {"frames_rendered": self._frames_rendered, "sim_time": self._t, "distance": self._vio.distance}
-
-
-def _pose(p: np.ndarray, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    T[:3, 3] = p
-    return T

@@ -30,6 +30,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
+from amslam.geometry import yaw_matrix
 from amslam.interfaces import BackendParams
 from amslam.plugins.sim.world import (
     MeshPart,
@@ -38,7 +39,6 @@ from amslam.plugins.sim.world import (
     boxes_mesh,
     class_colour,
     merge_meshes,
-    rot_z,
 )
 
 
@@ -152,7 +152,7 @@ class _Builder:
     # ---- furniture -------------------------------------------------------------------------
     def add_object(self, cls: str, boxes: list, x: float, y: float, z: float, yaw: float) -> None:
         v, t = boxes_mesh([(np.array(lo), np.array(hi)) for lo, hi in boxes])
-        v = v @ rot_z(yaw).T + np.array([x, y, z])
+        v = v @ yaw_matrix(yaw).T + np.array([x, y, z])
         self.counts[cls] = self.counts.get(cls, 0) + 1
         name = f"{cls}_{self.counts[cls]}"
         inst = len(self.objects) + 1
@@ -163,7 +163,7 @@ class _Builder:
         # the true cuboid (paper 2): the bounds of the boxes in the object's own frame
         blo = np.min([b[0] for b in boxes], axis=0)
         bhi = np.max([b[1] for b in boxes], axis=0)
-        R = rot_z(yaw)
+        R = yaw_matrix(yaw)
         centre = R @ ((blo + bhi) / 2.0) + np.array([x, y, z])
         shape = {
             "model": "cuboid",

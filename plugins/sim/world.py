@@ -309,12 +309,6 @@ def boxes_mesh(boxes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
     return merge_meshes([box_mesh(np.asarray(lo, float), np.asarray(hi, float)) for lo, hi in boxes])
 
 
-def rot_z(yaw: float) -> np.ndarray:
-    """3×3 rotation about z."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def box_room(
     size: tuple[float, float, float],
     objects: list[tuple[str, str, np.ndarray, np.ndarray]] = (),
