@@ -46,6 +46,13 @@ class SimPlatform(Platform):
 
     simulated = True
 
+    @staticmethod
+    def team_overrides(*args, **kwargs) -> list[list[str]]:
+        """Each robot's mission overrides for a team in one world (:func:`.teams.team_overrides`)."""
+        from amslam.plugins.sim.teams import team_overrides
+
+        return team_overrides(*args, **kwargs)
+
     class Params(BackendParams):
         """Parameters of the simulator platform."""
 

@@ -15,12 +15,12 @@ from amslam.apps.multirobot import (
     fly_team,
     index_runs,
     score,
-    split_area,
     tables,
     team_overrides,
 )
 from amslam.measurements import read_measurements
 from amslam.mission import load_mission
+from amslam.plugins.sim.teams import split_area
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
 from amslam.types import Landmark, WorldSummary
