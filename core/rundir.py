@@ -1,14 +1,19 @@
 """The run folder: everything a run produces, written as it happens.
 
 Streams (events, trajectories, tree changes) are appended and flushed line by line, so that a
-crash or Ctrl-C loses nothing already computed; summaries (metrics, map, plots, report) are
-written once at the end — by :meth:`RunDir.finish`, which the runner calls on every exit path.
+crash or Ctrl-C loses nothing already computed (a reader tolerates a torn last line); summaries
+(metrics, map, plots, report) are written once at the end, on every exit path, each **atomically**:
+to a temporary file beside it, then renamed over it, so a kill or a full disk mid-write leaves the
+old file or none — never an empty or half-written ``metrics.json``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import tempfile
 import time
 from pathlib import Path
 from typing import IO, Any
@@ -38,17 +43,49 @@ def jsonable(value: Any) -> Any:
     return value
 
 
+def write_atomically(path: Path, data: str | bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename.
+
+    The rename is atomic on POSIX file systems: a reader (or a run killed mid-write) sees the old
+    file or the new one, never a torn one. On failure (a full disk) the temporary file is removed
+    and the error raised; the previous file, if any, is untouched.
+    """
+    path = Path(path)
+    mode = "wb" if isinstance(data, bytes) else "w"
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode) as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _new_folder(root: Path, name: str) -> Path:
+    """``<root>/<name>``, or ``<name>-2``, ``-3``, … : ``mkdir`` itself decides, so processes that
+    start in the same second never pick the same folder (checking ``exists`` first would race)."""
+    root.mkdir(parents=True, exist_ok=True)
+    for suffix in range(1, 10_000):
+        path = root / (name if suffix == 1 else f"{name}-{suffix}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"{root}: 10000 run folders named {name}-* already")
+
+
 class RunDir:
     """One run's folder, ``<root>/<mission>-<timestamp>/``."""
 
     def __init__(self, root: Path, mission_name: str):
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        path = Path(root) / f"{mission_name}-{stamp}"
-        suffix = 1
-        while path.exists():
-            suffix += 1
-            path = Path(root) / f"{mission_name}-{stamp}-{suffix}"
-        path.mkdir(parents=True)
+        path = _new_folder(Path(root), f"{mission_name}-{stamp}")
         self.path = path
         self._events = open(path / "events.jsonl", "w")  # noqa: SIM115 — lives as long as the run
         self._tree = open(path / "tree.jsonl", "w")  # noqa: SIM115
@@ -80,31 +117,29 @@ class RunDir:
         old = self._tum.pop(which, None)
         if old:
             old.close()
-        with open(self.path / f"{which}.tum", "w") as f:
-            f.writelines(tum_line(t, T) for t, T in zip(stamps, poses, strict=True))
+        write_atomically(
+            self.path / f"{which}.tum", "".join(tum_line(t, T) for t, T in zip(stamps, poses, strict=True))
+        )
 
     # -- files ---------------------------------------------------------------------------------
 
+    def write_text(self, name: str, text: str) -> Path:
+        """A summary file of the run, written atomically (:func:`write_atomically`)."""
+        return write_atomically(self.path / name, text)
+
     def write_yaml(self, name: str, data: Any) -> Path:
-        path = self.path / name
-        path.write_text(yaml.safe_dump(jsonable(data), sort_keys=False))
-        return path
+        return self.write_text(name, yaml.safe_dump(jsonable(data), sort_keys=False))
 
     def write_json(self, name: str, data: Any) -> Path:
-        path = self.path / name
-        path.write_text(json.dumps(jsonable(data), indent=2) + "\n")
-        return path
+        return self.write_text(name, json.dumps(jsonable(data), indent=2) + "\n")
 
     def write_ply(self, name: str, points: np.ndarray) -> Path:
         """Points as an ASCII PLY (readable by Open3D, MeshLab, CloudCompare)."""
-        path = self.path / name
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         properties = "".join(f"property float {axis}\n" for axis in "xyz")
         header = f"ply\nformat ascii 1.0\nelement vertex {len(points)}\n{properties}end_header\n"
-        with open(path, "w") as f:
-            f.write(header)
-            np.savetxt(f, points, fmt="%.3f")
-        return path
+        body = "".join(f"{x:.3f} {y:.3f} {z:.3f}\n" for x, y, z in points)
+        return self.write_text(name, header + body)
 
     def close(self) -> None:
         for f in (self._events, self._tree, *self._tum.values()):
