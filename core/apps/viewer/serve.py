@@ -3,6 +3,12 @@
 ``GET /`` returns the page with the run as it is now and a cursor (byte offsets per stream);
 the page then polls ``GET /api/poll?cursor=...`` for the lines written since, and extends its
 timeline. The server keeps no state per client: everything it needs is in the cursor.
+
+It serves 127.0.0.1 only, and answers only requests whose ``Host`` is this machine by name
+(``127.0.0.1``, ``localhost``, ``[::1]``, with the server's port): a page of another site that
+rebinds its DNS name to 127.0.0.1 cannot read the run through the visitor's browser. A bad
+request gets a 4xx with one line saying why; a failure serving a good one a 500, never a
+traceback in the terminal.
 """
 
 from __future__ import annotations
@@ -17,6 +23,21 @@ from amslam.apps.viewer.build import embed_json, page_data, render_page
 from amslam.apps.viewer.runfiles import poll_run
 
 POLL_PATH = "/api/poll"
+#: largest byte offset a cursor may hold (JSON numbers are exact up to 2**53)
+MAX_OFFSET = 2**53
+
+
+def parse_cursor(raw: str) -> dict[str, int]:
+    """A poll cursor: a JSON object of stream → byte offset, each a whole number in [0, 2**53]."""
+    cursor = json.loads(raw)
+    if not isinstance(cursor, dict):
+        raise ValueError("not an object")
+    out = {}
+    for key, value in cursor.items():
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_OFFSET:
+            raise ValueError(f"{key}: {value!r} is not a byte offset")
+        out[str(key)] = value
+    return out
 
 
 def _handler(run_dir: Path, interval_ms: int) -> type[BaseHTTPRequestHandler]:
@@ -24,6 +45,17 @@ def _handler(run_dir: Path, interval_ms: int) -> type[BaseHTTPRequestHandler]:
         server_version = "amslam-view"
 
         def do_GET(self) -> None:  # noqa: N802 — http.server's naming
+            port = self.server.server_address[1]
+            allowed = {f"127.0.0.1:{port}", f"localhost:{port}", f"[::1]:{port}"}
+            if self.headers.get("Host", "").lower() not in allowed:
+                self._send(400, "text/plain", "Host: this server answers only 127.0.0.1, localhost or [::1]")
+                return
+            try:
+                self._get()
+            except Exception as exc:  # noqa: BLE001 — a client's request must not print a traceback
+                self._send(500, "text/plain", f"{type(exc).__name__}: {exc}")
+
+        def _get(self) -> None:
             url = urlparse(self.path)
             if url.path in ("/", "/index.html"):
                 live = {"endpoint": POLL_PATH, "interval": interval_ms}
@@ -31,9 +63,9 @@ def _handler(run_dir: Path, interval_ms: int) -> type[BaseHTTPRequestHandler]:
             elif url.path == POLL_PATH:
                 raw = parse_qs(url.query).get("cursor", ["{}"])[0]
                 try:
-                    cursor = {str(k): int(v) for k, v in json.loads(raw).items()}
-                except (ValueError, TypeError, AttributeError):
-                    self._send(400, "text/plain", "cursor: expected a JSON object of byte offsets")
+                    cursor = parse_cursor(raw)
+                except ValueError as exc:  # json.JSONDecodeError is a ValueError
+                    self._send(400, "text/plain", f"cursor: expected a JSON object of byte offsets ({exc})")
                     return
                 body = embed_json(poll_run(run_dir, cursor).to_json())
                 self._send(200, "application/json", body)
@@ -42,12 +74,15 @@ def _handler(run_dir: Path, interval_ms: int) -> type[BaseHTTPRequestHandler]:
 
         def _send(self, code: int, kind: str, body: str) -> None:
             payload = body.encode("utf-8")
-            self.send_response(code)
-            self.send_header("Content-Type", kind)
-            self.send_header("Content-Length", str(len(payload)))
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            self.wfile.write(payload)
+            try:
+                self.send_response(code)
+                self.send_header("Content-Type", kind)
+                self.send_header("Content-Length", str(len(payload)))
+                self.send_header("Cache-Control", "no-store")
+                self.end_headers()
+                self.wfile.write(payload)
+            except (BrokenPipeError, ConnectionResetError):
+                pass  # the client went away: nothing to tell it
 
         def log_message(self, format, *args) -> None:  # noqa: A002 — quiet: one line per poll is noise
             pass

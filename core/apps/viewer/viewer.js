@@ -52,7 +52,9 @@
   // -- helpers -------------------------------------------------------------------------------------
 
   function esc(s) {
-    return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
+    // every string from a run folder that goes into markup goes through here: a crafted run folder
+    // must not run script in the page
+    return String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
   }
 
   function fmt(x, digits) {
@@ -220,7 +222,10 @@
       const per = (state.stat && state.stat.metrics && state.stat.metrics.explored_percent_per_floor) || [];
       const range = f.lo === null ? "" : " · z " + fmt(f.lo, 1) + (f.hi !== null ? "–" + fmt(f.hi, 1) : "+") + " m";
       const explored = per[i] !== undefined && per[i] !== null ? " · explored " + per[i] + " %" : "";
-      box.innerHTML = '<div class="floor-title">floor ' + i + range + explored + "</div>";
+      const title = document.createElement("div");
+      title.className = "floor-title";
+      title.textContent = "floor " + i + range + explored;
+      box.appendChild(title);
       const canvas = document.createElement("canvas");
       canvas.id = "floor-" + i;
       const dpr = window.devicePixelRatio || 1;
@@ -501,7 +506,7 @@
       row.className = "ev k-" + kind + (e.accepted === true ? " accepted" : "");
       row.dataset.t = String(e.t);
       row.dataset.kind = kind;
-      row.innerHTML = '<span class="et">' + fmt(e.t, 1) + '</span><span class="en">' + esc(e.event) +
+      row.innerHTML = '<span class="et">' + esc(fmt(e.t, 1)) + '</span><span class="en">' + esc(e.event) +
         '</span><span class="es">' + esc(summary(e)) + "</span>";
       row.title = JSON.stringify(e, null, 1).slice(0, 2000);
       row.addEventListener("click", () => { stop(); setTime(e.t); });

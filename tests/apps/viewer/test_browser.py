@@ -225,3 +225,23 @@ def test_cli_screenshot(tmp_path, capsys):
     width, height = struct.unpack(">II", header[16:24])
     assert (width, height) == (1440, 900)
     assert f"screenshot: {png}" in capsys.readouterr().out
+
+
+def test_a_crafted_run_folder_runs_no_script_in_the_page(browser, tmp_path):
+    """Strings from events.jsonl, metrics.json and tree.jsonl are shown as text, never as markup."""
+    import json
+
+    folder = synthetic.write_run(tmp_path / "run")
+    attack = '<img src=x onerror="window.__pwned=1">'
+    events = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
+    events[1]["event"] = attack
+    events[1]["t"] = attack  # a time that is not a number goes through the page's number formatter
+    (folder / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
+    metrics = json.loads((folder / "metrics.json").read_text())
+    metrics["explored_percent_per_floor"] = [attack]
+    metrics["verdict"] = attack
+    (folder / "metrics.json").write_text(json.dumps(metrics))
+    open_page(browser, build_page(folder).as_uri())
+    shown = browser.page_source.replace("&lt;", "<").replace("&gt;", ">")
+    assert attack in shown  # as text
+    assert browser.execute_script("return window.__pwned === undefined")

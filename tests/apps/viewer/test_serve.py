@@ -50,8 +50,33 @@ def test_page_then_polls_follow_the_run(tmp_path):
         assert done["finished"] and done["static"]["landmarks"] and "slam" in done["reset"]
 
 
-@pytest.mark.parametrize(("path", "code"), [("api/poll?cursor=not-json", 400), ("nope", 404)])
-def test_bad_requests(tmp_path, path, code):
+@pytest.mark.parametrize(
+    ("path", "code"),
+    [
+        ("api/poll?cursor=not-json", 400),
+        ("api/poll?cursor=" + urllib.parse.quote('{"events": -5}'), 400),
+        ("api/poll?cursor=" + urllib.parse.quote('{"events": 1e400}'), 400),
+        ("api/poll?cursor=" + urllib.parse.quote('{"events": 1.5}'), 400),
+        ("api/poll?cursor=" + urllib.parse.quote("[1, 2]"), 400),
+        ("api/poll?cursor=" + urllib.parse.quote('{"events": true}'), 400),
+        ("nope", 404),
+    ],
+)
+def test_bad_requests(tmp_path, path, code, capfd):
     run = synthetic.write_run(tmp_path / "run")
     with LiveServer(run, port=0) as server:
-        assert get(server.url + path)[0] == code
+        status, body = get(server.url + path)
+    assert status == code
+    assert len(body.splitlines()) == 1
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_foreign_host_is_refused(tmp_path):
+    """DNS rebinding: a page of evil.example whose name now points at 127.0.0.1."""
+    run = synthetic.write_run(tmp_path / "run")
+    with LiveServer(run, port=0) as server:
+        request = urllib.request.Request(server.url, headers={"Host": "evil.example"})
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(request, timeout=10)
+        assert refused.value.code == 400
+        assert get(server.url.replace("127.0.0.1", "localhost"))[0] == 200
