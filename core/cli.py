@@ -7,13 +7,22 @@ MISSION ...``). Every other one — ``run``, ``fly``, ``validate``, ``plugins``,
 as a :class:`Command`. The built-ins live in ``amslam.apps`` and register exactly as a third-party
 distribution would.
 
-``amslam --help`` lists what is installed. Errors amslam can explain are printed as
-``error: ...`` lines with exit status 2, never as a traceback.
+``amslam --help`` lists what is installed. Exit statuses, for every subcommand:
+
+====  ===========================================================================================
+0     done (a run: its verdict is ``completed``)
+1     a run failed, crashed or was aborted (its run folder says why)
+2     bad input: an ``error: ...`` line says what and where, never a traceback
+130   interrupted (Ctrl-C); 143 terminated (SIGTERM); 129 hung up (SIGHUP): a flight lands first
+141   the output was closed early (piped into ``head``)
+====  ===========================================================================================
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,12 +62,34 @@ class Experiment:
     add_arguments: Callable[[argparse.ArgumentParser], None] = lambda parser: None
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number ≥ 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not at least 1")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """An argparse type: a whole number ≥ 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative")
+    return value
+
+
 def experiment_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments every experiment takes."""
     parser.add_argument("mission", help="mission file, or the name of a packaged mission")
     parser.add_argument("more", nargs="*", help="further missions, for experiments over several worlds")
-    parser.add_argument("--seeds", type=int, default=5, help="number of seeds (default 5)")
-    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--seeds", type=positive_int, default=5, help="number of seeds (default 5)")
+    parser.add_argument("--first-seed", type=non_negative_int, default=1)
     parser.add_argument("--out", default="runs", help="folder that receives the experiment folder")
     parser.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override for every run")
 
@@ -94,15 +125,53 @@ def run_experiment(args: argparse.Namespace, registry: Registry) -> int:
     return 0
 
 
+#: the signals that stop amslam the way Ctrl-C does
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(KeyboardInterrupt):
+    """A stop signal (SIGINT, SIGTERM, SIGHUP), raised where the program is: a flight lands, the
+    run folder is completed with the verdict, and the process exits 128 + the signal's number.
+    Being a KeyboardInterrupt, it takes Ctrl-C's path through every ``except KeyboardInterrupt``."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+#: the first stop signal received by this process, if any
+received_signal: int | None = None
+
+
+def _stop(signum: int, frame: object) -> None:
+    global received_signal
+    if received_signal is not None:
+        # Already stopping (landing, writing the run folder): a second Ctrl-C must not cut that
+        # short and leave a torn run folder. SIGKILL remains for the impatient.
+        first = signal.Signals(received_signal).name
+        print(f"already stopping after {first}: landing and saving the run folder", file=sys.stderr)
+        return
+    received_signal = signum
+    raise Terminated(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
     from amslam.registry import build_plugin_manager
 
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _stop)
     try:
         registry = build_plugin_manager()
         args = build_parser(registry).parse_args(argv)
         if args.command == "experiment":
-            return run_experiment(args, registry)
-        return registry.commands[args.command].run(args, registry)
+            status = run_experiment(args, registry)
+        else:
+            status = registry.commands[args.command].run(args, registry)
+        sys.stdout.flush()  # a closed pipe shows here, inside the handler below
+        if received_signal is not None:  # the command caught it and finished cleanly (a run landed)
+            print(f"stopped by {signal.Signals(received_signal).name}", file=sys.stderr)
+            return 128 + received_signal
+        return status
     except MissionError as exc:
         for problem in exc.problems:
             print(f"error: {problem}", file=sys.stderr)
@@ -110,6 +179,15 @@ def main(argv: list[str] | None = None) -> int:
     except AmslamError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader (e.g. `head`) closed the pipe: stop quietly; point stdout at /dev/null so the
+        # interpreter's last flush at exit does not complain about it a second time
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        print(f"stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return 128 + signum
 
 
 if __name__ == "__main__":

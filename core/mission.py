@@ -238,30 +238,92 @@ def resolve_mission_path(spec: str | Path) -> Path:
     raise MissionError([f"{spec}: no such mission file, and no packaged mission of that name ({shipped})"])
 
 
+#: largest mission file read, bytes: a mission is a page of YAML, not a data set
+MAX_MISSION_BYTES = 1 << 20
+#: most YAML nodes a mission may expand to, aliases followed: a few hundred bytes of nested
+#: aliases ("billion laughs") otherwise expand to gigabytes in whatever walks the document
+MAX_MISSION_NODES = 100_000
+
+
+def read_mission_text(path: Path) -> str:
+    """The text of a mission file: a regular, readable UTF-8 file of at most ``MAX_MISSION_BYTES``."""
+    try:
+        if not path.is_file():
+            kind = "a directory" if path.is_dir() else "not a regular file"
+            raise MissionError([f"{path}: {kind}; a mission is a YAML file"])
+        size = path.stat().st_size
+        if size > MAX_MISSION_BYTES:
+            raise MissionError([f"{path}: {size} bytes; a mission file is at most {MAX_MISSION_BYTES} bytes"])
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise MissionError([f"{path}: not UTF-8 text (byte {exc.start}); a mission is a YAML file"]) from None
+    except OSError as exc:
+        raise MissionError([f"{path}: cannot read: {exc.strerror or exc}"]) from None
+
+
+def parse_yaml(text: str, where: str) -> Any:
+    """``yaml.safe_load`` with located errors and the alias expansion bounded (MAX_MISSION_NODES)."""
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        _check_expansion(root, where)
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f"{where}:{mark.line + 1}" if mark and not where.startswith("--set") else where
+        raise MissionError([f"{at}: not valid YAML: {getattr(exc, 'problem', None) or exc}"]) from None
+
+
+def _check_expansion(root: yaml.Node | None, where: str) -> None:
+    """Refuse a document whose node tree, aliases followed, exceeds MAX_MISSION_NODES.
+
+    Sizes are memoised per node object (an alias is the same node object in PyYAML's graph), so
+    the check costs one visit per distinct node however much the aliases would expand.
+    """
+    sizes: dict[int, int] = {}
+
+    def size(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        sizes[key] = 1  # a recursive alias counts once; the loader refuses it anyway
+        children: list = []
+        if isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        elif isinstance(node, yaml.SequenceNode):
+            children = node.value
+        total = 1
+        for child in children:
+            total += size(child)
+            if total > MAX_MISSION_NODES:
+                break
+        sizes[key] = total
+        return total
+
+    if root is not None and size(root) > MAX_MISSION_NODES:
+        raise MissionError([f"{where}: expands to more than {MAX_MISSION_NODES} YAML nodes (aliases)"])
+
+
 def apply_override(raw: dict[str, Any], assignment: str) -> None:
     """Apply ``key.path=value`` (value parsed as YAML) to a raw mission dict."""
     if "=" not in assignment:
         raise MissionError([f"--set {assignment!r}: expected key.path=value"])
     key, value = assignment.split("=", 1)
     parts = key.strip().split(".")
+    if not all(parts):
+        raise MissionError([f"--set {assignment!r}: {key!r} is not a key path (section.key)"])
     node = raw
     for part in parts[:-1]:
         node = node.setdefault(part, {})
         if not isinstance(node, dict):
             raise MissionError([f"--set {assignment!r}: {part!r} is not a section"])
-    node[parts[-1]] = yaml.safe_load(value)
+    node[parts[-1]] = parse_yaml(value, f"--set {assignment!r}")
 
 
 def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()) -> Mission:
     """Read, override and validate a mission; raise MissionError listing every problem."""
     path = resolve_mission_path(spec)
-    text = path.read_text()
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        raise MissionError([f"{where}: not valid YAML: {getattr(exc, 'problem', exc)}"]) from None
+    text = read_mission_text(path)
+    raw = parse_yaml(text, str(path))
     if not isinstance(raw, dict):
         raise MissionError([f"{path}: a mission is a mapping of sections, got {type(raw).__name__}"])
     raw = copy.deepcopy(raw)
@@ -359,8 +421,12 @@ def _line_index(text: str) -> dict[tuple, int]:
     except yaml.YAMLError:
         return {}
     index: dict[tuple, int] = {}
+    seen: set[int] = set()
 
     def walk(node: yaml.Node, prefix: tuple) -> None:
+        if id(node) in seen:
+            return  # an alias: its lines were indexed where it was anchored
+        seen.add(id(node))
         if isinstance(node, yaml.MappingNode):
             for key_node, value_node in node.value:
                 key = (*prefix, key_node.value)

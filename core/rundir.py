@@ -21,6 +21,7 @@ from typing import IO, Any
 import numpy as np
 import yaml
 
+from amslam.errors import AmslamError
 from amslam.geometry import tum_line
 
 TRAJECTORIES = ("ground_truth", "vio", "slam")
@@ -69,15 +70,18 @@ def write_atomically(path: Path, data: str | bytes) -> Path:
 def _new_folder(root: Path, name: str) -> Path:
     """``<root>/<name>``, or ``<name>-2``, ``-3``, … : ``mkdir`` itself decides, so processes that
     start in the same second never pick the same folder (checking ``exists`` first would race)."""
-    root.mkdir(parents=True, exist_ok=True)
-    for suffix in range(1, 10_000):
-        path = root / (name if suffix == 1 else f"{name}-{suffix}")
-        try:
-            path.mkdir()
-        except FileExistsError:
-            continue
-        return path
-    raise FileExistsError(f"{root}: 10000 run folders named {name}-* already")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        for suffix in range(1, 10_000):
+            path = root / (name if suffix == 1 else f"{name}-{suffix}")
+            try:
+                path.mkdir()
+            except FileExistsError:
+                continue
+            return path
+    except OSError as exc:  # a file where the folder should be, no permission, a read-only disk
+        raise AmslamError(f"cannot create a run folder in {root}: {exc.strerror or exc}") from None
+    raise AmslamError(f"cannot create a run folder in {root}: 10000 run folders named {name}-* already")
 
 
 class RunDir:

@@ -24,19 +24,29 @@ from amslam.registry import build_plugin_manager
 
 
 def load_with_registry(args):
-    """Build the registry honouring the mission's ``plugins.disable``, then validate the mission."""
-    import yaml
-
-    from amslam.mission import load_mission, resolve_mission_path
+    """Build the registry honouring the mission's ``plugins.disable`` (from the file or ``--set``),
+    then validate the mission."""
+    from amslam.errors import MissionError
+    from amslam.mission import (
+        apply_override,
+        load_mission,
+        parse_yaml,
+        read_mission_text,
+        resolve_mission_path,
+    )
 
     disabled: list[str] = []
     try:
-        raw = yaml.safe_load(resolve_mission_path(args.mission).read_text()) or {}
-        section = raw.get("plugins") if isinstance(raw, dict) else None
+        path = resolve_mission_path(args.mission)
+        raw = parse_yaml(read_mission_text(path), str(path))
+        raw = dict(raw) if isinstance(raw, dict) else {}
+        for assignment in getattr(args, "set", None) or []:
+            apply_override(raw, assignment)
+        section = raw.get("plugins")
         if isinstance(section, dict) and isinstance(section.get("disable"), list):
             disabled = [str(x) for x in section["disable"]]
-    except yaml.YAMLError:
-        pass  # load_mission reports it with the line
+    except MissionError:
+        pass  # load_mission reports it, with the line
     registry = build_plugin_manager(disabled)
     mission = load_mission(args.mission, registry, getattr(args, "set", None) or [])
     for name in mission.model.plugins.optional:  # load_mission refused every other load error

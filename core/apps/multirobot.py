@@ -29,6 +29,7 @@ simultaneous flights).
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections.abc import Callable, Sequence
@@ -38,7 +39,7 @@ from typing import Any, Literal
 import numpy as np
 
 import amslam
-from amslam.cli import Experiment
+from amslam.cli import Experiment, positive_int
 from amslam.errors import AmslamError
 from amslam.interfaces import BACKEND_KINDS, RunContext
 from amslam.mission import Mission, load_mission
@@ -463,8 +464,19 @@ def tables(results: list[dict]) -> str:
 # -- registration ------------------------------------------------------------------------------
 
 
+def _team_sizes(text: str) -> list[int]:
+    """``--robots``: comma-separated team sizes, each ≥ 1."""
+    sizes = []
+    for part in text.split(","):
+        try:
+            sizes.append(positive_int(part.strip()))
+        except argparse.ArgumentTypeError as exc:
+            raise argparse.ArgumentTypeError(f"{text!r}: team sizes are whole numbers ≥ 1 ({exc})") from None
+    return sizes
+
+
 def _arguments(parser) -> None:
-    parser.add_argument("--robots", default="1,2,3", help="team sizes (default 1,2,3)")
+    parser.add_argument("--robots", type=_team_sizes, default="1,2,3", help="team sizes (default 1,2,3)")
     parser.add_argument(
         "--mode",
         choices=["homogeneous", "heterogeneous", "both"],
@@ -497,7 +509,7 @@ def _run(args, registry: Registry) -> Path:
         registry,
         list(range(args.first_seed, args.first_seed + args.seeds)),
         Path(args.out),
-        [int(n) for n in args.robots.split(",")],
+        args.robots if isinstance(args.robots, list) else _team_sizes(args.robots),
         args.mode,
         args.set or [],
         args.schedule,

@@ -1,0 +1,157 @@
+"""Hostile input and signals at the command line: one ``error:`` line and a documented exit status,
+never a traceback; a stopped flight still lands and leaves a complete run folder."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.e2e.missions import small_mission
+
+AMSLAM = Path(sys.executable).with_name("amslam")
+BOUND = 120  # s: no hostile input may keep the command line longer than this (a hang fails the test)
+
+BILLION_LAUGHS = "".join(
+    f"{name}: &{name} [{', '.join([f'*{prev}'] * 9)}]\n"
+    for prev, name in zip("abcdefg", "bcdefgh", strict=True)
+)
+
+
+def amslam(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [AMSLAM, *args], capture_output=True, text=True, check=False, timeout=BOUND, cwd=cwd
+    )
+
+
+def one_error(done: subprocess.CompletedProcess) -> str:
+    """The single ``error:`` line of a refused command (exit 2, no traceback)."""
+    assert "Traceback" not in done.stderr, done.stderr
+    assert done.returncode == 2, (done.returncode, done.stderr)
+    errors = [line for line in done.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1, done.stderr
+    return errors[0]
+
+
+@pytest.fixture
+def bad_files(tmp_path: Path) -> dict[str, Path]:
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"\xff\xfe\x00mission")
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text(
+        'a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]\n' + BILLION_LAUGHS
+    )
+    big = tmp_path / "big.yaml"
+    big.write_text("name: big\n" + "# padding\n" * 200_000)
+    return {"binary": binary, "bomb": bomb, "big": big, "folder": tmp_path}
+
+
+@pytest.mark.parametrize(
+    ("case", "expected"),
+    [
+        ("binary", "not UTF-8 text (byte 0); a mission is a YAML file"),
+        ("bomb", "expands to more than 100000 YAML nodes (aliases)"),
+        ("big", "bytes; a mission file is at most 1048576 bytes"),
+        ("folder", "a directory; a mission is a YAML file"),
+    ],
+)
+def test_unreadable_mission_files(bad_files, case, expected):
+    line = one_error(amslam("validate", str(bad_files[case])))
+    assert str(bad_files[case]) in line and expected in line
+
+
+def test_a_special_file_is_not_a_mission():
+    assert "/dev/null: not a regular file" in one_error(amslam("validate", "/dev/null"))
+
+
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("seed=[1", "--set 'seed=[1': not valid YAML: expected ',' or ']'"),
+        (".x=1", "--set '.x=1': '.x' is not a key path"),
+        ("seed", "--set 'seed': expected key.path=value"),
+        ("name.x=1", "--set 'name.x=1': 'name' is not a section"),
+    ],
+)
+def test_bad_overrides(override, expected):
+    assert expected in one_error(amslam("validate", "demo", "--set", override))
+
+
+def test_set_plugins_disable_is_honoured_like_the_file(tmp_path):
+    done = amslam("validate", "demo", "--set", "plugins.disable=[voxel_open3d]")
+    assert "mapping.plugin: no mapping backend named 'open3d'" in one_error(done)
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (("experiment", "multi-robot", "demo", "--robots", "abc"), "argument --robots: 'abc': team sizes"),
+        (("experiment", "planners", "demo", "--seeds", "0"), "argument --seeds: 0 is not at least 1"),
+        (("experiment", "planners", "demo", "--first-seed", "-3"), "argument --first-seed: -3 is negative"),
+        (("experiment", "no-such", "demo"), "argument NAME: invalid choice: 'no-such'"),
+        (("fly-to-the-moon",), "invalid choice: 'fly-to-the-moon'"),
+    ],
+)
+def test_bad_arguments(args, expected):
+    assert expected in one_error(amslam(*args))
+
+
+def test_out_where_no_folder_can_be(tmp_path):
+    a_file = tmp_path / "taken"
+    a_file.write_text("")
+    assert f"cannot create a run folder in {a_file}: File exists" in one_error(
+        amslam("run", "demo", "--out", str(a_file))
+    )
+    assert "cannot create a run folder in /proc/amslam" in one_error(
+        amslam("run", "demo", "--out", "/proc/amslam")
+    )
+
+
+def test_output_closed_early_is_quiet():
+    done = subprocess.run(
+        f"{AMSLAM} dump-config slam gtsam | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        timeout=BOUND,
+        executable="/bin/bash",
+    )
+    assert done.stdout.startswith("# slam backend 'gtsam'")
+    assert "Traceback" not in done.stderr and "BrokenPipe" not in done.stderr
+
+
+def test_sigterm_lands_and_leaves_a_complete_run_folder_and_a_second_signal_waits(tmp_path):
+    mission = small_mission(tmp_path, max_time=600)
+    out = tmp_path / "runs"
+    proc = subprocess.Popen(
+        [AMSLAM, "run", str(mission), "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + BOUND
+    while not list(out.glob("*/events.jsonl")) or "takeoff" not in _events(out):
+        assert proc.poll() is None and time.monotonic() < deadline, "the flight did not start"
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)  # while landing and saving: must not tear the run folder
+    stdout, stderr = proc.communicate(timeout=BOUND)
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert "Traceback" not in stderr
+    assert "verdict: aborted" in stdout
+    (run,) = out.iterdir()
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["verdict"] == "aborted"
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert events[-1] == {"t": events[-1]["t"], "event": "run_end", "verdict": "aborted"}
+    assert (run / "report.md").stat().st_size > 0
+
+
+def _events(out: Path) -> str:
+    return "".join(p.read_text() for p in out.glob("*/events.jsonl"))
