@@ -156,10 +156,19 @@ def _stop(signum: int, frame: object) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global received_signal
+    received_signal = None
+    previous = {signum: signal.signal(signum, _stop) for signum in STOP_SIGNALS}
+    try:
+        return _main(argv)
+    finally:  # an embedding process (a test calling main) gets its own handlers back
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _main(argv: list[str] | None) -> int:
     from amslam.registry import build_plugin_manager
 
-    for signum in STOP_SIGNALS:
-        signal.signal(signum, _stop)
     try:
         registry = build_plugin_manager()
         args = build_parser(registry).parse_args(argv)
