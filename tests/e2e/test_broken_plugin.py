@@ -6,7 +6,6 @@ The broken distribution is installed with ``pip --target`` into a temporary fold
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from tests.e2e.missions import small_mission
+from tests.e2e.sites import install_into_site, site_env
 
 PYPROJECT = """\
 [build-system]
@@ -57,23 +57,11 @@ def broken_site(tmp_path_factory) -> Path:
     dist.mkdir()
     (dist / "pyproject.toml").write_text(PYPROJECT)
     (dist / "amslam_broken.py").write_text(MODULE)
-    site = root / "site"
-    done = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation"]
-        + ["--target", str(site), str(dist)],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    assert done.returncode == 0, done.stderr
-    return site
+    return install_into_site(dist, root / "site")
 
 
 def _amslam(site: Path, *args) -> subprocess.CompletedProcess:
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")])),
-    }
+    env = site_env(site)
     done = subprocess.run([AMSLAM, *map(str, args)], capture_output=True, text=True, check=False, env=env)
     assert "Traceback" not in done.stdout + done.stderr, done.stderr
     return done

@@ -11,26 +11,32 @@ import pytest
 import yaml
 
 from tests.e2e.missions import small_mission
+from tests.e2e.sites import install_into_site, site_env
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "amslam-octomap"
 AMSLAM = Path(sys.executable).with_name("amslam")
 
 
+ENV: dict[str, str] = {}
+
+
 def _run(*args: str | Path, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([str(a) for a in args], capture_output=True, text=True, check=False, cwd=cwd)
+    return subprocess.run(
+        [str(a) for a in args], capture_output=True, text=True, check=False, cwd=cwd, env=ENV or None
+    )
 
 
 @pytest.fixture(scope="module")
 def octomap_example(tmp_path_factory):
-    """``pip install`` a copy of the example (builds stay out of the repository); uninstall after."""
+    """``pip install`` a copy of the example into a temporary folder (never the project's venv;
+    builds stay out of the repository); the amslam subprocesses see it through PYTHONPATH."""
     pytest.importorskip("pyoctomap", reason="the octomap example needs pyoctomap (in amslam's dev extras)")
-    src = tmp_path_factory.mktemp("dist") / "amslam-octomap"
+    root = tmp_path_factory.mktemp("dist")
+    src = root / "amslam-octomap"
     shutil.copytree(EXAMPLE, src, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
-    pip = (sys.executable, "-m", "pip")
-    done = _run(*pip, "install", "--quiet", "--no-deps", "--no-build-isolation", src)
-    assert done.returncode == 0, done.stderr
+    ENV.update(site_env(install_into_site(src, root / "site")))
     yield src
-    _run(*pip, "uninstall", "--yes", "--quiet", "amslam-octomap")
+    ENV.clear()
 
 
 def test_listed_with_its_hooks(octomap_example):

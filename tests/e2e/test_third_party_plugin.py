@@ -1,4 +1,4 @@
-"""A third-party distribution providing a planner: installed by pip, listed, and flown."""
+"""A third-party distribution providing a planner: pip-installed into a temporary folder, listed, flown."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from tests.e2e.missions import small_mission
+from tests.e2e.sites import install_into_site, site_env
 
 PYPROJECT = """\
 [build-system]
@@ -60,25 +61,19 @@ def amslam_planner_backends():
 '''
 
 
-def _pip(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pip", *args], capture_output=True, text=True, check=False)
-
-
 @pytest.fixture
 def installed_plugin(tmp_path):
     dist = tmp_path / "amslam-nearest-planner"
     dist.mkdir()
     (dist / "pyproject.toml").write_text(PYPROJECT)
     (dist / "amslam_nearest.py").write_text(MODULE)
-    done = _pip("install", "--quiet", "--no-deps", "--no-build-isolation", str(dist))
-    assert done.returncode == 0, done.stderr
-    yield
-    _pip("uninstall", "--yes", "--quiet", "amslam-nearest-planner")
+    return site_env(install_into_site(dist, tmp_path / "site"))
 
 
 def test_third_party_planner_is_listed_and_flies(installed_plugin, tmp_path):
     amslam = Path(sys.executable).with_name("amslam")
-    listed = subprocess.run([amslam, "plugins"], capture_output=True, text=True, check=True).stdout
+    env = installed_plugin
+    listed = subprocess.run([amslam, "plugins"], capture_output=True, text=True, env=env).stdout
     assert "nearest" in listed and "amslam-nearest-planner 0.3.0" in listed
     mission = small_mission(tmp_path, name="thirdparty", planner="{plugin: nearest, min_gain: 0.5}")
     done = subprocess.run(
@@ -86,6 +81,7 @@ def test_third_party_planner_is_listed_and_flies(installed_plugin, tmp_path):
         capture_output=True,
         text=True,
         check=False,
+        env=env,
     )
     assert "verdict: completed" in done.stdout, done.stdout + done.stderr
     run_dir = next((tmp_path / "runs").iterdir())
