@@ -60,6 +60,8 @@ class Experiment:
     help: str
     run: Callable[[argparse.Namespace, Registry], Path]
     add_arguments: Callable[[argparse.ArgumentParser], None] = lambda parser: None
+    #: whether it flies several missions (``MISSION MORE ...``); if not, extra missions are refused
+    several_missions: bool = False
 
 
 def positive_int(text: str) -> int:
@@ -116,13 +118,34 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
 
 
 def run_experiment(args: argparse.Namespace, registry: Registry) -> int:
-    """``amslam experiment NAME ...``: run it, print its table and where its folder is."""
+    """``amslam experiment NAME ...``: run it, print its table and where its folder is.
+
+    Exit status 1 when it flew runs (run folders under ``<folder>/runs``) and none completed: a
+    table of failures is no result.
+    """
+    experiment = registry.experiments[args.experiment]
+    if args.more and not experiment.several_missions:
+        extra = " ".join(args.more)
+        raise AmslamError(f"experiment {args.experiment} flies one mission; also given: {extra}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     print(f"experiment {args.experiment} on {args.mission}, seeds {seeds}", flush=True)
-    folder = registry.experiments[args.experiment].run(args, registry)
+    folder = experiment.run(args, registry)
     print((folder / "table.md").read_text())
     print(f"experiment folder: {folder}")
+    verdicts = [_verdict(m) for m in sorted(folder.glob("runs/*/metrics.json"))]
+    if verdicts and "completed" not in verdicts:
+        print(f"error: none of the {len(verdicts)} runs completed ({verdicts[0]}, ...)", file=sys.stderr)
+        return 1
     return 0
+
+
+def _verdict(metrics_file: Path) -> str:
+    import json
+
+    try:
+        return str(json.loads(metrics_file.read_text()).get("verdict", "no verdict"))
+    except (OSError, ValueError, AttributeError):
+        return f"unreadable {metrics_file.name}"
 
 
 #: the signals that stop amslam the way Ctrl-C does

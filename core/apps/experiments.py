@@ -428,5 +428,6 @@ def amslam_experiments():
             lambda args, registry: pams_comparison(
                 [args.mission, *args.more], registry, _seeds(args), Path(args.out), overrides=args.set or []
             ),
+            several_missions=True,
         ),
     }

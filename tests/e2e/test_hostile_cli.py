@@ -95,6 +95,7 @@ def test_set_plugins_disable_is_honoured_like_the_file(tmp_path):
         (("experiment", "planners", "demo", "--first-seed", "-3"), "argument --first-seed: -3 is negative"),
         (("experiment", "no-such", "demo"), "argument NAME: invalid choice: 'no-such'"),
         (("fly-to-the-moon",), "invalid choice: 'fly-to-the-moon'"),
+        (("experiment", "planners", "demo", "three_floors"), "planners flies one mission; also given"),
     ],
 )
 def test_bad_arguments(args, expected):
@@ -155,3 +156,12 @@ def test_sigterm_lands_and_leaves_a_complete_run_folder_and_a_second_signal_wait
 
 def _events(out: Path) -> str:
     return "".join(p.read_text() for p in out.glob("*/events.jsonl"))
+
+
+def test_an_experiment_whose_every_run_failed_exits_1(tmp_path):
+    mission = small_mission(tmp_path, max_time=30)
+    wide = ("--set", "robot.radius=2.5")  # no room to take off anywhere: every run fails
+    out = ("--out", str(tmp_path / "out"))
+    done = amslam("experiment", "planners", str(mission), "--seeds", "1", *wide, *out)
+    assert done.returncode == 1, done.stderr
+    assert "error: none of the 3 runs completed (failed: no room to take off" in done.stderr
