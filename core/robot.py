@@ -20,7 +20,6 @@ from amslam.geometry import invert, transform_points, yaw_of
 from amslam.interfaces import Detector, Mapping, Planner, Platform, Slam
 from amslam.mission import ExplorationSection, LimitsSection
 from amslam.types import (
-    Detection,
     LoopClosureResult,
     Odometry,
     PlanRequest,
@@ -57,7 +56,6 @@ class Robot:
     planned_viewpoints: list[np.ndarray] = field(default_factory=list)
     _executor: ThreadPoolExecutor | None = None
     _guard_grid: np.ndarray | None = None
-    recent_detections: list[tuple[Odometry, list[Detection]]] = field(default_factory=list)
     slc_log: list[tuple[float, float, LoopClosureResult]] = field(
         default_factory=list
     )  # (t, distance, result)
@@ -365,14 +363,18 @@ class Robot:
         return all(self.distance - self.slc_tried_at.get(i, -np.inf) >= wait for i in candidate.landmark_ids)
 
     def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
-        """Try an SLC with what the detector saw most recently (e.g. during a panorama)."""
+        """Try an SLC with what the detector saw most recently (e.g. during a panorama).
+
+        The runner fed every detection to SLAM at the pose of its own frame as it came in, so
+        nothing is seen *now* that SLAM does not have: the call hands over no detections and the
+        backend registers the panorama from what it was fed (see :meth:`Slam.try_loop_closure`).
+        """
         is_slc = goal is not None and goal.kind == TourItemKind.SLC
         candidate = self.slc_offered.get(goal.ref) if is_slc else None
         if candidate is not None:
             for i in candidate.landmark_ids:
                 self.slc_tried_at[i] = self.distance
         odom = self.platform.odometry()
-        detections = [d for _, dets in self.recent_detections for d in dets]
-        result = self.slam.try_loop_closure(odom, self.platform.camera.T_body_cam, detections)
+        result = self.slam.try_loop_closure(odom, self.platform.camera.T_body_cam, [])
         self.slc_log.append((self.time(), self.distance, result))
         return result

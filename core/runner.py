@@ -198,8 +198,6 @@ class Runner:
             measurements.detections(
                 frame_odom, detections, None if T_truth is None else T_truth @ invert(T_body_cam)
             )
-            self.robot.recent_detections.append((frame_odom, detections))
-            del self.robot.recent_detections[:-64]
 
         # On a real vehicle the network runs beside the control loop (frames arriving while it is
         # busy are skipped); in the simulator it runs inline: the clock waits, runs stay repeatable.

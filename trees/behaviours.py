@@ -366,7 +366,6 @@ class Panorama(RobotBehaviour):
         self.center = self.robot.position_world().copy()
         self.start_yaw = self.robot.yaw_world()
         self.step = 1
-        self.robot.recent_detections.clear()
 
     def update(self) -> Status:
         target = wrap_angle(self.start_yaw + 2 * np.pi * self.step / self.steps)
