@@ -1,14 +1,17 @@
-"""The runner: builds the backends and the tree from a mission and runs the tick loop.
+"""The runner: builds the backends, the services and the tree from a mission and ticks them.
 
-The loop runs on the platform's clock. With the simulator that clock is simulated and advances by
-exactly one control period per tick, and every module runs inline at its own rate in a fixed
-order (VIO → SLAM key poses → camera → local and global maps → frontiers → detector at its rate →
-tree tick), so the same mission and seed give identical outputs; time does not pass while a
-module computes, so a slow module cannot stall the simulated vehicle. With a real vehicle the
-same schedule runs against wall-clock time.
+Each tick on the platform's clock is one pass over the services (docs/architecture.md, "The
+runtime"): :class:`amslam.perception.Perception` runs every module that is due, in a fixed order
+(VIO → SLAM key poses → camera → local and global maps → frontiers → detector at its rate), and
+publishes a :class:`amslam.perception.Snapshot`; the planning service sees it; the tree ticks.
+With the simulator the clock advances by exactly one control period per tick and everything runs
+inline, so the same mission and seed give identical outputs; with a real vehicle the same
+schedule runs against wall-clock time, with the planner and the detector on their own threads
+under the thread rule (:mod:`amslam.sharing`).
 
 Every exit path — completion, a crash, a failing backend, Ctrl-C — goes through
-:meth:`Runner._finish`, which writes metrics, map, plots and report with the verdict.
+:meth:`Runner._finish`, which builds the :class:`amslam.types.RunSummary` and writes metrics,
+map, plots and report with the verdict.
 """
 
 from __future__ import annotations
@@ -74,7 +77,8 @@ class Runner:
         self.progress = progress
         self.on_start = on_start
         self.backends: dict[str, Backend] = {}
-        self.runtime: Runtime | None = None
+        self.context: RunContext | None = None  # once the backends are configured
+        self.runtime: Runtime | None = None  # once the services are built
 
     # -- observer hooks ------------------------------------------------------------------------
 
@@ -318,7 +322,7 @@ class Runner:
         platform, slam, mapping = (self.backends.get(k) for k in ("platform", "slam", "mapping"))
         if platform is None:
             return summary
-        runtime: Runtime | None = getattr(self, "runtime", None)
+        runtime = self.runtime
         flown = {}
         if runtime is not None:
             perception = runtime.perception
@@ -344,7 +348,7 @@ class Runner:
             status=platform.status(),
             final_truth=platform.ground_truth(),
             final_vio=platform.odometry().T_odom_body,
-            robot_radius=self.context.robot.radius,
+            robot_radius=self.context.robot.radius if self.context is not None else None,
             mapping=mapping,
             **flown,
         )
