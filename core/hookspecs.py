@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
     from amslam.cli import Command, Experiment
     from amslam.interfaces import Detector, Mapping, Planner, Platform, Slam
-    from amslam.types import KeyPose, LoopClosureResult, TourItem
+    from amslam.types import KeyPose, LoopClosureResult, RunSummary, TourItem
 
 hookspec = pluggy.HookspecMarker("amslam")
 
@@ -156,10 +156,39 @@ def amslam_loop_closure(t: float, result: LoopClosureResult) -> None:
 
 
 @hookspec
-def amslam_run_end(run_dir: Path, verdict: str, metrics: dict[str, Any], trajectory: np.ndarray) -> None:
+def amslam_run_end(
+    run_dir: Path, verdict: str, metrics: dict[str, Any], trajectory: np.ndarray, summary: RunSummary
+) -> None:
     """The run ended with ``verdict``; ``metrics`` is what ``metrics.json`` holds.
 
+    ``trajectory`` holds the true positions (N×3, simulation only). ``summary`` (since 0.2) is the
+    typed :class:`amslam.types.RunSummary` of the run: trajectories, samples, loop closures, the
+    semantic map, the world's ground truth; an observer taking only the older arguments still
+    works.
+
     Since: 0.1
+    """
+
+
+# --------------------------------------------------------------------------------------------
+# Phase 3 — mission trees (since 0.2)
+# --------------------------------------------------------------------------------------------
+
+
+@hookspec
+def amslam_mission_trees() -> dict[str, Callable[..., py_trees.behaviour.Behaviour]]:
+    """Mission trees this plugin provides, by name; a mission's ``tree`` field selects one.
+
+    Each value is called once per run as ``build(model, behaviours, failsafe=...)`` with the
+    validated :class:`amslam.mission.MissionModel`, the registered behaviours by name
+    (``amslam_behaviours``; look leaves up there so a plugin can replace one) and ``failsafe``:
+    True on a real vehicle (``Platform.simulated`` is False), where the tree must answer the
+    platform's failsafes (``amslam.trees.flight.with_failsafe_guard`` puts a tree under the stock
+    guard). It returns the root behaviour. The leaves receive the runtime's services in
+    ``setup`` (see :mod:`amslam.robot`). Called once at start-up; the results of all plugins are
+    merged.
+
+    Since: 0.2
     """
 
 

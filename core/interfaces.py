@@ -254,7 +254,15 @@ class Slam(Backend):
     def try_loop_closure(
         self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]
     ) -> LoopClosureResult:
-        """Attempt a semantic loop closure with what is in view now."""
+        """Attempt a semantic loop closure with what is in view now.
+
+        ``detections`` are seen *now*, at the VIO pose ``odom``, and were not fed before; a
+        backend that closes loops adds them like :meth:`add_detections` would. Everything seen earlier (the
+        panorama leading up to the attempt) was already fed through :meth:`add_detections` at
+        the pose of its own frame, and must not be passed again: a detection handed over twice
+        counts twice, the second time displaced by however far the robot moved or turned since.
+        The runtime passes an empty list; a backend registers what it was fed recently.
+        """
         return LoopClosureResult(False, f"{type(self).__name__} does not close loops")
 
     def slc_candidates(self, sensing_range: float) -> list[SlcCandidate]:

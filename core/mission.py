@@ -168,8 +168,10 @@ class MissionModel(_Strict):
         description="a map saved by an earlier run (its map.npz) to start from; relative to the mission file",
     )
     exploration: ExplorationSection = ExplorationSection()
-    tree: Literal["exploration", "waypoints"] = Field(
-        "exploration", description="the mission tree: explore (default) or fly the waypoints section"
+    tree: str = Field(
+        "exploration",
+        description="the mission tree, by name: exploration (default), waypoints (fly the waypoints "
+        "section), or one a plugin provides (amslam_mission_trees)",
     )
     waypoints: WaypointsSection = WaypointsSection()
     platform: dict[str, Any] = Field(default_factory=dict)
@@ -344,6 +346,11 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
             report(err["loc"], _describe(err, MissionModel, err["loc"]))
         model = None
 
+    if model is not None:
+        try:
+            registry.tree(model.tree)
+        except PluginError as exc:
+            report(("tree",), str(exc))
     optional = set(model.plugins.optional) if model is not None else set()
     for name, error in sorted(registry.load_errors.items()):
         if name not in optional:

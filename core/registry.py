@@ -28,6 +28,8 @@ class Registry:
     backends: dict[str, dict[str, Callable[[], Backend]]] = field(default_factory=dict)
     providers: dict[str, dict[str, str]] = field(default_factory=dict)  # kind -> name -> plugin
     behaviours: dict[str, Callable] = field(default_factory=dict)
+    #: mission tree builders by name (``amslam_mission_trees``)
+    trees: dict[str, Callable] = field(default_factory=dict)
     #: ``amslam`` subcommands by name (:class:`amslam.cli.Command`)
     commands: dict[str, Any] = field(default_factory=dict)
     #: ``amslam experiment`` names (:class:`amslam.cli.Experiment`)
@@ -50,6 +52,13 @@ class Registry:
             )
             raise PluginError(f"no {kind} backend named {name!r}; installed: {installed}{broken}")
         return found[name]
+
+    def tree(self, name: str) -> Callable:
+        """The builder of mission tree ``name``, or a PluginError listing the installed ones."""
+        if name not in self.trees:
+            installed = ", ".join(sorted(self.trees)) or "none"
+            raise PluginError(f"no mission tree named {name!r}; installed trees: {installed}")
+        return self.trees[name]
 
     def backend_class(self, kind: str, name: str) -> type[Backend]:
         """The class a factory builds, for reading its ``Params`` without configuring it."""
@@ -102,6 +111,7 @@ def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[o
     for kind in BACKEND_KINDS:
         registry.backends[kind], registry.providers[kind] = _collect(pm, f"amslam_{kind}_backends", registry)
     registry.behaviours, _ = _collect(pm, "amslam_behaviours", registry)
+    registry.trees, _ = _collect(pm, "amslam_mission_trees", registry)
     registry.commands, _ = _collect(pm, "amslam_cli_commands", registry)
     registry.experiments, _ = _collect(pm, "amslam_experiments", registry)
     return registry

@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from amslam.geometry import wrap_angle, yaw_of
-from amslam.types import VoxelState, WorldSummary
+from amslam.types import RunSummary, VoxelState, WorldSummary
 
 if TYPE_CHECKING:
-    from amslam.runner import Runner
+    from amslam.rundir import RunDir
 
 
 def _floor_bands(world: WorldSummary) -> list[tuple[float, float]]:
@@ -181,118 +181,131 @@ def object_accuracy(
     return out
 
 
-def compute_metrics(runner: Runner, verdict: str) -> dict[str, Any]:
+def compute_metrics(summary: RunSummary) -> dict[str, Any]:
     """Everything ``metrics.json`` holds."""
-    backends = runner.backends
+    mission = summary.mission
     metrics: dict[str, Any] = {
-        "verdict": verdict,
-        "mission": runner.mission.name,
-        "seed": runner.mission.model.seed,
-        "plugins": {kind: choice.plugin for kind, choice in runner.mission.backends.items()},
+        "verdict": summary.verdict,
+        "mission": mission.name,
+        "seed": mission.model.seed,
+        "plugins": {kind: choice.plugin for kind, choice in mission.backends.items()},
     }
-    platform = backends.get("platform")
-    if platform is None:
+    if summary.duration_s is None:  # the platform never started
         return metrics
-    metrics["sim_duration_s"] = round(platform.time(), 3)
-    robot = getattr(runner, "robot", None)
-    metrics["distance_m"] = round(robot.distance, 3) if robot else 0.0
-    truth = getattr(runner, "truth", [])
+    metrics["sim_duration_s"] = round(summary.duration_s, 3)
+    metrics["distance_m"] = round(summary.distance_m, 3)
+    truth = summary.truth
     if len(truth) > 1:
         p = np.array([T[:3, 3] for _, T in truth])
         metrics["distance_truth_m"] = round(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()), 3)
-    status = platform.status()
-    if status.closest_approach is not None:
+    status = summary.status
+    if status is not None and status.closest_approach is not None:
         metrics["closest_approach"] = {
             "clearance_m": status.closest_approach,
-            "robot_radius_m": robot.spec.radius if robot else None,
+            "robot_radius_m": summary.robot_radius,
             "to": status.closest_to,
             "position": list(status.closest_position or ()),
         }
-    if robot is not None:
-        # where the flight ended against its take-off spot: a robot that could not get home lands
-        # where it is, and the verdict alone would not say so
-        if len(truth) > 1:
-            ended = float(np.linalg.norm(truth[-1][1][:2, 3] - truth[0][1][:2, 3]))
-        else:
-            ended = float(np.linalg.norm(robot.position_world()[:2] - robot.home_world[:2]))
-        metrics["ended_from_home_m"] = round(ended, 3)
-    mapping = backends.get("mapping")
-    world = platform.world_summary()
-    if mapping is not None:
-        metrics["explored_volume_m3"] = round(mapping.explored_volume(), 3)
-        metrics["explored_series"] = [
-            [round(t, 2), round(d, 2), round(v, 2)] for t, d, v in runner.samples["explored"]
-        ]
-        if world is not None:
-            share, per_floor = explored_share(mapping, world)
-            metrics["reachable_free_volume_m3"] = round(world.reachable_free_volume, 3)
-            metrics["floor_heights"] = [round(float(z), 3) for z in world.floor_heights]
-            metrics["explored_percent"] = round(100 * share, 2)
-            metrics["explored_percent_per_floor"] = [round(100 * s, 2) for s in per_floor]
-    slam = backends.get("slam")
-    T_truth = platform.ground_truth()
-    if slam is not None and T_truth is not None:
-        T_vio = platform.odometry().T_odom_body
-        T_slam = slam.T_world_odom() @ T_vio
-        metrics["final_error"] = {
+    metrics.update(_ended_from_home(summary))
+    metrics.update(_exploration_metrics(summary))
+    metrics.update(_slam_metrics(summary))
+    return metrics
+
+
+def _ended_from_home(summary: RunSummary) -> dict[str, Any]:
+    """Where the flight ended against its take-off spot: a robot that could not get home lands
+    where it is, and the verdict alone would not say so."""
+    truth = summary.truth
+    if len(truth) > 1:
+        ended = float(np.linalg.norm(truth[-1][1][:2, 3] - truth[0][1][:2, 3]))
+    elif summary.home_world is not None and summary.final_vio is not None:
+        here = (summary.final_T_world_odom @ summary.final_vio)[:3, 3]
+        ended = float(np.linalg.norm(here[:2] - summary.home_world[:2]))
+    else:
+        return {}
+    return {"ended_from_home_m": round(ended, 3)}
+
+
+def _exploration_metrics(summary: RunSummary) -> dict[str, Any]:
+    mapping, world = summary.mapping, summary.world
+    if mapping is None:
+        return {}
+    out: dict[str, Any] = {
+        "explored_volume_m3": round(mapping.explored_volume(), 3),
+        "explored_series": [
+            [round(t, 2), round(d, 2), round(v, 2)] for t, d, v in summary.samples["explored"]
+        ],
+    }
+    if world is not None:
+        share, per_floor = explored_share(mapping, world)
+        out["reachable_free_volume_m3"] = round(world.reachable_free_volume, 3)
+        out["floor_heights"] = [round(float(z), 3) for z in world.floor_heights]
+        out["explored_percent"] = round(100 * share, 2)
+        out["explored_percent_per_floor"] = [round(100 * s, 2) for s in per_floor]
+    return out
+
+
+def _slam_metrics(summary: RunSummary) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    T_truth, T_vio = summary.final_truth, summary.final_vio
+    if summary.final_T_world_odom is not None and T_truth is not None and T_vio is not None:
+        T_slam = summary.final_T_world_odom @ T_vio
+        out["final_error"] = {
             "vio_position_m": round(float(np.linalg.norm(T_vio[:3, 3] - T_truth[:3, 3])), 4),
             "vio_yaw_rad": round(abs(wrap_angle(yaw_of(T_vio) - yaw_of(T_truth))), 5),
             "slam_position_m": round(float(np.linalg.norm(T_slam[:3, 3] - T_truth[:3, 3])), 4),
             "slam_yaw_rad": round(abs(wrap_angle(yaw_of(T_slam) - yaw_of(T_truth))), 5),
         }
-    if slam is not None:
-        landmarks = slam.landmarks()
-        by_class: dict[str, int] = {}
-        for lm in landmarks:
-            by_class[lm.class_name] = by_class.get(lm.class_name, 0) + 1
-        metrics["landmarks"] = {"count": len(landmarks), "by_class": by_class}
-        if world is not None:
-            metrics["landmarks"]["objects_in_world"] = dict(world.objects_by_class)
-            if world.object_positions:
-                metrics["landmarks"]["accuracy"] = landmark_accuracy(landmarks, world)
-            if world.object_shapes and any(lm.shape for lm in landmarks):
-                metrics["objects"] = object_accuracy(landmarks, world)
-        metrics["keyposes"] = len(slam.keyposes())
-        series = runner.samples["uncertainty"]
-        if any(p or q for _, _, p, q in series):  # a backend without covariances reports zeros
-            metrics["uncertainty"] = {
-                "final_mean_pose_trace": series[-1][2],
-                "final_mean_landmark_trace": series[-1][3],
-                "series": [[round(t, 2), round(d, 2), p, q] for t, d, p, q in series],
-            }
-    if robot is not None:
-        results = [r for _, _, r in robot.slc_log]
-        metrics["slc"] = {
-            "attempts": len(results),
-            "accepted": sum(r.accepted for r in results),
-            "events": [
-                {
-                    "t": round(t, 2),
-                    "distance": round(d, 2),
-                    "accepted": r.accepted,
-                    "reason": r.reason,
-                    "matched": r.matched,
-                    "residual": r.residual,
-                    "yaw_correction": r.yaw_correction,
-                    "translation_correction": r.translation_correction,
-                }
-                for t, d, r in robot.slc_log
-            ],
+    if summary.landmarks is None:
+        return out
+    landmarks, world = list(summary.landmarks), summary.world
+    by_class: dict[str, int] = {}
+    for lm in landmarks:
+        by_class[lm.class_name] = by_class.get(lm.class_name, 0) + 1
+    out["landmarks"] = {"count": len(landmarks), "by_class": by_class}
+    if world is not None:
+        out["landmarks"]["objects_in_world"] = dict(world.objects_by_class)
+        if world.object_positions:
+            out["landmarks"]["accuracy"] = landmark_accuracy(landmarks, world)
+        if world.object_shapes and any(lm.shape for lm in landmarks):
+            out["objects"] = object_accuracy(landmarks, world)
+    out["keyposes"] = len(summary.keyposes)
+    series = summary.samples["uncertainty"]
+    if any(p or q for _, _, p, q in series):  # a backend without covariances reports zeros
+        out["uncertainty"] = {
+            "final_mean_pose_trace": series[-1][2],
+            "final_mean_landmark_trace": series[-1][3],
+            "series": [[round(t, 2), round(d, 2), p, q] for t, d, p, q in series],
         }
-    return metrics
+    out["slc"] = {
+        "attempts": len(summary.slc_log),
+        "accepted": sum(r.accepted for _, _, r in summary.slc_log),
+        "events": [
+            {
+                "t": round(t, 2),
+                "distance": round(d, 2),
+                "accepted": r.accepted,
+                "reason": r.reason,
+                "matched": r.matched,
+                "residual": r.residual,
+                "yaw_correction": r.yaw_correction,
+                "translation_correction": r.translation_correction,
+            }
+            for t, d, r in summary.slc_log
+        ],
+    }
+    return out
 
 
-def write_outputs(runner: Runner, metrics: dict[str, Any]) -> None:
+def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunDir) -> None:
     """metrics.json, map.ply, landmarks.json, slam.tum (optimised), plots and report.md."""
-    rundir = runner.rundir
     rundir.write_json("metrics.json", metrics)  # first, so a later failure still leaves it
-    backends = runner.backends
-    mapping, slam, platform = backends.get("mapping"), backends.get("slam"), backends.get("platform")
+    mapping = summary.mapping
     if mapping is not None:
         rundir.write_ply("map.ply", mapping.occupied_points())
         with contextlib.suppress(NotImplementedError):  # a backend may not export
             mapping.save(rundir.path / "map.npz")  # the whole map, for a later run's prior_map
-    if slam is not None:
+    if summary.landmarks is not None:
         rundir.write_json(
             "landmarks.json",
             [
@@ -304,35 +317,34 @@ def write_outputs(runner: Runner, metrics: dict[str, Any]) -> None:
                     "observations": lm.observations,
                     **({"shape": lm.shape} if lm.shape else {}),
                 }
-                for lm in slam.landmarks()
+                for lm in summary.landmarks
             ],
         )
-        kps = slam.keyposes()
-        if kps and type(slam).__name__ != "OdometrySlam":
+        kps = summary.keyposes
+        if kps and summary.slam_optimises:
             rundir.rewrite_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
     plots = []
-    world = platform.world_summary() if platform is not None else None
     if mapping is not None:
-        plots.append(plot_top_view(runner, world))
+        plots.append(plot_top_view(summary))
     if metrics.get("uncertainty", {}).get("series"):
-        plots.append(plot_uncertainty(runner, metrics))
-    write_report(runner, metrics, [p for p in plots if p])
+        plots.append(plot_uncertainty(summary, metrics))
+    write_report(summary, metrics, [p for p in plots if p])
 
 
-def plot_top_view(runner: Runner, world: WorldSummary | None) -> str | None:
+def plot_top_view(summary: RunSummary) -> str | None:
     """``top_view.png``: occupied voxels per floor, trajectories and landmarks, seen from above."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    occupied = runner.backends["mapping"].occupied_points()
+    world = summary.world
+    occupied = summary.mapping.occupied_points()
     bands = _floor_bands(world) if world is not None else [(-math.inf, math.inf)]
     fig, axes = plt.subplots(1, len(bands), figsize=(7 * len(bands), 6), squeeze=False)
-    truth = np.array([T[:3, 3] for _, T in getattr(runner, "truth", [])]).reshape(-1, 3)
-    vio = np.array([T[:3, 3] for _, T in getattr(runner, "vio", [])]).reshape(-1, 3)
-    slam = runner.backends.get("slam")
-    landmarks = slam.landmarks() if slam is not None else []
+    truth = summary.trajectory
+    vio = np.array([T[:3, 3] for _, T in summary.vio]).reshape(-1, 3)
+    landmarks = summary.landmarks or ()
     for ax, (lo, hi) in zip(axes[0], bands, strict=True):
         # Slice above the floor slab and below the ceiling, where walls and furniture are.
         band = (occupied[:, 2] > lo + 0.3) & (occupied[:, 2] < min(hi, lo + 2.2))
@@ -352,15 +364,15 @@ def plot_top_view(runner: Runner, world: WorldSummary | None) -> str | None:
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.legend(loc="upper right", fontsize=7)
-    fig.suptitle(f"{runner.mission.name}: map and trajectory (top view)")
+    fig.suptitle(f"{summary.mission.name}: map and trajectory (top view)")
     fig.tight_layout()
-    path = runner.rundir.path / "top_view.png"
+    path = summary.run_dir / "top_view.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path.name
 
 
-def plot_uncertainty(runner: Runner, metrics: dict[str, Any]) -> str | None:
+def plot_uncertainty(summary: RunSummary, metrics: dict[str, Any]) -> str | None:
     """``uncertainty.png``: mean pose and landmark covariance traces against time."""
     import matplotlib
 
@@ -374,15 +386,15 @@ def plot_uncertainty(runner: Runner, metrics: dict[str, Any]) -> str | None:
     axes[1].plot(series[:, 0], series[:, 3], color="tab:orange")
     axes[1].set_ylabel("mean landmark tr(Σ)")
     axes[1].set_xlabel("time (s)")
-    fig.suptitle(f"{runner.mission.name}: uncertainty over time")
+    fig.suptitle(f"{summary.mission.name}: uncertainty over time")
     fig.tight_layout()
-    path = runner.rundir.path / "uncertainty.png"
+    path = summary.run_dir / "uncertainty.png"
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path.name
 
 
-def write_report(runner: Runner, metrics: dict[str, Any], plots: list[str]) -> None:
+def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str]) -> None:
     """``report.md`` tying the run's files together."""
     m = metrics
     lines = [
@@ -450,4 +462,4 @@ def write_report(runner: Runner, metrics: dict[str, Any], plots: list[str]) -> N
         "- [map.ply](map.ply) — occupied voxels of the global map",
         "",
     ]
-    (runner.rundir.path / "report.md").write_text("\n".join(lines))
+    (summary.run_dir / "report.md").write_text("\n".join(lines))

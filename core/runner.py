@@ -1,14 +1,17 @@
-"""The runner: builds the backends and the tree from a mission and runs the tick loop.
+"""The runner: builds the backends, the services and the tree from a mission and ticks them.
 
-The loop runs on the platform's clock. With the simulator that clock is simulated and advances by
-exactly one control period per tick, and every module runs inline at its own rate in a fixed
-order (VIO → SLAM key poses → camera → local and global maps → frontiers → detector at its rate →
-tree tick), so the same mission and seed give identical outputs; time does not pass while a
-module computes, so a slow module cannot stall the simulated vehicle. With a real vehicle the
-same schedule runs against wall-clock time.
+Each tick on the platform's clock is one pass over the services (docs/architecture.md, "The
+runtime"): :class:`amslam.perception.Perception` runs every module that is due, in a fixed order
+(VIO → SLAM key poses → camera → local and global maps → frontiers → detector at its rate), and
+publishes a :class:`amslam.perception.Snapshot`; the planning service sees it; the tree ticks.
+With the simulator the clock advances by exactly one control period per tick and everything runs
+inline, so the same mission and seed give identical outputs; with a real vehicle the same
+schedule runs against wall-clock time, with the planner and the detector on their own threads
+under the thread rule (:mod:`amslam.sharing`).
 
 Every exit path — completion, a crash, a failing backend, Ctrl-C — goes through
-:meth:`Runner._finish`, which writes metrics, map, plots and report with the verdict.
+:meth:`Runner._finish`, which builds the :class:`amslam.types.RunSummary` and writes metrics,
+map, plots and report with the verdict.
 """
 
 from __future__ import annotations
@@ -17,7 +20,6 @@ import dataclasses
 import json
 import traceback
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,18 +30,21 @@ from py_trees.common import Status
 
 from amslam import __version__
 from amslam.errors import AmslamError, MissionError
-from amslam.geometry import invert, pose_from
+from amslam.geometry import pose_from
 from amslam.interfaces import BACKEND_KINDS, Backend, RunContext
 from amslam.measurements import FILENAME as MEASUREMENTS
 from amslam.measurements import MeasurementLog
 from amslam.mission import Mission
+from amslam.perception import Perception, Snapshot
+from amslam.planning import PlanningService
 from amslam.recording import TreeRecorder
 from amslam.registry import Registry
 from amslam.report import compute_metrics, write_outputs
-from amslam.robot import Robot
+from amslam.robot import EventSink, Robot
 from amslam.rundir import RunDir
-from amslam.trees.flight import build_mission_tree
-from amslam.types import BoundingBox, Frame, Odometry
+from amslam.setpoints import SetpointFilter
+from amslam.sharing import share
+from amslam.types import BoundingBox, RunSummary
 
 
 @dataclass
@@ -72,7 +77,8 @@ class Runner:
         self.progress = progress
         self.on_start = on_start
         self.backends: dict[str, Backend] = {}
-        self.samples: dict[str, list] = {"uncertainty": [], "explored": []}
+        self.context: RunContext | None = None  # once the backends are configured
+        self.runtime: Runtime | None = None  # once the services are built
 
     # -- observer hooks ------------------------------------------------------------------------
 
@@ -133,9 +139,11 @@ class Runner:
         try:
             self._configure()
             verdict = self._loop()
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
+            # Ctrl-C, or SIGTERM / SIGHUP raised as a KeyboardInterrupt by the command line
             verdict = "aborted"
-            self.rundir.event(self._now(), "aborted", reason="interrupted by the operator (Ctrl-C)")
+            by = str(exc) if str(exc).startswith("SIG") else "SIGINT"
+            self.rundir.event(self._now(), "aborted", reason=f"stopped by {by}: landing where it is")
             self._safe_land()
         except AmslamError as exc:
             verdict = f"failed: {exc}"
@@ -146,147 +154,119 @@ class Runner:
         return self._finish(verdict)
 
     def _loop(self) -> str:
+        """Tick until the tree ends, the vehicle crashes or the run overruns its time budget."""
+        runtime = self.runtime = self._start_runtime()
+        limits = self.mission.model.limits
+        dt = 1.0 / self.mission.model.exploration.control_rate_hz
+        hard_stop = limits.max_time * 1.5 + 300.0
+        bar = self._progress_bar(limits.max_time)
+        self._hook("amslam_run_start", run_dir=self.rundir.path, mission=self.mission.resolved())
+        self.rundir.event(0.0, "run_start", mission=self.mission.name, amslam=__version__)
+        try:
+            while True:
+                snapshot = runtime.perception.step(dt)
+                runtime.planning.observe(snapshot)
+                status = self.backends["platform"].status()
+                if status.crashed:
+                    self.rundir.event(snapshot.t, "crash", where=status.crash_reason)
+                    return f"crashed: {status.crash_reason}"
+                runtime.tree.tick()
+                runtime.recorder.record(snapshot.t)
+                self._hook("amslam_tick", t=snapshot.t, tree=runtime.tree)
+                self._show_progress(bar, snapshot)
+                verdict = self._tree_verdict(snapshot.t)
+                if verdict is None and snapshot.t > hard_stop:
+                    self._safe_land()
+                    verdict = (
+                        f"failed: still flying {hard_stop:.0f} s after start (time limit {limits.max_time} s)"
+                    )
+                if verdict is not None:
+                    return verdict
+        finally:
+            if bar is not None:
+                bar.close()
+            runtime.close()
+
+    def _start_runtime(self) -> Runtime:
+        """The services of one flight: perception, planning, the robot and the tree."""
         model = self.mission.model
-        ex = model.exploration
-        platform, mapping, slam = self.backends["platform"], self.backends["mapping"], self.backends["slam"]
-        detector = self.backends["detector"]
-        T_body_cam = platform.camera.T_body_cam
+        platform = self.backends["platform"]
+        shared = share(self.backends)  # the thread rule: slam and mapping behind their locks
         odom0 = platform.odometry()
-        self.robot = Robot(
-            platform=platform,
-            mapping=mapping,
-            slam=slam,
-            detector=detector,
-            planner=self.backends["planner"],
-            spec=self.context.robot,
-            limits=model.limits,
-            exploration=ex,
-            emit=lambda name, **f: self.rundir.event(self._now(), name, **f),
-            hooks=self._hook,
-            home_world=odom0.T_odom_body[:3, 3].copy(),
-        )
-        py_trees.blackboard.Blackboard.clear()
-        root = build_mission_tree(model, self.registry.behaviours, failsafe=not platform.simulated)
-        tree = py_trees.trees.BehaviourTree(root)
-        tree.setup(robot=self.robot)
-        recorder = TreeRecorder(tree, self.rundir)
         # what this robot would send to the base for multi-robot merging (paper 2 §IV-B4)
         base = model.robot.base
         T_world_odom = None if base is None else pose_from(np.array(base[:3]), float(np.radians(base[3])))
         measurements = MeasurementLog(
-            self.rundir.path / MEASUREMENTS, self.mission.name, T_body_cam, T_world_odom=T_world_odom
+            self.rundir.path / MEASUREMENTS,
+            self.mission.name,
+            platform.camera.T_body_cam,
+            T_world_odom=T_world_odom,
         )
-        self._hook("amslam_run_start", run_dir=self.rundir.path, mission=self.mission.resolved())
-        self.rundir.event(0.0, "run_start", mission=self.mission.name, amslam=__version__)
-
-        dt = 1.0 / ex.control_rate_hz
-        detect_period = 1.0 / max(getattr(detector, "rate_hz", 2.0), 1e-6)
-        next_detect = 0.0
-        next_viewpoints = 0.0
-        next_traj = 0.0
-        next_sample = 0.0
-        hard_stop = model.limits.max_time * 1.5 + 300.0
-        last_pos = odom0.T_odom_body[:3, 3].copy()
-        bar = self._progress_bar(model.limits.max_time)
-        self.truth: list[tuple[float, np.ndarray]] = []
-        self.vio: list[tuple[float, np.ndarray]] = []
-
-        def use_detections(frame: Frame, detections: list) -> None:
-            frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(T_body_cam))
-            slam.add_detections(frame_odom, T_body_cam, detections)
-            T_truth = frame.T_world_cam_truth
-            measurements.detections(
-                frame_odom, detections, None if T_truth is None else T_truth @ invert(T_body_cam)
-            )
-            self.robot.recent_detections.append((frame_odom, detections))
-            del self.robot.recent_detections[:-64]
-
-        # On a real vehicle the network runs beside the control loop (frames arriving while it is
-        # busy are skipped); in the simulator it runs inline: the clock waits, runs stay repeatable.
-        detect_pool = (
-            None if platform.simulated else ThreadPoolExecutor(1, thread_name_prefix="amslam-detector")
+        ex = model.exploration
+        perception = Perception(
+            platform,
+            shared["slam"],
+            shared["mapping"],
+            shared["detector"],
+            ex,
+            self.rundir,
+            measurements,
+            self._hook,
         )
-        detecting: tuple[Future, Frame] | None = None
-        try:
-            while True:
-                platform.advance(dt)
-                t = platform.time()
-                odom = platform.odometry()
-                truth = platform.ground_truth()
-                self.robot.distance += float(np.linalg.norm(odom.T_odom_body[:3, 3] - last_pos))
-                last_pos = odom.T_odom_body[:3, 3].copy()
-                if slam.add_odometry(odom):
-                    measurements.keypose(odom, truth)
-                    kps = slam.keyposes()
-                    if kps:
-                        self._hook("amslam_keyframe", t=t, keypose=kps[-1])
-                frame = platform.capture()
-                if frame is not None:
-                    mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
-                    T_world_cam = slam.T_world_odom() @ frame.T_odom_cam
-                    mapping.integrate_global(frame.depth, frame.K, T_world_cam)
-                    if frame.stamp >= next_viewpoints or self.robot.viewpoints_stale:
-                        self.robot.viewpoints_stale = False
-                        next_viewpoints = frame.stamp + ex.viewpoint_period
-                        self.robot.set_viewpoints(mapping.viewpoints())
-                    if frame.stamp >= next_detect and detecting is None:
-                        next_detect = frame.stamp + detect_period
-                        if detect_pool is None:
-                            use_detections(frame, detector.detect(frame))
-                        else:
-                            detecting = (detect_pool.submit(detector.detect, frame), frame)
-                if detecting is not None and detecting[0].done():
-                    (done, frame_seen), detecting = detecting, None
-                    use_detections(frame_seen, done.result())
-                if t >= next_traj:
-                    next_traj = t + 1.0 / ex.trajectory_rate_hz
-                    self.rundir.pose("vio", t, odom.T_odom_body)
-                    self.rundir.pose("slam", t, slam.T_world_odom() @ odom.T_odom_body)
-                    self.vio.append((t, odom.T_odom_body.copy()))
-                    if truth is not None:
-                        self.rundir.pose("ground_truth", t, truth)
-                        self.truth.append((t, truth.copy()))
-                if t >= next_sample:
-                    next_sample = t + ex.uncertainty_period
-                    pose_tr, lm_tr = slam.uncertainty()
-                    self.samples["uncertainty"].append((t, self.robot.distance, pose_tr, lm_tr))
-                    self.samples["explored"].append((t, self.robot.distance, mapping.explored_volume()))
-                status = platform.status()
-                if status.crashed:
-                    self.rundir.event(t, "crash", where=status.crash_reason)
-                    return f"crashed: {status.crash_reason}"
-                tree.tick()
-                recorder.record(t)
-                self._hook("amslam_tick", t=t, tree=tree)
-                if bar is not None:
-                    bar.n = min(t, bar.total)
-                    bar.set_postfix_str(
-                        f"dist {self.robot.distance:5.1f} m, "
-                        f"explored {self.samples['explored'][-1][2]:6.1f} m³",
-                        refresh=False,
-                    )
-                    bar.update(0)
-                if root.status == Status.SUCCESS:
-                    outcome = tree.root.children[-1].feedback_message
-                    exploration = py_trees.blackboard.Blackboard.storage.get("/exploration", "")
-                    self.rundir.event(t, "mission_end", exploration=exploration, landing=outcome)
-                    return "completed"
-                if root.status == Status.FAILURE:
-                    failed = [n for n in root.iterate() if n.status == Status.FAILURE and not n.children]
-                    why = failed[-1].name + ": " + failed[-1].feedback_message if failed else "tree failed"
-                    self._safe_land()
-                    return f"failed: {why}"
-                if t > hard_stop:
-                    self._safe_land()
-                    limit = model.limits.max_time
-                    return f"failed: still flying {hard_stop:.0f} s after start (time limit {limit} s)"
-        finally:
-            if detect_pool is not None:
-                detect_pool.shutdown(wait=True, cancel_futures=True)
-            if bar is not None:
-                bar.close()
-            recorder.close()
-            measurements.close()
+        planning = PlanningService(
+            planner=shared["planner"],
+            slam=shared["slam"],
+            mapping=shared["mapping"],
+            exploration=ex,
+            camera=platform.camera,
+            threaded=not platform.simulated,
+            refresh_viewpoints=perception.refresh_viewpoints,
+            snapshot=perception.snapshot,
+        )
+        robot = Robot(
+            platform=platform,
+            mapping=shared["mapping"],
+            slam=shared["slam"],
+            spec=self.context.robot,
+            limits=model.limits,
+            setpoints=SetpointFilter(
+                shared["mapping"], self.context.robot.radius, ex.min_height, ex.min_headroom
+            ),
+            odometer=lambda: perception.distance,
+            home_world=odom0.T_odom_body[:3, 3].copy(),
+        )
+        events = EventSink(lambda name, **f: self.rundir.event(self._now(), name, **f), self._hook)
+        py_trees.blackboard.Blackboard.clear()
+        build = self.registry.tree(model.tree)
+        tree = py_trees.trees.BehaviourTree(
+            build(model, self.registry.behaviours, failsafe=not platform.simulated)
+        )
+        tree.setup(flight=robot, navigation=robot, planning=planning, events=events)
+        return Runtime(perception, planning, robot, tree, TreeRecorder(tree, self.rundir), measurements)
+
+    def _tree_verdict(self, t: float) -> str | None:
+        """The verdict once the tree has ended (None while it runs)."""
+        root = self.runtime.tree.root
+        if root.status == Status.SUCCESS:
+            outcome = root.children[-1].feedback_message
+            exploration = py_trees.blackboard.Blackboard.storage.get("/exploration", "")
+            self.rundir.event(t, "mission_end", exploration=exploration, landing=outcome)
+            return "completed"
+        if root.status == Status.FAILURE:
+            failed = [n for n in root.iterate() if n.status == Status.FAILURE and not n.children]
+            why = failed[-1].name + ": " + failed[-1].feedback_message if failed else "tree failed"
+            self._safe_land()
+            return f"failed: {why}"
+        return None
+
+    def _show_progress(self, bar, snapshot: Snapshot) -> None:
+        if bar is None:
+            return
+        bar.n = min(snapshot.t, bar.total)
+        bar.set_postfix_str(
+            f"dist {snapshot.distance:5.1f} m, explored {snapshot.explored_volume:6.1f} m³", refresh=False
+        )
+        bar.update(0)
 
     def _progress_bar(self, total: float):
         if not self.progress:
@@ -310,9 +290,11 @@ class Runner:
 
     def _finish(self, verdict: str) -> RunResult:
         metrics: dict[str, Any] = {"verdict": verdict}
+        summary = RunSummary(self.mission, self.rundir.path, verdict)
         try:
-            metrics = compute_metrics(self, verdict)
-            write_outputs(self, metrics)
+            summary = self._summary(verdict)
+            metrics = compute_metrics(summary)
+            write_outputs(summary, metrics, self.rundir)
         except Exception as exc:  # a broken summary must still leave the streams and the verdict
             metrics["outputs_error"] = f"{type(exc).__name__}: {exc}"
             self.rundir.event(
@@ -325,10 +307,9 @@ class Runner:
             run_dir=self.rundir.path,
             verdict=verdict,
             metrics=metrics,
-            trajectory=np.array([T[:3, 3] for _, T in getattr(self, "truth", [])]).reshape(-1, 3),
+            trajectory=summary.trajectory,
+            summary=summary,
         )
-        if getattr(self, "robot", None) is not None:
-            self.robot.close()
         for backend in reversed(list(self.backends.values())):
             try:
                 backend.close()
@@ -336,3 +317,59 @@ class Runner:
                 self.rundir.event(self._now(), "close_failed", backend=type(backend).__name__, error=str(exc))
         self.rundir.close()
         return RunResult(self.rundir.path, verdict, metrics)
+
+    def _summary(self, verdict: str) -> RunSummary:
+        """The run as the report and the observers see it (the threads have stopped)."""
+        summary = RunSummary(self.mission, self.rundir.path, verdict)
+        platform, slam, mapping = (self.backends.get(k) for k in ("platform", "slam", "mapping"))
+        if platform is None:
+            return summary
+        runtime = self.runtime
+        flown = {}
+        if runtime is not None:
+            perception = runtime.perception
+            flown = dict(
+                distance_m=perception.distance,
+                truth=tuple(perception.truth),
+                vio=tuple(perception.vio),
+                samples={k: tuple(v) for k, v in perception.samples.items()},
+                slc_log=tuple(runtime.planning.slc_log),
+                home_world=runtime.robot.home_world,
+            )
+        if slam is not None:
+            flown.update(
+                landmarks=tuple(slam.landmarks()),
+                keyposes=tuple(slam.keyposes()),
+                slam_optimises=type(slam).__name__ != "OdometrySlam",
+                final_T_world_odom=slam.T_world_odom(),
+            )
+        return dataclasses.replace(
+            summary,
+            duration_s=platform.time(),
+            world=platform.world_summary(),
+            status=platform.status(),
+            final_truth=platform.ground_truth(),
+            final_vio=platform.odometry().T_odom_body,
+            robot_radius=self.context.robot.radius if self.context is not None else None,
+            mapping=mapping,
+            **flown,
+        )
+
+
+@dataclass
+class Runtime:
+    """The services of one flight, built by :meth:`Runner._start_runtime`, all on the control thread."""
+
+    perception: Perception
+    planning: PlanningService
+    robot: Robot
+    tree: py_trees.trees.BehaviourTree
+    recorder: TreeRecorder
+    measurements: MeasurementLog
+
+    def close(self) -> None:
+        """Stop the detector and planner threads, close the streams."""
+        self.perception.close()
+        self.planning.close()
+        self.recorder.close()
+        self.measurements.close()

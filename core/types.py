@@ -16,11 +16,17 @@ Yaw is in radians in (-π, π]. Units are SI.
 
 from __future__ import annotations
 
+from collections.abc import Mapping as MappingOf
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
-from typing import Literal
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from amslam.interfaces import Mapping
+    from amslam.mission import Mission
 
 #: Fixed rotation from the camera optical frame to the body frame (camera looks along body +x).
 R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -355,3 +361,59 @@ class Failsafe:
     reason: str
     action: FailsafeAction = "land"
     t: float = 0.0
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What a finished run hands to its report and to ``amslam_run_end`` observers.
+
+    Built once, on every exit path, after the threads have stopped. Figures of the vehicle
+    (``status``, the final poses) are None when the run failed before the platform started.
+
+    Attributes:
+        mission: the validated mission as flown (name, seed, backend choices).
+        run_dir: the run folder.
+        verdict: ``completed``, ``crashed: …``, ``aborted`` or ``failed: …``.
+        duration_s: platform time at the end (simulated or wall-clock seconds).
+        distance_m: distance travelled by VIO.
+        truth, vio: ``(t, T_odom_body)`` at the trajectory rate (truth: simulation only).
+        samples: ``"uncertainty"``: ``(t, distance, mean pose trace, mean landmark trace)``;
+            ``"explored"``: ``(t, distance, explored m³)``.
+        slc_log: ``(t, distance, result)`` of every loop-closure attempt.
+        landmarks, keyposes: the SLAM backend's final semantic map and key poses.
+        slam_optimises: whether the SLAM backend optimises key poses (its ``slam.tum`` is
+            rewritten from them), False for the odometry baseline.
+        world: ground truth of a simulated world.
+        status: the vehicle's last status (closest approach, crash).
+        final_truth, final_vio, final_T_world_odom: the last true pose, VIO pose and SLAM correction.
+        robot_radius: the robot's radius, m.
+        home_world: the take-off point in the world frame.
+        mapping: the mapping backend, for the explored share and the map files; read it only
+            after the flight, as the report does.
+    """
+
+    mission: Mission
+    run_dir: Path
+    verdict: str
+    duration_s: float | None = None
+    distance_m: float = 0.0
+    truth: tuple[tuple[float, np.ndarray], ...] = ()
+    vio: tuple[tuple[float, np.ndarray], ...] = ()
+    samples: MappingOf[str, tuple] = field(default_factory=lambda: {"uncertainty": (), "explored": ()})
+    slc_log: tuple[tuple[float, float, LoopClosureResult], ...] = ()
+    landmarks: tuple[Landmark, ...] | None = None
+    keyposes: tuple[KeyPose, ...] = ()
+    slam_optimises: bool = False
+    world: WorldSummary | None = None
+    status: VehicleStatus | None = None
+    final_truth: np.ndarray | None = None
+    final_vio: np.ndarray | None = None
+    final_T_world_odom: np.ndarray | None = None
+    robot_radius: float | None = None
+    home_world: np.ndarray | None = None
+    mapping: Mapping | None = None
+
+    @property
+    def trajectory(self) -> np.ndarray:
+        """True positions (N×3) along the flight: what ``amslam_run_end`` observers always got."""
+        return np.array([T[:3, 3] for _, T in self.truth]).reshape(-1, 3)

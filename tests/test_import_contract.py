@@ -12,16 +12,9 @@ from tests.import_contract import allowed, violations
 ROOT = Path(__file__).resolve().parents[1]
 
 
-#: violations being removed (a ratchet: a new one fails, and so does one removed but still listed).
-#: The runner builds the mission tree itself until trees come through a hook (issue #16, runtime).
-KNOWN = {("core/runner.py", "amslam.trees.flight")}
-
-
 def test_the_sources_keep_the_layer_direction():
     found = violations(ROOT)
-    new = [v for v in found if (v.file.as_posix(), v.imported) not in KNOWN]
-    assert not new, "imports against the layer direction:\n" + "\n".join(map(str, new))
-    assert {(v.file.as_posix(), v.imported) for v in found} == KNOWN, "a known violation is gone: unlist it"
+    assert not found, "imports against the layer direction:\n" + "\n".join(map(str, found))
 
 
 @pytest.fixture

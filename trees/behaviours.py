@@ -1,18 +1,21 @@
 """The stock behaviour-tree leaves of an exploration mission.
 
-Each leaf is thin: its constructor takes configuration only, ``setup(robot=...)`` receives the
-:class:`amslam.robot.Robot` facade, ``initialise`` starts work, ``update`` polls and returns quickly,
-``terminate`` cancels. Blackboard keys are registered with their access so each leaf's inputs and
-outputs are explicit:
+Each leaf is thin: its constructor takes configuration only; ``setup(**services)`` hands it the
+runtime services it names in ``uses`` (narrow protocols, see :mod:`amslam.robot`: ``flight``,
+``navigation``, ``planning``, ``events``); ``initialise`` starts work, ``update`` polls and
+returns quickly, ``terminate`` cancels. Retries and limits are py_trees decorators around the
+leaves (``Retry`` around :class:`Replan`, the :class:`WithinLimits` eternal guard around the
+exploration loop), not counters inside them. Blackboard keys are registered with their access
+so each leaf's inputs and outputs are explicit:
 
 ==================  ========================================================================
 key                 meaning
 ==================  ========================================================================
 ``/tour``           list[TourItem] — the refined tour of the latest plan (world frame)
-``/goal``           TourItem | None — the stop being flown to
+``/goal``           TourItem | None — the stop being flown to (None: nothing left to explore)
 ``/tour_time``      float — when ``/tour`` was planned
+``/cruise_z``       float — world height the take-off settled at; the return-home height
 ``/exploration``    str — "exploring", or why exploration ended
-``/replan_failures`` int — consecutive planner failures
 ``/unreachable``    int — consecutive unreachable goals
 ``/slc``            dict — the latest loop-closure attempt
 ==================  ========================================================================
@@ -25,62 +28,108 @@ import dataclasses
 import numpy as np
 import py_trees
 from py_trees.common import Access, Status
+from py_trees.decorators import EternalGuard
 
 import amslam
 from amslam.geometry import wrap_angle
+from amslam.mission import ExplorationSection
+from amslam.robot import Events, Exploring, Flight, Navigation, PlanHandle
 from amslam.types import TourItem, TourItemKind
+
+#: the exploration section's defaults, for leaves built without a mission (tests, other trees)
+DEFAULTS = ExplorationSection()
+
+
+def _require(behaviour: py_trees.behaviour.Behaviour, uses: tuple[str, ...], services: dict) -> None:
+    """Give ``behaviour`` the services it uses, or refuse naming the missing ones."""
+    missing = [key for key in uses if services.get(key) is None]
+    if missing:
+        wanted = ", ".join(f"{key}=..." for key in missing)
+        raise KeyError(
+            f"behaviour {behaviour.name!r} needs setup({wanted}): the runtime's services (see amslam.robot)"
+        )
+    for key in uses:
+        setattr(behaviour, key, services[key])
 
 
 class RobotBehaviour(py_trees.behaviour.Behaviour):
-    """Base: receives the robot in ``setup`` and refuses to run without it."""
+    """Base: receives the services named in ``uses`` in ``setup`` and refuses to run without them."""
+
+    #: the runtime services this leaf calls (keys of ``setup``)
+    uses: tuple[str, ...] = ("flight", "events")
+    flight: Flight
+    navigation: Navigation
+    planning: Exploring
+    events: Events
 
     def __init__(self, name: str):
         super().__init__(name)
-        self.robot = None
         self.bb = self.attach_blackboard_client(name=name)
 
     def setup(self, **kwargs) -> None:
-        robot = kwargs.get("robot")
-        if robot is None:
-            raise KeyError(f"behaviour {self.name!r} needs setup(robot=...): the runner's Robot facade")
-        self.robot = robot
+        _require(self, self.uses, kwargs)
+
+
+def cruise_height(bb: py_trees.blackboard.Client, flight: Flight) -> float:
+    """The height take-off settled at, or the planned one before (or without) a take-off."""
+    return (
+        bb.get("/cruise_z") if bb.exists("/cruise_z") else float(flight.home_world[2] + flight.spec.altitude)
+    )
 
 
 class TakeOff(RobotBehaviour):
     """Arm and climb to the mission altitude (idempotent); SUCCESS once the climb has settled."""
 
+    uses = ("flight",)
+
+    def __init__(self, name: str = "TakeOff"):
+        super().__init__(name)
+        self.bb.register_key("/cruise_z", access=Access.WRITE)
+
     def initialise(self) -> None:
-        self.robot.takeoff()
-        self.last_z = self.robot.odometry().T_odom_body[2, 3]
+        self.flight.takeoff()
+        self.last_z = self.flight.odometry().T_odom_body[2, 3]
         self.feedback_message = "climbing"
 
     def update(self) -> Status:
-        z = self.robot.odometry().T_odom_body[2, 3]
+        z = self.flight.odometry().T_odom_body[2, 3]
         rising, self.last_z = z - self.last_z, z
-        climbed = z - self.robot.home_world[2]
+        climbed = z - self.flight.home_world[2]
         # The platform owns the meaning of "altitude" (PX4: above home); settle on its answer.
         # "Settled": rising less than 1 cm per tick — a real hover is never still to the millimetre.
-        if self.robot.airborne() and climbed > 0.5 * self.robot.spec.altitude and abs(rising) < 0.01:
-            self.robot.cruise_z = z
+        if self.flight.airborne() and climbed > 0.5 * self.flight.spec.altitude and abs(rising) < 0.01:
+            self.bb.set("/cruise_z", float(z))
             self.feedback_message = f"at {z:.2f} m"
             return Status.SUCCESS
         return Status.RUNNING
 
 
-class WithinLimits(RobotBehaviour):
-    """SUCCESS while mission time and distance remain; FAILURE (with the reason) when exhausted."""
+class WithinLimits(EternalGuard):
+    """Tick the child while mission time and distance remain; FAILURE (with the reason) once not.
 
-    def __init__(self, name: str = "WithinLimits"):
-        super().__init__(name)
-        self.bb.register_key("/exploration", access=Access.WRITE)
+    An eternal guard: the limits are checked before every tick of the child, and a child cut
+    short is stopped (a flight leaf's ``terminate`` holds position).
+    """
 
-    def update(self) -> Status:
-        reason = self.robot.limit_reached()
+    uses = ("flight",)
+    flight: Flight
+
+    def __init__(self, name: str = "WithinLimits", child: py_trees.behaviour.Behaviour | None = None):
+        if child is None:
+            raise ValueError(f"{name}: WithinLimits guards a child: WithinLimits(name, child)")
+        super().__init__(name=name, child=child, condition=self._within_limits)
+        self.blackboard.register_key("/exploration", access=Access.WRITE)
+
+    def setup(self, **kwargs) -> None:
+        _require(self, self.uses, kwargs)
+
+    def _within_limits(self) -> bool:
+        reason = self.flight.limit_reached()
         if reason:
             self.feedback_message = reason
-            self.bb.set("/exploration", f"stopped: {reason}")
-            return Status.FAILURE
-        return Status.SUCCESS
+            self.blackboard.set("/exploration", f"stopped: {reason}")
+            return False
+        return True
 
 
 class Replan(RobotBehaviour):
@@ -90,21 +139,32 @@ class Replan(RobotBehaviour):
     again when the tour is used up, when ``replan_fraction`` of it has been executed (receding
     horizon), when ``frontier_change`` of the viewpoints changed since it was planned, or when it
     is older than ``replan_period``; otherwise the next stop becomes ``/goal`` at once. Planning
-    runs off the control loop (see :meth:`Robot.plan_async`); the robot holds until the tour is
-    ready. A planner exception is counted, not raised: after ``max_replan_failures`` consecutive
-    failures exploration gives up, so a broken planner cannot livelock the robot. FAILURE also when
-    nothing reachable is left to explore.
+    runs off the control loop on a real vehicle (:meth:`PlanningService.plan_async`); the robot
+    holds until the tour is ready. A planner exception is FAILURE (the ``Retry`` decorator around
+    this leaf asks again, up to ``max_replan_failures`` times in a row). When nothing reachable is
+    left to explore, ``/goal`` becomes None and ``/exploration`` says so.
     """
 
-    def __init__(self, name: str = "Replan"):
+    uses = ("flight", "planning", "events")
+
+    def __init__(
+        self,
+        name: str = "Replan",
+        replan_fraction: float = DEFAULTS.replan_fraction,
+        replan_period: float = DEFAULTS.replan_period,
+        frontier_change: float = DEFAULTS.frontier_change,
+    ):
         super().__init__(name)
-        for key in ("/tour", "/goal", "/tour_time", "/tour_planned", "/exploration", "/replan_failures"):
+        self.replan_fraction = replan_fraction
+        self.replan_period = replan_period
+        self.frontier_change = frontier_change
+        for key in ("/tour", "/goal", "/tour_time", "/tour_planned", "/exploration"):
             self.bb.register_key(key, access=Access.WRITE)
-        self.future = None
+        self.bb.register_key("/cruise_z", access=Access.READ)
+        self.job: PlanHandle | None = None
 
     def setup(self, **kwargs) -> None:
         super().setup(**kwargs)
-        self.bb.set("/replan_failures", 0)
         self.bb.set("/exploration", "exploring")
         self.bb.set("/tour", [])
         self.bb.set("/goal", None)
@@ -112,16 +172,15 @@ class Replan(RobotBehaviour):
         self.bb.set("/tour_planned", 0)
 
     def _replan_reason(self, tour: list[TourItem]) -> str | None:
-        ex = self.robot.exploration
         if not tour:
             return "tour done" if self.bb.get("/tour_planned") else "no tour yet"
         planned = max(self.bb.get("/tour_planned"), 1)
-        if (planned - len(tour)) / planned >= ex.replan_fraction:
+        if (planned - len(tour)) / planned >= self.replan_fraction:
             return "receding horizon"
-        if self.robot.time() - self.bb.get("/tour_time") > ex.replan_period:
+        if self.flight.time() - self.bb.get("/tour_time") > self.replan_period:
             return "tour stale"
         # A planner of views of known objects (PAMS) does not care how the frontiers moved.
-        if self.robot.plans_frontiers and self.robot.frontier_change() >= ex.frontier_change:
+        if self.planning.plans_frontiers and self.planning.frontier_change() >= self.frontier_change:
             return "frontiers changed"
         return None
 
@@ -132,65 +191,78 @@ class Replan(RobotBehaviour):
             tour = tour[1:]  # the stop the last iteration handled
             self.bb.set("/tour", tour)
         self.reason = self._replan_reason(tour)
-        self.future = self.robot.plan_async() if self.reason else None
+        self.job = self.planning.plan_async(cruise_height(self.bb, self.flight)) if self.reason else None
 
     def update(self) -> Status:
-        if self.future is None:
+        if self.job is None:
             tour = self.bb.get("/tour")
             self.bb.set("/goal", tour[0])
             self.feedback_message = f"following the tour: {len(tour)} stops left"
             return Status.SUCCESS
-        if not self.future.done():
-            self.robot.hold()
+        if not self.job.done():
+            self.flight.hold()
             self.feedback_message = f"planning ({self.reason})"
             return Status.RUNNING
         try:
-            tour = self.future.result()
-        except Exception as exc:  # recovery: count, report, hold position, retry
-            failures = self.bb.get("/replan_failures") + 1
-            self.bb.set("/replan_failures", failures)
-            self.robot.emit("planner_error", error=f"{type(exc).__name__}: {exc}", failures=failures)
-            self.robot.hold()
-            if failures >= self.robot.exploration.max_replan_failures:
-                self.bb.set("/exploration", f"stopped: planner failed {failures} times ({exc})")
-                self.feedback_message = "planner keeps failing"
-                return Status.FAILURE
-            self.feedback_message = f"planner failed ({failures})"
-            self.future = self.robot.plan_async()
-            return Status.RUNNING
-        self.bb.set("/replan_failures", 0)
+            tour = self.job.result()
+        except Exception as exc:  # the Retry decorator around this leaf asks again
+            self.events.emit("planner_error", error=f"{type(exc).__name__}: {exc}")
+            self.flight.hold()
+            self.bb.set("/exploration", f"stopped: the planner failed ({type(exc).__name__}: {exc})")
+            self.feedback_message = f"planner failed: {exc}"
+            return Status.FAILURE
+        self.bb.set("/exploration", "exploring")
         reachable = [item for item in tour if np.all(np.isfinite(item.position))]
         if not reachable:
             self.bb.set("/exploration", "complete: no reachable frontier left")
             self.bb.set("/tour", [])
             self.bb.set("/goal", None)
             self.feedback_message = "nothing left to explore"
-            return Status.FAILURE
-        self.bb.set("/tour", reachable)
-        self.bb.set("/goal", reachable[0])
-        self.bb.set("/tour_time", self.robot.time())
-        self.bb.set("/tour_planned", len(reachable))
-        self.robot.emit(
+            return Status.SUCCESS
+        return self._adopt(reachable)
+
+    def _adopt(self, tour: list[TourItem]) -> Status:
+        self.bb.set("/tour", tour)
+        self.bb.set("/goal", tour[0])
+        self.bb.set("/tour_time", self.flight.time())
+        self.bb.set("/tour_planned", len(tour))
+        self.events.emit(
             "replan",
             reason=self.reason,
-            tour=[[item.kind.value, *np.round(item.position, 2).tolist()] for item in reachable],
-            viewpoints=len(self.robot.viewpoints),
+            tour=[[item.kind.value, *np.round(item.position, 2).tolist()] for item in tour],
+            viewpoints=self.planning.viewpoint_count,
         )
-        self.robot.plugin_hook("amslam_replan", t=self.robot.time(), tour=reachable, reason=self.reason)
-        self.feedback_message = f"{len(reachable)} stops, next {reachable[0].kind.value}"
+        self.events.plugin_hook("amslam_replan", t=self.flight.time(), tour=tour, reason=self.reason)
+        self.feedback_message = f"{len(tour)} stops, next {tour[0].kind.value}"
         return Status.SUCCESS
 
     def terminate(self, new_status: Status) -> None:
-        if new_status == Status.INVALID and self.future is not None:
-            self.future.cancel()
+        if new_status == Status.INVALID and self.job is not None:
+            self.job.cancel()
 
 
-class IsGoalKind(RobotBehaviour):
+class HasGoal(py_trees.behaviour.Behaviour):
+    """SUCCESS while ``/goal`` holds a stop; FAILURE once the planner left none (exploration done)."""
+
+    def __init__(self, name: str = "HasGoal"):
+        super().__init__(name)
+        self.bb = self.attach_blackboard_client(name=name)
+        self.bb.register_key("/goal", access=Access.READ)
+
+    def update(self) -> Status:
+        if self.bb.get("/goal") is None:
+            self.feedback_message = "nothing left to explore"
+            return Status.FAILURE
+        return Status.SUCCESS
+
+
+class IsGoalKind(py_trees.behaviour.Behaviour):
     """SUCCESS when the current goal is of the given kind (explore or SLC)."""
 
     def __init__(self, name: str, kind: TourItemKind):
         super().__init__(name)
         self.kind = kind
+        self.bb = self.attach_blackboard_client(name=name)
         self.bb.register_key("/goal", access=Access.READ)
 
     def update(self) -> Status:
@@ -201,15 +273,30 @@ class IsGoalKind(RobotBehaviour):
 class GoTo(RobotBehaviour):
     """Fly to the goal along a path through known free space, facing the direction of travel.
 
-    SUCCESS on arrival (heading turned to the goal's yaw), or early when an exploration goal's
-    frontier was seen on the way or the tour is older than the replan period; FAILURE when no
-    path exists or the local map shows the way blocked twice (the goal is marked unreachable).
+    SUCCESS on arrival (heading turned to the goal's yaw), or, with ``early_exit``, early when an
+    exploration goal's frontier was seen on the way or the tour is older than ``replan_period``;
+    FAILURE when no path exists, the local map shows the way blocked three times, or no progress
+    was made for ``NO_PROGRESS`` seconds (the goal is marked unreachable). The no-progress give-up
+    stays inside the leaf: progress is measured along its own path, which no decorator sees.
     """
 
-    def __init__(self, name: str, goal_key: str = "/goal", early_exit: bool = True):
+    uses = ("flight", "navigation", "planning", "events")
+
+    def __init__(
+        self,
+        name: str,
+        goal_key: str = "/goal",
+        early_exit: bool = True,
+        goal_tolerance: float = DEFAULTS.goal_tolerance,
+        yaw_tolerance: float = DEFAULTS.yaw_tolerance,
+        replan_period: float = DEFAULTS.replan_period,
+    ):
         super().__init__(name)
         self.goal_key = goal_key
         self.early_exit = early_exit
+        self.goal_tolerance = goal_tolerance
+        self.yaw_tolerance = yaw_tolerance
+        self.replan_period = replan_period
         self.bb.register_key(goal_key, access=Access.READ)
         self.bb.register_key("/tour_time", access=Access.READ)
         self.bb.register_key("/unreachable", access=Access.WRITE)
@@ -223,11 +310,11 @@ class GoTo(RobotBehaviour):
 
     def initialise(self) -> None:
         self.goal: TourItem = self.bb.get(self.goal_key)
-        self.path = self.robot.plan_path(self.goal.position)
+        self.path = self.navigation.plan_path(self.goal.position)
         self.index = 1 if self.path is not None and len(self.path) > 1 else 0
         self.blocked = 0
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
-        self.progress = (self.index, np.inf, self.robot.time())  # (waypoint, distance, since)
+        self.progress = (self.index, np.inf, self.flight.time())  # (waypoint, distance, since)
 
     #: how far ahead along the path the fresh local map is checked, m
     LOOKAHEAD = 1.5
@@ -241,19 +328,19 @@ class GoTo(RobotBehaviour):
     def _done(self, why: str) -> Status:
         self.bb.set("/unreachable", 0)
         self.feedback_message = why
-        self.robot.emit(
+        self.events.emit(
             "goal_done", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
         )
         return Status.SUCCESS
 
     def _fail(self, why: str) -> Status:
-        self.robot.mark_unreachable(self.goal.position)
+        self.planning.mark_unreachable(self.goal.position)
         count = self.bb.get("/unreachable") + 1
         self.bb.set("/unreachable", count)
-        self.robot.emit(
+        self.events.emit(
             "unreachable", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
         )
-        self.robot.hold()
+        self.flight.hold()
         self.feedback_message = why
         return Status.FAILURE
 
@@ -277,32 +364,34 @@ class GoTo(RobotBehaviour):
 
     def _stalled(self, here: np.ndarray) -> bool:
         """No waypoint passed and no 0.1 m gained on the current one for NO_PROGRESS seconds."""
-        now = self.robot.time()
+        now = self.flight.time()
         dist = float(np.linalg.norm(self.path[self.index] - here))
         if self.index > self.progress[0] or dist < self.progress[1] - 0.1:
             self.progress = (self.index, dist, now)
         return now - self.progress[2] > self.NO_PROGRESS
 
+    def _frontier_gone_or_stale(self) -> str | None:
+        """Why an exploration goal is not worth finishing (early exit), or None."""
+        if not (self.early_exit and self.goal.kind == TourItemKind.EXPLORE and self.planning.plans_frontiers):
+            return None
+        # Clusters are re-made as the map grows, so their ids change; the goal is still
+        # worth reaching while some viewpoint remains near it.
+        remaining = self.planning.candidate_viewpoints()
+        if not any(np.linalg.norm(vp.position - self.goal.position) < self.SAME_GOAL for vp in remaining):
+            return "frontier seen on the way"
+        if self.flight.time() - self.bb.get("/tour_time") > self.replan_period:
+            return "tour stale: replan"
+        return None
+
     def update(self) -> Status:
         if self.path is None:
             return self._fail("no path through known free space")
-        here = self.robot.position_world()
-        exploration = self.robot.exploration
-        if self.goal_key != "/home" and (reason := self.robot.limit_reached()):
-            self.robot.hold()
-            self.feedback_message = f"stopped: {reason}"
-            return Status.FAILURE
+        here = self.flight.position_world()
         if self._stalled(here):
             # A goal the guards or the controller cannot reach must not hold the robot forever.
             return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
-        if self.early_exit and self.goal.kind == TourItemKind.EXPLORE and self.robot.plans_frontiers:
-            # Clusters are re-made as the map grows, so their ids change; the goal is still
-            # worth reaching while some viewpoint remains near it.
-            remaining = self.robot.candidate_viewpoints()
-            if not any(np.linalg.norm(vp.position - self.goal.position) < self.SAME_GOAL for vp in remaining):
-                return self._done("frontier seen on the way")
-            if self.robot.time() - self.bb.get("/tour_time") > exploration.replan_period:
-                return self._done("tour stale: replan")
+        if why := self._frontier_gone_or_stale():
+            return self._done(why)
         # Intermediate waypoints are passed tightly: cutting a corner near a door frame is how
         # a drone hits it.
         while self.index < len(self.path) - 1 and (
@@ -310,68 +399,76 @@ class GoTo(RobotBehaviour):
         ):
             self.index += 1
         target = self.path[self.index]
+        if self.index == len(self.path) - 1 and (
+            np.linalg.norm(target - here) < self.goal_tolerance or self._held_off(here)
+        ):
+            return self._arrive(target)
+        return self._fly(here, target)
+
+    def _arrive(self, target: np.ndarray) -> Status:
+        """At the goal: turn to its heading, then SUCCESS."""
+        err = abs(wrap_angle(self.goal.yaw - self.flight.yaw_world()))
+        self.flight.send_setpoint_world(target, self.goal.yaw)
+        if err < self.yaw_tolerance:
+            if self.goal.kind == TourItemKind.EXPLORE:
+                self.planning.mark_visited(self.goal.position)
+            return self._done("arrived")
+        self.feedback_message = "turning to the viewpoint heading"
+        return Status.RUNNING
+
+    def _fly(self, here: np.ndarray, target: np.ndarray) -> Status:
+        """Towards the current waypoint, facing it, while the local map shows the way clear."""
         to_target = target - here
-        last_leg = self.index == len(self.path) - 1
-        arrived = last_leg and (
-            np.linalg.norm(to_target) < exploration.goal_tolerance or self._held_off(here)
-        )
-        if arrived:
-            err = abs(wrap_angle(self.goal.yaw - self.robot.yaw_world()))
-            self.robot.send_setpoint_world(target, self.goal.yaw)
-            if err < exploration.yaw_tolerance:
-                if self.goal.kind == TourItemKind.EXPLORE:
-                    self.robot.mark_visited(self.goal.position)
-                return self._done("arrived")
-            self.feedback_message = "turning to the viewpoint heading"
-            return Status.RUNNING
         length = max(float(np.linalg.norm(to_target)), 1e-9)
         ahead = here + to_target * min(1.0, self.LOOKAHEAD / length)
         # Skip the first stretch: what is already within it cannot be avoided by stopping, and a
         # robot hovering near furniture must still be able to fly away from it.
         near = here + to_target * min(1.0, self.SKIP_NEAR / length)
-        if length > self.SKIP_NEAR and not self.robot.segment_clear_local(near, ahead):
+        if length > self.SKIP_NEAR and not self.navigation.segment_clear_local(near, ahead):
             self.blocked += 1
             if self.blocked > 2:
                 return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")
-            self.path = self.robot.plan_path(self.goal.position)
+            self.path = self.navigation.plan_path(self.goal.position)
             self.index = 1 if self.path is not None and len(self.path) > 1 else 0
-            self.progress = (self.index, np.inf, self.robot.time())
+            self.progress = (self.index, np.inf, self.flight.time())
             self.feedback_message = "blocked: new path"
             return Status.RUNNING if self.path is not None else self._fail("blocked, no other path")
         horizontal = np.linalg.norm(to_target[:2])
         heading = float(np.arctan2(to_target[1], to_target[0])) if horizontal > 0.3 else self.goal.yaw
-        yaw_err = abs(wrap_angle(heading - self.robot.yaw_world()))
+        yaw_err = abs(wrap_angle(heading - self.flight.yaw_world()))
         # Turn before moving when the way ahead is outside the camera's view: never fly blind.
-        if yaw_err > self.robot.platform.camera.hfov / 3:
-            self.robot.send_setpoint_world(here, heading)
+        if yaw_err > self.flight.camera.hfov / 3:
+            self.flight.send_setpoint_world(here, heading)
             self.feedback_message = "turning towards the path"
         else:
-            self.sent = (self.index, self.robot.send_setpoint_world(target, heading))
+            self.sent = (self.index, self.flight.send_setpoint_world(target, heading))
             self.feedback_message = f"waypoint {self.index}/{len(self.path) - 1}"
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if new_status == Status.INVALID and self.robot is not None:
-            self.robot.hold()
+        if new_status == Status.INVALID and getattr(self, "flight", None) is not None:
+            self.flight.hold()
 
 
 class Panorama(RobotBehaviour):
-    """Yaw a full circle in place in ``steps`` headings, collecting detections on the way."""
+    """Yaw a full circle in place in ``steps`` headings; the detector sees around meanwhile."""
 
-    def __init__(self, name: str = "Panorama", steps: int = 8):
+    uses = ("flight",)
+
+    def __init__(self, name: str = "Panorama", steps: int = 8, yaw_tolerance: float = DEFAULTS.yaw_tolerance):
         super().__init__(name)
         self.steps = steps
+        self.yaw_tolerance = yaw_tolerance
 
     def initialise(self) -> None:
-        self.center = self.robot.position_world().copy()
-        self.start_yaw = self.robot.yaw_world()
+        self.center = self.flight.position_world().copy()
+        self.start_yaw = self.flight.yaw_world()
         self.step = 1
-        self.robot.recent_detections.clear()
 
     def update(self) -> Status:
         target = wrap_angle(self.start_yaw + 2 * np.pi * self.step / self.steps)
-        self.robot.send_setpoint_world(self.center, target)
-        if abs(wrap_angle(target - self.robot.yaw_world())) < self.robot.exploration.yaw_tolerance:
+        self.flight.send_setpoint_world(self.center, target)
+        if abs(wrap_angle(target - self.flight.yaw_world())) < self.yaw_tolerance:
             self.step += 1
             if self.step > self.steps:
                 self.feedback_message = "full circle"
@@ -383,31 +480,41 @@ class Panorama(RobotBehaviour):
 class AttemptLoopClosure(RobotBehaviour):
     """Ask SLAM for a semantic loop closure with what the panorama saw; always SUCCESS."""
 
+    uses = ("flight", "planning", "events")
+
     def __init__(self, name: str = "AttemptSLC"):
         super().__init__(name)
         self.bb.register_key("/slc", access=Access.WRITE)
         self.bb.register_key("/goal", access=Access.READ)
 
     def update(self) -> Status:
-        result = self.robot.attempt_loop_closure(self.bb.get("/goal"))
+        result = self.planning.attempt_loop_closure(self.bb.get("/goal"))
         self.bb.set("/slc", {"accepted": result.accepted, "reason": result.reason, "matched": result.matched})
-        self.robot.emit("loop_closure", **dataclasses.asdict(result), distance=self.robot.distance)
-        self.robot.plugin_hook("amslam_loop_closure", t=self.robot.time(), result=result)
+        self.events.emit("loop_closure", **dataclasses.asdict(result), distance=self.flight.distance())
+        self.events.plugin_hook("amslam_loop_closure", t=self.flight.time(), result=result)
         self.feedback_message = ("accepted: " if result.accepted else "rejected: ") + result.reason
         return Status.SUCCESS
 
 
 class ForgetGoal(RobotBehaviour):
-    """Recovery after an unreachable goal: SUCCESS (so the loop replans) until too many in a row."""
+    """Recovery after an unreachable goal: SUCCESS (so the loop replans) until ``max_unreachable``
+    goals in a row were unreachable, then FAILURE (exploration gives up).
 
-    def __init__(self, name: str = "SkipUnreachable"):
+    The count spans loop iterations (GoTo raises it, an arrival resets it), which no py_trees
+    decorator around one leaf can see, so it lives on the blackboard as ``/unreachable``.
+    """
+
+    uses = ()
+
+    def __init__(self, name: str = "SkipUnreachable", max_unreachable: int = DEFAULTS.max_unreachable):
         super().__init__(name)
+        self.max_unreachable = max_unreachable
         self.bb.register_key("/unreachable", access=Access.READ)
         self.bb.register_key("/exploration", access=Access.WRITE)
 
     def update(self) -> Status:
         count = self.bb.get("/unreachable")
-        if count >= self.robot.exploration.max_unreachable:
+        if count >= self.max_unreachable:
             self.bb.set("/exploration", f"stopped: {count} goals in a row unreachable")
             self.feedback_message = "too many unreachable goals"
             return Status.FAILURE
@@ -416,26 +523,34 @@ class ForgetGoal(RobotBehaviour):
 
 
 class SetHome(RobotBehaviour):
-    """Write the return-home goal: the take-off point at the mission altitude."""
+    """Write the return-home goal: the take-off point at the height the take-off settled at."""
+
+    uses = ("flight",)
 
     def __init__(self, name: str = "SetHomeGoal"):
         super().__init__(name)
         self.bb.register_key("/home", access=Access.WRITE)
+        self.bb.register_key("/cruise_z", access=Access.READ)
 
     def update(self) -> Status:
-        home = np.array([*self.robot.home_world[:2], self.robot.cruise_z])
-        self.bb.set("/home", TourItem(TourItemKind.EXPLORE, home, self.robot.yaw_world(), 0.0, -1))
+        home = np.array([*self.flight.home_world[:2], cruise_height(self.bb, self.flight)])
+        self.bb.set("/home", TourItem(TourItemKind.EXPLORE, home, self.flight.yaw_world(), 0.0, -1))
         return Status.SUCCESS
 
 
 class Land(RobotBehaviour):
     """Descend and disarm where the robot is (idempotent)."""
 
+    uses = ("flight",)
+
+    def __init__(self, name: str = "Land"):
+        super().__init__(name)
+
     def initialise(self) -> None:
-        self.robot.land()
+        self.flight.land()
 
     def update(self) -> Status:
-        if self.robot.airborne():
+        if self.flight.airborne():
             self.feedback_message = "descending"
             return Status.RUNNING
         self.feedback_message = "landed"
@@ -454,4 +569,5 @@ def amslam_behaviours():
         "SkipUnreachable": ForgetGoal,
         "SetHomeGoal": SetHome,
         "Land": Land,
+        "HasGoal": HasGoal,
     }

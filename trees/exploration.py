@@ -9,20 +9,23 @@ behaviours the plugins provide (``amslam_behaviours``), so a plugin can replace 
     ├── TakeOff
     ├── LookAround (panorama at the start, optional)
     ├── ExploreUntilDone (failure is success)
-    │   └── ExploreLoop (repeat until failure)
-    │       └── ExploreStep (sequence)
-    │           ├── WithinLimits
-    │           ├── Replan (recovery guard inside: counts planner failures)
-    │           └── NextStop (selector)
-    │               ├── InsertSLC (sequence, when SLC is on): IsSLC → GoToSLC → Panorama → AttemptSLC
-    │               ├── Explore (sequence): IsExplore → GoToViewpoint
-    │               └── SkipUnreachable
+    │   └── WithinLimits (eternal guard: time and distance, checked every tick)
+    │       └── ExploreLoop (repeat until failure)
+    │           └── ExploreStep (sequence)
+    │               ├── RetryPlanning (retry: max_replan_failures planner failures in a row)
+    │               │   └── Replan
+    │               ├── HasGoal (FAILURE once nothing reachable is left)
+    │               └── NextStop (selector)
+    │                   ├── InsertSLC (sequence, when SLC is on): IsSLC → GoToSLC → Panorama → AttemptSLC
+    │                   ├── Explore (sequence): IsExplore → GoToViewpoint
+    │                   └── SkipUnreachable (FAILURE after max_unreachable in a row)
     ├── ReturnHome (failure is success): SetHomeGoal → GoHome
     │   [→ HomePanorama → HomeSLC, when SLC is on]
     └── Land
 
 With SLC on, the robot closes one last loop where it started: home is where the oldest landmarks
-are, so a panorama there ties the end of the trajectory to its beginning before landing.
+are, so a panorama there ties the end of the trajectory to its beginning before landing. The tree
+registers as ``exploration`` (``amslam_mission_trees``), under the failsafe guard on a real vehicle.
 """
 
 from __future__ import annotations
@@ -31,29 +34,33 @@ from collections.abc import Callable
 
 import py_trees
 from py_trees.composites import Selector, Sequence
-from py_trees.decorators import FailureIsSuccess, Repeat
+from py_trees.decorators import FailureIsSuccess, Repeat, Retry
 
-from amslam.mission import ExplorationSection
+import amslam
+from amslam.mission import MissionModel
+from amslam.trees.behaviours import IsGoalKind
+from amslam.trees.flight import with_failsafe_guard
 from amslam.types import TourItemKind
 
+Behaviours = dict[str, Callable[..., py_trees.behaviour.Behaviour]]
 
-def build_exploration_tree(
-    exploration: ExplorationSection, behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]]
-) -> py_trees.behaviour.Behaviour:
-    """The mission tree for an exploration section and the registered behaviours."""
-    b = behaviours
-    from amslam.trees.behaviours import IsGoalKind  # a condition, not a replaceable leaf
 
+def _next_stop(model: MissionModel, b: Behaviours) -> py_trees.behaviour.Behaviour:
+    """Fly to the goal the plan chose: an SLC viewpoint (panorama, loop closure) or a frontier."""
+    ex = model.exploration
+    goto = dict(
+        goal_tolerance=ex.goal_tolerance, yaw_tolerance=ex.yaw_tolerance, replan_period=ex.replan_period
+    )
     stops: list[py_trees.behaviour.Behaviour] = []
-    if exploration.slc:
+    if ex.slc:
         stops.append(
             Sequence(
                 "InsertSLC",
                 memory=True,
                 children=[
                     IsGoalKind("IsSLC", TourItemKind.SLC),
-                    b["GoTo"]("GoToSLC", early_exit=False),
-                    b["Panorama"]("Panorama", steps=exploration.panorama_steps),
+                    b["GoTo"]("GoToSLC", early_exit=False, **goto),
+                    b["Panorama"]("Panorama", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance),
                     b["AttemptSLC"]("AttemptSLC"),
                 ],
             )
@@ -62,29 +69,63 @@ def build_exploration_tree(
         Sequence(
             "Explore",
             memory=True,
-            children=[IsGoalKind("IsExplore", TourItemKind.EXPLORE), b["GoTo"]("GoToViewpoint")],
+            children=[IsGoalKind("IsExplore", TourItemKind.EXPLORE), b["GoTo"]("GoToViewpoint", **goto)],
         )
     )
-    stops.append(b["SkipUnreachable"]("SkipUnreachable"))
+    stops.append(b["SkipUnreachable"]("SkipUnreachable", max_unreachable=ex.max_unreachable))
+    return Selector("NextStop", False, stops)
+
+
+def build_exploration_tree(model: MissionModel, behaviours: Behaviours) -> py_trees.behaviour.Behaviour:
+    """The exploration mission tree for a mission and the registered behaviours."""
+    b = behaviours
+    ex = model.exploration
+    replan = b["Replan"](
+        "Replan",
+        replan_fraction=ex.replan_fraction,
+        replan_period=ex.replan_period,
+        frontier_change=ex.frontier_change,
+    )
     step = Sequence(
         "ExploreStep",
         memory=True,
         children=[
-            b["WithinLimits"]("WithinLimits"),
-            b["Replan"]("Replan"),
-            Selector("NextStop", False, stops),
+            Retry("RetryPlanning", replan, num_failures=ex.max_replan_failures),
+            b["HasGoal"]("HasGoal"),
+            _next_stop(model, b),
         ],
     )
-    explore = FailureIsSuccess("ExploreUntilDone", Repeat("ExploreLoop", step, num_success=-1))
+    loop = b["WithinLimits"]("WithinLimits", Repeat("ExploreLoop", step, num_success=-1))
     children: list[py_trees.behaviour.Behaviour] = [b["TakeOff"]("TakeOff")]
-    if exploration.look_around:
-        children.append(b["Panorama"]("LookAround", steps=exploration.panorama_steps))
-    home_steps = [b["SetHomeGoal"]("SetHomeGoal"), b["GoTo"]("GoHome", goal_key="/home", early_exit=False)]
-    if exploration.slc:
+    if ex.look_around:
+        children.append(b["Panorama"]("LookAround", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance))
+    home = b["GoTo"](
+        "GoHome",
+        goal_key="/home",
+        early_exit=False,
+        goal_tolerance=ex.goal_tolerance,
+        yaw_tolerance=ex.yaw_tolerance,
+        replan_period=ex.replan_period,
+    )
+    home_steps = [b["SetHomeGoal"]("SetHomeGoal"), home]
+    if ex.slc:
         home_steps += [
-            b["Panorama"]("HomePanorama", steps=exploration.panorama_steps),
+            b["Panorama"]("HomePanorama", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance),
             b["AttemptSLC"]("HomeSLC"),
         ]
     go_home = Sequence("GoHomeSteps", memory=True, children=home_steps)
+    explore = FailureIsSuccess("ExploreUntilDone", loop)
     children += [explore, FailureIsSuccess("ReturnHome", go_home), b["Land"]("Land")]
     return Sequence("Mission", memory=True, children=children)
+
+
+def exploration_tree(
+    model: MissionModel, behaviours: Behaviours, failsafe: bool = False
+) -> py_trees.behaviour.Behaviour:
+    """The ``exploration`` mission tree (``amslam_mission_trees``)."""
+    return with_failsafe_guard(build_exploration_tree(model, behaviours), model, behaviours, failsafe)
+
+
+@amslam.hookimpl
+def amslam_mission_trees():
+    return {"exploration": exploration_tree}

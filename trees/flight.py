@@ -44,19 +44,15 @@ from py_trees.decorators import Inverter
 
 import amslam
 from amslam.geometry import wrap_angle
-from amslam.interfaces import Platform
 from amslam.mission import MissionModel, WaypointsSection
 from amslam.trees.behaviours import RobotBehaviour
 from amslam.types import Failsafe
 
 
-def active_failsafe(platform: Platform) -> Failsafe | None:
-    """The platform's failsafe, if any (:meth:`amslam.interfaces.Platform.failsafe`)."""
-    return platform.failsafe()
-
-
 class FailsafeTriggered(RobotBehaviour):
     """SUCCESS once the platform reports a failsafe; it stays SUCCESS from then on."""
+
+    uses = ("flight", "events")
 
     def __init__(self, name: str = "FailsafeTriggered"):
         super().__init__(name)
@@ -68,11 +64,11 @@ class FailsafeTriggered(RobotBehaviour):
         self.bb.set("/failsafe", None)
 
     def update(self) -> Status:
-        current = active_failsafe(self.robot.platform)
+        current = self.flight.failsafe()
         if current is not None and (self.latched is None or current.action != self.latched.action):
             self.latched = current  # escalation (e.g. low → critical battery) replaces the answer
             self.bb.set("/failsafe", current)
-            self.robot.emit(
+            self.events.emit(
                 "failsafe_answered", kind=current.kind, reason=current.reason, action=current.action
             )
         if self.latched is None:
@@ -89,28 +85,30 @@ class FailsafeReturn(RobotBehaviour):
     action (a battery turning critical on the way lands where the vehicle is).
     """
 
+    uses = ("flight",)
+
     def __init__(self, name: str = "FailsafeReturn", tolerance: float = 0.3):
         super().__init__(name)
         self.tolerance = tolerance
         self.bb.register_key("/failsafe", access=Access.READ)
 
     def initialise(self) -> None:
-        here = self.robot.position_world()
-        self.target = np.array([*self.robot.home_world[:2], here[2]])
-        self.yaw = self.robot.yaw_world()
+        here = self.flight.position_world()
+        self.target = np.array([*self.flight.home_world[:2], here[2]])
+        self.yaw = self.flight.yaw_world()
 
     def update(self) -> Status:
         failsafe: Failsafe | None = self.bb.get("/failsafe")
         if failsafe is None or failsafe.action != "return_and_land":
             self.feedback_message = "no return needed"
             return Status.SUCCESS
-        if not self.robot.airborne():
+        if not self.flight.airborne():
             self.feedback_message = "on the ground"
             return Status.SUCCESS
-        if np.linalg.norm(self.robot.position_world() - self.target) < self.tolerance:
+        if np.linalg.norm(self.flight.position_world() - self.target) < self.tolerance:
             self.feedback_message = "over the take-off point"
             return Status.SUCCESS
-        self.robot.send_setpoint_world(self.target, self.yaw)
+        self.flight.send_setpoint_world(self.target, self.yaw)
         self.feedback_message = "returning"
         return Status.RUNNING
 
@@ -122,6 +120,8 @@ class FailsafeLand(RobotBehaviour):
     and this leaf gives up after the timeout, saying so.
     """
 
+    uses = ("flight",)
+
     def __init__(self, name: str = "FailsafeLand", timeout: float = 60.0):
         super().__init__(name)
         self.timeout = timeout
@@ -129,15 +129,15 @@ class FailsafeLand(RobotBehaviour):
 
     def initialise(self) -> None:
         self.failsafe: Failsafe | None = self.bb.get("/failsafe")
-        self.started = self.robot.time()
+        self.started = self.flight.time()
         if self.failsafe is None or self.failsafe.action != "hand_over":
-            self.robot.land()
+            self.flight.land()
 
     def update(self) -> Status:
-        if not self.robot.airborne():
+        if not self.flight.airborne():
             self.feedback_message = "landed"
             return Status.SUCCESS
-        if self.robot.time() - self.started > self.timeout:
+        if self.flight.time() - self.started > self.timeout:
             self.feedback_message = f"no touchdown seen within {self.timeout:g} s"
             if self.failsafe is not None and self.failsafe.kind == "link_lost":
                 self.feedback_message += " (link lost: the vehicle's own failsafe is landing it)"
@@ -150,6 +150,8 @@ class FailsafeLand(RobotBehaviour):
 
 class FailsafeEnd(RobotBehaviour):
     """FAILURE naming the failsafe, so the run's verdict says why the mission ended."""
+
+    uses = ()
 
     def __init__(self, name: str = "FailsafeEnd"):
         super().__init__(name)
@@ -169,6 +171,8 @@ class FlyWaypoints(RobotBehaviour):
     operator has looked at (see docs/flight.md).
     """
 
+    uses = ("flight", "events")
+
     def __init__(self, name: str = "FlyWaypoints", section: WaypointsSection | None = None):
         super().__init__(name)
         self.section = section or WaypointsSection()
@@ -176,20 +180,20 @@ class FlyWaypoints(RobotBehaviour):
 
     def initialise(self) -> None:
         self.index = 0
-        self.yaw = self.robot.yaw_world()
+        self.yaw = self.flight.yaw_world()
         self.bb.set("/waypoint", 0)
 
     def _target(self, i: int) -> np.ndarray:
-        return self.robot.home_world + np.asarray(self.section.points[i], float)
+        return self.flight.home_world + np.asarray(self.section.points[i], float)
 
     def update(self) -> Status:
         points = self.section.points
         while self.index < len(points):
             target = self._target(self.index)
-            here = self.robot.position_world()
+            here = self.flight.position_world()
             if np.linalg.norm(target - here) >= self.section.tolerance:
                 break
-            self.robot.emit("waypoint_reached", index=self.index, position=np.round(target, 3).tolist())
+            self.events.emit("waypoint_reached", index=self.index, position=np.round(target, 3).tolist())
             self.index += 1
             self.bb.set("/waypoint", self.index)
         if self.index >= len(points):
@@ -200,15 +204,15 @@ class FlyWaypoints(RobotBehaviour):
             d = target - here
             if np.linalg.norm(d[:2]) > self.section.tolerance:
                 yaw = float(np.arctan2(d[1], d[0]))
-            if abs(wrap_angle(yaw - self.robot.yaw_world())) > 0.5:
+            if abs(wrap_angle(yaw - self.flight.yaw_world())) > 0.5:
                 target = here  # turn first, then go
-        self.robot.send_setpoint_world(target, yaw)
+        self.flight.send_setpoint_world(target, yaw)
         self.feedback_message = f"waypoint {self.index + 1}/{len(points)}"
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if new_status == Status.INVALID and self.robot is not None:
-            self.robot.hold()
+        if new_status == Status.INVALID and getattr(self, "flight", None) is not None:
+            self.flight.hold()
 
 
 def failsafe_branch(
@@ -245,25 +249,44 @@ def build_waypoint_tree(
     )
 
 
+def with_failsafe_guard(
+    mission: py_trees.behaviour.Behaviour,
+    model: MissionModel,
+    behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]],
+    failsafe: bool,
+) -> py_trees.behaviour.Behaviour:
+    """The mission under the failsafe guard when ``failsafe`` (a real vehicle), else as it is."""
+    if not failsafe:
+        return mission
+    guard = failsafe_branch(behaviours, model.waypoints.land_timeout)
+    return Sequence("Guarded", memory=False, children=[guard, mission])
+
+
+def waypoints_tree(
+    model: MissionModel,
+    behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]],
+    failsafe: bool = False,
+) -> py_trees.behaviour.Behaviour:
+    """The ``waypoints`` mission tree (``amslam_mission_trees``)."""
+    return with_failsafe_guard(build_waypoint_tree(model.waypoints, behaviours), model, behaviours, failsafe)
+
+
 def build_mission_tree(
     model: MissionModel,
     behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]],
     failsafe: bool = False,
 ) -> py_trees.behaviour.Behaviour:
-    """The tree the mission's ``tree`` field selects, under the failsafe guard when asked.
+    """The built-in tree the mission's ``tree`` field names, under the failsafe guard when asked.
 
-    The runner asks for the guard on real vehicles (``Platform.simulated`` is False).
+    The runner looks trees up in the registry (``Registry.tree``), where plugins add theirs;
+    this covers the two built-in ones for callers without a registry.
     """
-    from amslam.trees.exploration import build_exploration_tree
+    from amslam.trees.exploration import exploration_tree
 
-    if model.tree == "waypoints":
-        mission = build_waypoint_tree(model.waypoints, behaviours)
-    else:
-        mission = build_exploration_tree(model.exploration, behaviours)
-    if not failsafe:
-        return mission
-    guard = failsafe_branch(behaviours, model.waypoints.land_timeout)
-    return Sequence("Guarded", memory=False, children=[guard, mission])
+    builders = {"exploration": exploration_tree, "waypoints": waypoints_tree}
+    if model.tree not in builders:
+        raise KeyError(f"{model.tree!r} is not a built-in tree ({', '.join(builders)}); use Registry.tree")
+    return builders[model.tree](model, behaviours, failsafe=failsafe)
 
 
 @amslam.hookimpl
@@ -275,3 +298,8 @@ def amslam_behaviours():
         "FailsafeLand": FailsafeLand,
         "FailsafeEnd": FailsafeEnd,
     }
+
+
+@amslam.hookimpl
+def amslam_mission_trees():
+    return {"waypoints": waypoints_tree}

@@ -184,11 +184,9 @@ def _describe_params(model, values: dict, indent: str) -> list[str]:
 def cmd_tree(args, registry) -> int:
     import py_trees
 
-    from amslam.trees.flight import build_mission_tree
-
     mission, registry = load_with_registry(args)
     real = not registry.backend_class("platform", mission.backends["platform"].plugin).simulated
-    root = build_mission_tree(mission.model, registry.behaviours, failsafe=real)
+    root = registry.tree(mission.model.tree)(mission.model, registry.behaviours, failsafe=real)
     if args.format in ("ascii", "unicode"):
         render = py_trees.display.ascii_tree if args.format == "ascii" else py_trees.display.unicode_tree
         return _write_text(render(root), args.out)

@@ -148,6 +148,33 @@ class SlamContract(BackendContract):
         gain = np.asarray(slam.information_gain(ids, [1.0] * len(ids)))
         assert gain.shape == (len(ids),) and np.all(np.isfinite(gain)) and np.all(gain >= -1e-9)
 
+    def test_loop_closure_adds_only_what_it_is_handed_now(self, flown) -> None:
+        """``try_loop_closure`` gets the detections seen now, at ``odom``; the earlier ones were fed
+        at their own poses by ``add_detections`` and are not handed over again (the runtime passes
+        none). Passing none adds no observation; detections handed over are placed at ``odom``."""
+        slam, odoms, _ = flown
+
+        def observations() -> int:
+            return sum(lm.observations for lm in slam.landmarks())
+
+        # turn on the spot to face the chair: it is seen now, from here
+        now = Odometry(odoms[-1].stamp + 0.1, body_pose(6.0, 0.0, float(np.arctan2(1.5, -2.0))))
+        slam.add_odometry(now)
+        before = observations()
+        result = slam.try_loop_closure(now, T_BODY_CAM, [])
+        assert isinstance(result, LoopClosureResult)
+        assert observations() <= before, "try_loop_closure(..., []) added observations"
+        seen_now = visible_detections(now)
+        assert seen_now, "the chair is in view"
+        slam.try_loop_closure(now, T_BODY_CAM, seen_now)
+        assert observations() <= before + len(seen_now)
+        for name, p in OBJECTS.items():
+            # a detection placed at any pose but `now` would drag its landmark off the object
+            mine = [lm for lm in slam.landmarks() if lm.class_name == name]
+            assert (
+                len(mine) == 1 and np.linalg.norm(np.asarray(mine[0].position) - p) < self.landmark_tolerance
+            )
+
     def test_empty_detections_change_nothing(self, backend: Slam) -> None:
         odom = Odometry(0.0, body_pose(0.0, 0.0, 0.0))
         backend.add_odometry(odom)

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from amslam.errors import AmslamError
-from amslam.mission import ExplorationSection, LimitsSection
+from amslam.mission import LimitsSection
 from amslam.robot import Robot
+from amslam.setpoints import SetpointFilter
 from amslam.types import Odometry, RobotSpec, VoxelState
 
 VOXEL = 0.1
@@ -62,12 +63,9 @@ def make_robot(world: BoxMap, start) -> Robot:
         platform=PointVehicle(start),
         mapping=world,
         slam=SimpleNamespace(T_world_odom=lambda: np.eye(4)),
-        detector=None,
-        planner=None,
         spec=RobotSpec(radius=RADIUS),
         limits=LimitsSection(),
-        exploration=ExplorationSection(min_height=0.0, min_headroom=0.0),
-        emit=lambda *a, **k: None,
+        setpoints=SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0),
     )
 
 
@@ -91,14 +89,14 @@ def test_a_path_grazing_a_door_jamb_is_pushed_into_the_opening():
     assert min(DOOR.clearance(p) for p in line) < RADIUS  # without the guard: a collision
     robot = make_robot(DOOR, start)
     clearances = fly(robot, goal)
-    assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
+    assert min(clearances) >= RADIUS + SetpointFilter.GUARD_MARGIN - 1e-9
     assert robot.platform.p[1] > 2.9  # and it went through the door
 
 
 def test_a_goal_behind_a_wall_stops_the_vehicle_short_of_it():
     robot = make_robot(DOOR, (3.0, 1.0, 1.2))
     clearances = fly(robot, (3.0, 3.0, 1.2))
-    assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
+    assert min(clearances) >= RADIUS + SetpointFilter.GUARD_MARGIN - 1e-9
     assert robot.platform.p[1] < 2.0 - RADIUS
 
 
@@ -113,7 +111,7 @@ def test_sliding_along_a_wall_keeps_the_safe_distance():
     # Flying parallel to the wall but aimed 0.1 m from it: the guard keeps the flight off.
     robot = make_robot(DOOR, (-2.5, 1.6, 1.2))
     clearances = fly(robot, (-0.5, 1.9, 1.2), ticks=40)
-    assert min(clearances) >= RADIUS + Robot.GUARD_MARGIN - 1e-9
+    assert min(clearances) >= RADIUS + SetpointFilter.GUARD_MARGIN - 1e-9
     assert robot.platform.p[0] > -1.0  # still made progress along the wall
 
 

@@ -1,5 +1,5 @@
-"""A throwaway distribution adds a CLI command and an experiment through the kernel's hooks,
-with no edit of amslam: the same way the built-in commands and experiments come in."""
+"""A throwaway distribution adds a CLI command, an experiment and a mission tree through the
+kernel's hooks, with no edit of amslam: the same way the built-in ones come in."""
 
 from __future__ import annotations
 
@@ -39,6 +39,17 @@ def _count(args, registry):
 
 def _count_arguments(parser):
     parser.add_argument("--label", default="none")
+
+
+def _hover(model, behaviours, failsafe=False):
+    from py_trees.composites import Sequence
+
+    return Sequence("Hover", memory=True, children=[behaviours["TakeOff"](), behaviours["Land"]()])
+
+
+@amslam.hookimpl
+def amslam_mission_trees():
+    return {"hover": _hover}
 
 
 @amslam.hookimpl
@@ -81,7 +92,10 @@ def test_a_third_party_command_is_listed_and_runs(throwaway_distribution, tmp_pa
     assert done.returncode == 0, done.stderr
     assert "hello pilot; backend kinds: detector, mapping, planner, platform, slam" in done.stdout
     plugins = _amslam(throwaway_distribution, "plugins", cwd=tmp_path)
-    assert "amslam-hello 0.1: amslam_cli_commands (0.2), amslam_experiments (0.2)" in plugins.stdout
+    assert (
+        "amslam-hello 0.1: amslam_cli_commands (0.2), amslam_experiments (0.2), amslam_mission_trees (0.2)"
+        in plugins.stdout
+    )
 
 
 def test_a_third_party_experiment_takes_the_common_and_its_own_arguments(throwaway_distribution, tmp_path):
@@ -100,3 +114,17 @@ def test_without_the_distribution_the_command_is_unknown(tmp_path):
     done = _amslam(dict(os.environ), "hello", "pilot", cwd=tmp_path)
     assert done.returncode == 2
     assert "invalid choice: 'hello'" in done.stderr
+
+
+def test_a_third_party_tree_is_drawn_and_flown(throwaway_distribution, tmp_path):
+    from tests.e2e.missions import small_mission
+
+    mission = small_mission(tmp_path, max_time=60)
+    drawn = _amslam(throwaway_distribution, "tree", str(mission), "--set", "tree=hover", cwd=tmp_path)
+    assert drawn.returncode == 0, drawn.stderr
+    assert drawn.stdout.splitlines()[:3] == ["{-} Hover", "    --> TakeOff", "    --> Land"]
+    run = ("run", str(mission), "--set", "tree=hover", "--out", "runs", "--quiet")
+    flown = _amslam(throwaway_distribution, *run, cwd=tmp_path)
+    assert "verdict: completed" in flown.stdout, flown.stdout + flown.stderr
+    unknown = _amslam(dict(os.environ), "validate", str(mission), "--set", "tree=hover", cwd=tmp_path)
+    assert unknown.returncode == 2 and "no mission tree named 'hover'" in unknown.stderr

@@ -10,20 +10,27 @@ import py_trees
 import pytest
 from py_trees.common import Status
 
-from amslam.mission import ExplorationSection
-from amslam.trees.behaviours import ForgetGoal, Replan
+from amslam.mission import ExplorationSection, MissionModel
+from amslam.trees.behaviours import ForgetGoal, Replan, WithinLimits
+from amslam.trees.behaviours import amslam_behaviours as stock_behaviours
 from amslam.trees.exploration import build_exploration_tree
 from amslam.types import TourItem, TourItemKind
+
+STOCK = stock_behaviours()
 
 
 def names(root) -> set[str]:
     return {node.name for node in root.iterate()}
 
 
+def mission(**exploration) -> MissionModel:
+    return MissionModel(name="test", exploration=ExplorationSection(**exploration))
+
+
 def test_tree_has_the_named_behaviours(registry):
-    root = build_exploration_tree(ExplorationSection(slc=True), registry.behaviours)
+    root = build_exploration_tree(mission(slc=True), registry.behaviours)
     assert {"TakeOff", "Replan", "Explore", "InsertSLC", "Panorama", "AttemptSLC", "Land"} <= names(root)
-    without = build_exploration_tree(ExplorationSection(slc=False), registry.behaviours)
+    without = build_exploration_tree(mission(slc=False), registry.behaviours)
     assert "InsertSLC" not in names(without)
     # With SLC on, one last loop closure at home before landing; none without.
     assert {"HomePanorama", "HomeSLC"} <= names(root)
@@ -31,14 +38,21 @@ def test_tree_has_the_named_behaviours(registry):
 
 
 class FakeRobot(SimpleNamespace):
+    """Every service a leaf may use (flight, navigation, planning, events) in one fake."""
+
     def __init__(self, plans):
         super().__init__(
-            exploration=ExplorationSection(max_replan_failures=3, max_unreachable=2),
             events=[],
             holds=0,
             plans=list(plans),
-            viewpoints=[],
+            viewpoint_count=0,
+            home_world=np.zeros(3),
+            spec=SimpleNamespace(altitude=1.0),
+            limit=None,
         )
+
+    def services(self) -> dict:
+        return {"flight": self, "navigation": self, "planning": self, "events": self}
 
     def plan(self):
         outcome = self.plans.pop(0)
@@ -46,7 +60,7 @@ class FakeRobot(SimpleNamespace):
             raise outcome
         return outcome
 
-    def plan_async(self):
+    def plan_async(self, cruise_z):
         future = Future()
         try:
             future.set_result(self.plan())
@@ -71,6 +85,9 @@ class FakeRobot(SimpleNamespace):
     def time(self):
         return 0.0
 
+    def limit_reached(self):
+        return self.limit
+
 
 @pytest.fixture(autouse=True)
 def clean_blackboard():
@@ -87,39 +104,71 @@ def tick(behaviour) -> Status:
     return status
 
 
-def test_replan_counts_failures_then_gives_up():
+def retry_planning(robot, max_replan_failures: int):
+    """The tree's RetryPlanning decorator around its Replan leaf, set up with ``robot``."""
+    root = build_exploration_tree(mission(max_replan_failures=max_replan_failures), {**STOCK})
+    (retry,) = [n for n in root.iterate() if n.name == "RetryPlanning"]
+    assert isinstance(retry.decorated, Replan)
+    retry.decorated.setup(**robot.services())
+    return retry
+
+
+def test_replan_is_retried_after_planner_failures_then_gives_up():
     robot = FakeRobot([RuntimeError("boom")] * 3)
-    replan = Replan()
-    replan.setup(robot=robot)
-    assert tick(replan) == Status.RUNNING
-    assert tick(replan) == Status.RUNNING
-    assert tick(replan) == Status.FAILURE
+    retry = retry_planning(robot, max_replan_failures=3)
+    assert tick(retry) == Status.RUNNING
+    assert tick(retry) == Status.RUNNING
+    assert tick(retry) == Status.FAILURE
     assert robot.events.count("planner_error") == 3 and robot.holds == 3
-    assert "planner failed 3 times" in py_trees.blackboard.Blackboard.storage["/exploration"]
+    assert "the planner failed (RuntimeError: boom)" in py_trees.blackboard.Blackboard.storage["/exploration"]
 
 
-def test_replan_recovers_after_a_failure_and_ends_when_nothing_is_left():
+def test_replan_recovers_after_a_failure_and_leaves_no_goal_when_nothing_is_left():
     item = TourItem(TourItemKind.EXPLORE, np.array([1.0, 2.0, 1.0]), 0.0, 5.0, 7)
     robot = FakeRobot([RuntimeError("once"), [item], []])
-    replan = Replan()
-    replan.setup(robot=robot)
-    assert tick(replan) == Status.RUNNING
-    assert tick(replan) == Status.SUCCESS
+    retry = retry_planning(robot, max_replan_failures=3)
+    assert tick(retry) == Status.RUNNING
+    assert tick(retry) == Status.SUCCESS
     storage = py_trees.blackboard.Blackboard.storage
-    assert storage["/goal"] is item and storage["/replan_failures"] == 0
-    assert tick(replan) == Status.FAILURE
-    assert storage["/exploration"].startswith("complete")
+    assert storage["/goal"] is item and storage["/exploration"] == "exploring"
+    assert tick(retry) == Status.SUCCESS
+    assert storage["/goal"] is None and storage["/exploration"].startswith("complete")
 
 
-def test_behaviour_refuses_setup_without_robot():
-    with pytest.raises(KeyError, match="needs setup\\(robot=...\\)"):
+def test_behaviour_refuses_setup_without_its_services():
+    with pytest.raises(KeyError, match="needs setup\\(flight=..., planning=..., events=...\\)"):
         Replan().setup()
+    with pytest.raises(KeyError, match="needs setup\\(planning=...\\)"):
+        Replan().setup(flight=object(), events=object())
+
+
+class Forever(py_trees.behaviour.Behaviour):
+    def __init__(self):
+        super().__init__("Forever")
+        self.stopped = False
+
+    def update(self):
+        return Status.RUNNING
+
+    def terminate(self, new_status):
+        self.stopped = new_status == Status.INVALID
+
+
+def test_within_limits_cuts_its_child_short_once_a_limit_is_reached():
+    robot = FakeRobot([])
+    child = Forever()
+    guard = WithinLimits("WithinLimits", child)
+    guard.setup(flight=robot)
+    assert tick(guard) == Status.RUNNING
+    robot.limit = "time limit 300 s"
+    assert tick(guard) == Status.FAILURE and child.stopped
+    assert py_trees.blackboard.Blackboard.storage["/exploration"] == "stopped: time limit 300 s"
 
 
 def test_skip_unreachable_gives_up_after_the_limit():
     robot = FakeRobot([])
-    skip = ForgetGoal()
-    skip.setup(robot=robot)
+    skip = ForgetGoal(max_unreachable=2)
+    skip.setup(**robot.services())
     py_trees.blackboard.Blackboard.set("/unreachable", 1)
     assert tick(skip) == Status.SUCCESS
     py_trees.blackboard.Blackboard.set("/unreachable", 2)
@@ -131,7 +180,7 @@ def test_replan_follows_the_tour_until_half_is_done():
     fresh = TourItem(TourItemKind.EXPLORE, np.array([9.0, 9.0, 1.0]), 0.0, 5.0, 9)
     robot = FakeRobot([list(items), [fresh]])
     replan = Replan()
-    replan.setup(robot=robot)
+    replan.setup(**robot.services())
     storage = py_trees.blackboard.Blackboard.storage
     assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[0]
     assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[1]  # 1 of 4 done: follow
@@ -146,7 +195,7 @@ def test_a_planner_of_known_objects_is_not_replanned_for_moving_frontiers():
     frontiers = FakeRobot([list(items), [fresh]])
     frontiers.frontier_change = lambda: 1.0  # every frontier changed since the tour was planned
     replan = Replan()
-    replan.setup(robot=frontiers)
+    replan.setup(**frontiers.services())
     storage = py_trees.blackboard.Blackboard.storage
     assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[0]
     assert tick(replan) == Status.SUCCESS and storage["/tour"] == [fresh]  # replanned at once
@@ -154,7 +203,7 @@ def test_a_planner_of_known_objects_is_not_replanned_for_moving_frontiers():
     objects.frontier_change = lambda: 1.0
     objects.plans_frontiers = False  # PAMS: views of known objects
     replan = Replan()
-    replan.setup(robot=objects)
+    replan.setup(**objects.services())
     assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[0]
     assert tick(replan) == Status.SUCCESS and storage["/goal"] is items[1]  # keeps following
 
@@ -167,7 +216,7 @@ class StuckRobot(FakeRobot):
         self.t = 0.0
         self.unreachable_marked = []
         self.paths = 0
-        self.platform = SimpleNamespace(camera=SimpleNamespace(hfov=1.5))
+        self.camera = SimpleNamespace(hfov=1.5)
 
     def time(self):
         return self.t
@@ -205,7 +254,7 @@ def test_goto_gives_up_a_goal_it_makes_no_progress_towards():
     goal = TourItem(TourItemKind.SLC, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
     py_trees.blackboard.Blackboard.set("/goal", goal)
     go = GoTo("GoToSLC", early_exit=False)
-    go.setup(robot=robot)
+    go.setup(**robot.services())
     statuses = []
     for _ in range(250):  # 25 s of 0.1 s ticks
         statuses.append(tick(go))
@@ -240,7 +289,7 @@ def test_goto_counts_a_goal_the_guards_hold_it_off_as_reached():
         "/goal", TourItem(TourItemKind.SLC, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
     )
     go = GoTo("GoToSLC", early_exit=False)
-    go.setup(robot=robot)
+    go.setup(**robot.services())
     statuses = []
     for _ in range(100):
         statuses.append(tick(go))

@@ -1,0 +1,222 @@
+"""The perception step: every module that turns sensor data into estimates, in one order, at its rate.
+
+Each control tick :meth:`Perception.step` runs, on the control thread:
+
+1. ``platform.advance(dt)``; VIO odometry → distance travelled → ``slam.add_odometry`` (the
+   backend decides key poses; each is logged for the base and announced to observers);
+2. a camera frame when one is due → ``mapping.integrate_local`` (VIO pose) and
+   ``mapping.integrate_global`` (SLAM pose) → ``mapping.viewpoints()`` every
+   ``viewpoint_period`` s or at once when asked (:meth:`refresh_viewpoints`);
+3. the detector at its own rate → ``slam.add_detections`` at the pose of the frame it saw;
+4. trajectories, uncertainty and explored-volume samples at their rates;
+
+and publishes what it knows as an immutable :class:`Snapshot`. With a simulated platform the
+detector runs inline (the clock waits, runs stay repeatable); on a real vehicle it runs on the
+detector thread, frames arriving while it is busy are skipped, and its detections are fed to SLAM
+on the control thread once they are ready.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from amslam.geometry import invert, yaw_of
+from amslam.interfaces import Detector, Mapping, Platform, Slam
+from amslam.measurements import MeasurementLog
+from amslam.mission import ExplorationSection
+from amslam.rundir import RunDir
+from amslam.types import Detection, Frame, Odometry, Viewpoint, VoxelState
+
+
+def _frozen(array: np.ndarray) -> np.ndarray:
+    out = np.array(array, dtype=float, copy=True)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What perception knew at the end of one tick; copies only, safe to hand to another thread."""
+
+    t: float
+    T_odom_body: np.ndarray  # VIO pose
+    T_world_odom: np.ndarray  # SLAM correction (drift compensation)
+    distance: float  # travelled since the start, m (VIO)
+    viewpoints: tuple[Viewpoint, ...]  # the mapping backend's latest, in the safe height band
+    explored_volume: float  # m³, at the latest sample
+
+    @property
+    def T_world_body(self) -> np.ndarray:
+        return self.T_world_odom @ self.T_odom_body
+
+    @property
+    def position_world(self) -> np.ndarray:
+        return self.T_world_body[:3, 3]
+
+    @property
+    def yaw_world(self) -> float:
+        return yaw_of(self.T_world_body)
+
+    @property
+    def odometry(self) -> Odometry:
+        return Odometry(self.t, self.T_odom_body.copy())
+
+
+@dataclass
+class Rates:
+    """When each rate-limited module runs next (simulated or wall-clock seconds)."""
+
+    detect: float = 0.0
+    viewpoints: float = 0.0
+    trajectory: float = 0.0
+    sample: float = 0.0
+
+
+class Perception:
+    """Owns module order and rates, the trajectories, samples and distance travelled."""
+
+    def __init__(
+        self,
+        platform: Platform,
+        slam: Slam,
+        mapping: Mapping,
+        detector: Detector,
+        exploration: ExplorationSection,
+        rundir: RunDir,
+        measurements: MeasurementLog,
+        hook: Callable[..., None],
+    ):
+        self.platform, self.slam, self.mapping, self.detector = platform, slam, mapping, detector
+        self.exploration = exploration
+        self.rundir, self.measurements, self.hook = rundir, measurements, hook
+        self.T_body_cam = platform.camera.T_body_cam
+        self.detect_period = 1.0 / max(getattr(detector, "rate_hz", 2.0), 1e-6)
+        self.rates = Rates()
+        self.distance = 0.0
+        self.truth: list[tuple[float, np.ndarray]] = []
+        self.vio: list[tuple[float, np.ndarray]] = []
+        self.samples: dict[str, list] = {"uncertainty": [], "explored": []}
+        self._viewpoints: tuple[Viewpoint, ...] = ()
+        self._refresh = False
+        self._last_position = platform.odometry().T_odom_body[:3, 3].copy()
+        # On a real vehicle the network runs beside the control loop; in the simulator inline.
+        self._pool = (
+            None if platform.simulated else ThreadPoolExecutor(1, thread_name_prefix="amslam-detector")
+        )
+        self._detecting: tuple[Future, Frame] | None = None
+        self.snapshot = self._publish(platform.time(), platform.odometry())
+
+    def refresh_viewpoints(self) -> None:
+        """Recompute viewpoints at the next frame (a goal was visited or found unreachable)."""
+        self._refresh = True
+
+    def step(self, dt: float) -> Snapshot:
+        """Advance the platform by ``dt`` and run every module that is due; the new snapshot."""
+        self.platform.advance(dt)
+        t = self.platform.time()
+        odom = self.platform.odometry()
+        truth = self.platform.ground_truth()
+        here = odom.T_odom_body[:3, 3]
+        self.distance += float(np.linalg.norm(here - self._last_position))
+        self._last_position = here.copy()
+        if self.slam.add_odometry(odom):
+            self.measurements.keypose(odom, truth)
+            keyposes = self.slam.keyposes()
+            if keyposes:
+                self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
+        frame = self.platform.capture()
+        if frame is not None:
+            self._integrate(frame)
+        if self._detecting is not None and self._detecting[0].done():
+            (done, seen), self._detecting = self._detecting, None
+            self._feed(seen, done.result())
+        self._record(t, odom, truth)
+        self.snapshot = self._publish(t, odom)
+        return self.snapshot
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+    # -- the modules ---------------------------------------------------------------------------
+
+    def _integrate(self, frame: Frame) -> None:
+        self.mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
+        self.mapping.integrate_global(frame.depth, frame.K, self.slam.T_world_odom() @ frame.T_odom_cam)
+        if frame.stamp >= self.rates.viewpoints or self._refresh:
+            self._refresh = False
+            self.rates.viewpoints = frame.stamp + self.exploration.viewpoint_period
+            self._viewpoints = tuple(self._within_band(vp) for vp in self.mapping.viewpoints())
+        if frame.stamp >= self.rates.detect and self._detecting is None:
+            self.rates.detect = frame.stamp + self.detect_period
+            if self._pool is None:
+                self._feed(frame, self.detector.detect(frame))
+            else:
+                self._detecting = (self._pool.submit(self.detector.detect, frame), frame)
+
+    def _feed(self, frame: Frame, detections: list[Detection]) -> None:
+        """Detections to SLAM at the pose of the frame they were made in, and to the base's log."""
+        frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(self.T_body_cam))
+        self.slam.add_detections(frame_odom, self.T_body_cam, detections)
+        T_truth = frame.T_world_cam_truth
+        body_truth = None if T_truth is None else T_truth @ invert(self.T_body_cam)
+        self.measurements.detections(frame_odom, detections, body_truth)
+
+    def _record(self, t: float, odom: Odometry, truth: np.ndarray | None) -> None:
+        ex = self.exploration
+        if t >= self.rates.trajectory:
+            self.rates.trajectory = t + 1.0 / ex.trajectory_rate_hz
+            self.rundir.pose("vio", t, odom.T_odom_body)
+            self.rundir.pose("slam", t, self.slam.T_world_odom() @ odom.T_odom_body)
+            self.vio.append((t, odom.T_odom_body.copy()))
+            if truth is not None:
+                self.rundir.pose("ground_truth", t, truth)
+                self.truth.append((t, truth.copy()))
+        if t >= self.rates.sample:
+            self.rates.sample = t + ex.uncertainty_period
+            pose_trace, landmark_trace = self.slam.uncertainty()
+            self.samples["uncertainty"].append((t, self.distance, pose_trace, landmark_trace))
+            self.samples["explored"].append((t, self.distance, self.mapping.explored_volume()))
+
+    def _publish(self, t: float, odom: Odometry) -> Snapshot:
+        explored = self.samples["explored"]
+        return Snapshot(
+            t=t,
+            T_odom_body=_frozen(odom.T_odom_body),
+            T_world_odom=_frozen(self.slam.T_world_odom()),
+            distance=self.distance,
+            viewpoints=self._viewpoints,
+            explored_volume=explored[-1][2] if explored else 0.0,
+        )
+
+    def _within_band(self, vp: Viewpoint) -> Viewpoint:
+        """Move a viewpoint vertically into the band between floor and ceiling the tree flies in.
+
+        The coarse map allows any height with a robot radius of clearance, but odometry drifts
+        most in z: a goal a radius above the floor or below the ceiling is a crash waiting for
+        a few centimetres of drift. Floor and ceiling are the nearest occupied voxels below and
+        above in the global map.
+        """
+        ex = self.exploration
+        step = self.mapping.voxel_size()
+        offsets = np.arange(step, 3.0 + step, step)
+        column = np.concatenate(
+            [vp.position + np.outer(-offsets, [0, 0, 1]), vp.position + np.outer(offsets, [0, 0, 1])]
+        )
+        occupied = self.mapping.states(column) == VoxelState.OCCUPIED
+        below, above = occupied[: len(offsets)], occupied[len(offsets) :]
+        z = vp.position[2]
+        floor = z - offsets[np.argmax(below)] if below.any() else -np.inf
+        ceiling = z + offsets[np.argmax(above)] if above.any() else np.inf
+        lo, hi = floor + ex.min_height, ceiling - ex.min_headroom
+        if lo > hi:
+            return vp  # a low gap: leave it to the path planner's clearance
+        new_z = float(np.clip(z, lo, hi))
+        if new_z == z:
+            return vp
+        return dataclasses.replace(vp, position=np.array([vp.position[0], vp.position[1], new_z]))

@@ -1,0 +1,267 @@
+"""The planning service: tours from perception snapshots, the SLC schedule and goal bookkeeping.
+
+The service's state (visited and unreachable goals, the viewpoints of the last plan, the SLC
+offers and attempts) belongs to the control thread: the behaviour tree reads and writes it there.
+A plan is made from a :class:`PlanInputs`, frozen copies taken on the control thread when the
+plan is asked for (:meth:`PlanningService.plan_async`); the planner thread reads only those, the
+planner, and the SLAM and mapping backends through their :class:`amslam.sharing.Shared` locks.
+What a plan decided (its viewpoints, the SLC candidates it offered) comes back inside the
+:class:`Plan` and is adopted on the control thread when the tree takes the tour
+(:meth:`PlanJob.result`). With a simulated platform the plan is made at once on the control
+thread, so simulated time does not pass while it computes and runs stay deterministic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+
+from amslam.interfaces import Mapping as MappingBackend
+from amslam.interfaces import Planner, Slam
+from amslam.mission import ExplorationSection
+from amslam.perception import Snapshot
+from amslam.types import (
+    CameraModel,
+    LoopClosureResult,
+    PlanRequest,
+    SlcCandidate,
+    TourItem,
+    TourItemKind,
+    Viewpoint,
+)
+
+
+@dataclass(frozen=True)
+class SlcSchedule:
+    """When a cluster of landmarks may be offered for a loop closure (a pure function of travel).
+
+    A cluster is offered only after ``min_travel`` metres since the last SLC attempt anywhere,
+    and not the same landmarks again until as much travel again: revisits trade exploration time
+    for accuracy, and pay only once drift has built up.
+    """
+
+    distance: float  # travelled now
+    last_attempt: float  # travelled at the last attempt anywhere (0 before any)
+    tried_at: Mapping[int, float]  # landmark id → travelled when last tried
+    min_travel: float
+
+    def due(self, candidate: SlcCandidate) -> bool:
+        if self.distance - self.last_attempt < self.min_travel:
+            return False
+        return all(
+            self.distance - self.tried_at.get(i, -np.inf) >= self.min_travel for i in candidate.landmark_ids
+        )
+
+
+@dataclass(frozen=True)
+class PlanInputs:
+    """Everything a plan is made from besides the backends: copies, fixed when it was asked for."""
+
+    snapshot: Snapshot
+    viewpoints: tuple[Viewpoint, ...]  # the candidates: gain enough, not visited, not unreachable
+    slc: SlcSchedule | None  # None: SLC off
+    cruise_z: float  # the height SLC viewpoints are lifted to at least
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A tour and what it was planned over."""
+
+    tour: list[TourItem]
+    viewpoints: tuple[np.ndarray, ...]
+    slc_offered: Mapping[int, SlcCandidate]
+
+
+class PlanJob:
+    """A plan being made; :meth:`result` hands over the tour and adopts the plan's bookkeeping."""
+
+    def __init__(self, future: Future, service: PlanningService):
+        self._future = future
+        self._service = service
+
+    def done(self) -> bool:
+        return self._future.done()
+
+    def cancel(self) -> bool:
+        return self._future.cancel()
+
+    def result(self) -> list[TourItem]:
+        """The tour (or the planner's exception); call on the control thread."""
+        plan: Plan = self._future.result()
+        self._service._adopt(plan)
+        return plan.tour
+
+
+@dataclass
+class PlanningService:
+    """Plans tours from snapshots; owns the goal bookkeeping and the SLC schedule."""
+
+    planner: Planner
+    slam: Slam  # shared with the control thread: pass a Shared wrapper when threaded
+    mapping: MappingBackend  # likewise
+    exploration: ExplorationSection
+    camera: CameraModel
+    threaded: bool  # plan on the planner thread (a real vehicle) rather than at once
+    refresh_viewpoints: Callable[[], None] = lambda: None  # ask perception for fresh viewpoints
+    snapshot: Snapshot | None = None  # the latest, published by the runner each tick
+    unreachable: list[np.ndarray] = field(default_factory=list)
+    visited: list[np.ndarray] = field(default_factory=list)
+    planned_viewpoints: tuple[np.ndarray, ...] = ()
+    slc_offered: Mapping[int, SlcCandidate] = field(default_factory=dict)  # key pose id → last offer
+    slc_tried_at: dict[int, float] = field(default_factory=dict)  # landmark id → distance tried
+    slc_log: list[tuple[float, float, LoopClosureResult]] = field(
+        default_factory=list
+    )  # (t, distance, result)
+    _executor: ThreadPoolExecutor | None = None
+
+    def observe(self, snapshot: Snapshot) -> None:
+        self.snapshot = snapshot
+
+    # -- goal bookkeeping (control thread) -----------------------------------------------------
+
+    @property
+    def plans_frontiers(self) -> bool:
+        """Whether the planner tours frontier viewpoints (False: views of known objects, PAMS)."""
+        return self.planner.needs_frontiers
+
+    @property
+    def viewpoint_count(self) -> int:
+        return len(self.snapshot.viewpoints) if self.snapshot else 0
+
+    def mark_unreachable(self, position: np.ndarray) -> None:
+        self.unreachable.append(np.asarray(position, float).copy())
+        self.refresh_viewpoints()
+
+    def mark_visited(self, position: np.ndarray) -> None:
+        """We looked from here: a viewpoint resampled to the same place cannot show more."""
+        self.visited.append(np.asarray(position, float).copy())
+        self.refresh_viewpoints()
+
+    def candidate_viewpoints(self) -> list[Viewpoint]:
+        """Viewpoints worth visiting: enough gain, not known to be unreachable, at a safe height."""
+        out = []
+        for vp in self.snapshot.viewpoints if self.snapshot else ():
+            if vp.gain < self.exploration.min_viewpoint_gain:
+                continue
+            if any(np.linalg.norm(vp.position - u) < 0.75 for u in self.unreachable):
+                continue
+            if any(np.linalg.norm(vp.position - u) < 0.5 for u in self.visited):
+                continue
+            out.append(vp)
+        return out
+
+    def frontier_change(self) -> float:
+        """Share of viewpoints that appeared or vanished (by position) since the last plan."""
+        now = [vp.position for vp in self.candidate_viewpoints()]
+        then = self.planned_viewpoints
+        if not now and not then:
+            return 0.0
+        if not now or not then:
+            return 1.0
+        d = np.linalg.norm(np.asarray(now)[:, None] - np.asarray(then)[None], axis=2)
+        kept = min(int((d.min(axis=1) < 1.0).sum()), int((d.min(axis=0) < 1.0).sum()))
+        return 1.0 - kept / max(len(now), len(then))
+
+    # -- planning ------------------------------------------------------------------------------
+
+    def inputs(self, cruise_z: float) -> PlanInputs:
+        """The frozen inputs of a plan asked for now."""
+        ex = self.exploration
+        slc = None
+        if ex.slc:
+            last = max((d for _, d, _ in self.slc_log), default=0.0)
+            tried = MappingProxyType(dict(self.slc_tried_at))
+            slc = SlcSchedule(self.snapshot.distance, last, tried, ex.slc_min_travel)
+        # A planner of views of known objects (PAMS) never reads the frontier viewpoints; their
+        # all-pairs path costs (one Dijkstra per viewpoint over the whole free-space graph, which
+        # with plan_through_unknown spans the mission area) were 90 % of such a run's time.
+        viewpoints = tuple(self.candidate_viewpoints()) if self.plans_frontiers else ()
+        return PlanInputs(self.snapshot, viewpoints, slc, cruise_z)
+
+    def plan_async(self, cruise_z: float) -> PlanJob:
+        """Plan from the latest snapshot; the job holds the tour (or the planner's exception)."""
+        inputs = self.inputs(cruise_z)
+        if not self.threaded:
+            future: Future = Future()
+            try:
+                future.set_result(self.plan(inputs))
+            except Exception as exc:  # delivered through the job, like the threaded path
+                future.set_exception(exc)
+            return PlanJob(future, self)
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="amslam-planner")
+        return PlanJob(self._executor.submit(self.plan, inputs), self)
+
+    def plan(self, inputs: PlanInputs) -> Plan:
+        """Ask the planner for a tour over the inputs' viewpoints (and SLC candidates).
+
+        Runs on the planner thread when threaded: it reads ``inputs``, the planner, and the SLAM
+        and mapping backends (through their locks), and writes nothing of the service.
+        """
+        vps = inputs.viewpoints
+        planned = tuple(vp.position for vp in vps)
+        if not vps and self.plans_frontiers:
+            return Plan([], planned, MappingProxyType({}))
+        start = inputs.snapshot.position_world
+        nodes = np.vstack([start[None], np.array([v.position for v in vps]).reshape(-1, 3)])
+        costs = self.mapping.path_costs(nodes, nodes) if vps else np.zeros((1, 1))
+        offered = self._slc_candidates(inputs) if inputs.slc is not None else ()
+        slc_costs = (
+            self.mapping.path_costs(np.array([c.position for c in offered]), nodes)
+            if offered
+            else np.zeros((0, len(nodes)))
+        )
+        request = PlanRequest(
+            start=start,
+            start_yaw=inputs.snapshot.yaw_world,
+            viewpoints=vps,
+            costs=costs,
+            camera=self.camera,
+            slc_candidates=offered,
+            slc_costs=slc_costs,
+            landmarks=tuple(self.slam.landmarks()),
+        )
+        tour = self.planner.plan(request)
+        return Plan(tour, planned, MappingProxyType({c.keypose_id: c for c in offered}))
+
+    def _slc_candidates(self, inputs: PlanInputs) -> tuple[SlcCandidate, ...]:
+        # A key pose from the take-off climb is still a fine place to look from, in the air.
+        return tuple(
+            dataclasses.replace(c, position=np.array([*c.position[:2], max(c.position[2], inputs.cruise_z)]))
+            for c in self.slam.slc_candidates(self.exploration.slc_sensing_range)
+            if inputs.slc.due(c)
+        )
+
+    def _adopt(self, plan: Plan) -> None:
+        self.planned_viewpoints = plan.viewpoints
+        if self.exploration.slc:
+            self.slc_offered = plan.slc_offered
+
+    # -- semantic loop closure (control thread) ------------------------------------------------
+
+    def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
+        """Try an SLC with what the detector saw most recently (e.g. during a panorama).
+
+        Perception fed every detection to SLAM at the pose of its own frame as it came in, so
+        nothing is seen *now* that SLAM does not have: the call hands over no detections and the
+        backend registers the panorama from what it was fed (see :meth:`Slam.try_loop_closure`).
+        """
+        now = self.snapshot
+        candidate = (
+            self.slc_offered.get(goal.ref) if goal is not None and goal.kind == TourItemKind.SLC else None
+        )
+        if candidate is not None:
+            for i in candidate.landmark_ids:
+                self.slc_tried_at[i] = now.distance
+        result = self.slam.try_loop_closure(now.odometry, self.camera.T_body_cam, [])
+        self.slc_log.append((now.t, now.distance, result))
+        return result
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)

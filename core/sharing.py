@@ -1,0 +1,71 @@
+"""The thread rule's lock: a backend that two threads may call.
+
+On a real vehicle three threads run (docs/architecture.md, "Threads"): the control thread
+(perception step, behaviour tree, setpoints), the planner thread (one plan at a time) and the
+detector thread (``Detector.detect`` on a frame). The planner thread queries the SLAM and mapping
+backends (``slc_candidates``, ``landmarks``, ``path_costs``) while the control thread integrates
+frames and detections into them, and neither backend is written for that: gtsam's iSAM2 and a
+voxel map's cached search graph are rewritten by queries as well as by updates. So the runtime
+hands both threads the same :class:`Shared` wrapper of each of these backends, and every call
+into it holds the backend's one re-entrant lock: a call sees the backend between two whole
+calls of the other thread, never in the middle of one.
+
+The cost is waiting, not copying: while the planner holds the map for a tour's path costs, a
+control tick that integrates a frame waits for it (the vehicle holds its last setpoint). Copying
+a map or a factor graph per plan would cost more than the wait, and a snapshot of either would
+be stale by the time the plan is adopted anyway.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+B = TypeVar("B")
+
+
+class Shared(Generic[B]):
+    """A backend whose every method call holds its lock (attributes are read as they are)."""
+
+    def __init__(self, backend: B):
+        self._backend = backend
+        self._methods: dict[str, Callable[..., Any]] = {}
+        #: held by every call; a caller may hold it across several calls to see them as one
+        self.lock = threading.RLock()
+
+    @property
+    def backend(self) -> B:
+        """The backend itself, for single-threaded use after the threads have stopped."""
+        return self._backend
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        value = getattr(self._backend, name)
+        if not callable(value):
+            return value
+        method = self._methods.get(name)
+        if method is None:
+            lock = self.lock
+
+            @functools.wraps(value)
+            def method(*args: Any, **kwargs: Any) -> Any:
+                with lock:
+                    return value(*args, **kwargs)
+
+            self._methods[name] = method
+        return method
+
+    def __repr__(self) -> str:
+        return f"Shared({self._backend!r})"
+
+
+#: the backend kinds both the control thread and the planner thread call
+SHARED_KINDS = ("slam", "mapping")
+
+
+def share(backends: dict[str, Any]) -> dict[str, Any]:
+    """The backends as the runtime's threads see them: the shared kinds wrapped in their locks."""
+    return {kind: Shared(b) if kind in SHARED_KINDS else b for kind, b in backends.items()}
