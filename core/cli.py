@@ -64,26 +64,22 @@ class Experiment:
     several_missions: bool = False
 
 
-def positive_int(text: str) -> int:
-    """An argparse type: a whole number ≥ 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} is not at least 1")
-    return value
+def whole_number(minimum: int) -> Callable[[str], int]:
+    """An argparse type: a whole number ≥ ``minimum``, refused in one line otherwise."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} is not at least {minimum}")
+        return value
+
+    return parse
 
 
-def non_negative_int(text: str) -> int:
-    """An argparse type: a whole number ≥ 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative")
-    return value
+positive_int = whole_number(1)
 
 
 def experiment_arguments(parser: argparse.ArgumentParser) -> None:
@@ -91,7 +87,7 @@ def experiment_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mission", help="mission file, or the name of a packaged mission")
     parser.add_argument("more", nargs="*", help="further missions, for experiments over several worlds")
     parser.add_argument("--seeds", type=positive_int, default=5, help="number of seeds (default 5)")
-    parser.add_argument("--first-seed", type=non_negative_int, default=1)
+    parser.add_argument("--first-seed", type=whole_number(0), default=1)
     parser.add_argument("--out", default="runs", help="folder that receives the experiment folder")
     parser.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override for every run")
 

@@ -31,7 +31,7 @@ from py_trees.common import Status
 from amslam import __version__
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import pose_from
-from amslam.interfaces import BACKEND_KINDS, Backend, RunContext
+from amslam.interfaces import BACKEND_KINDS, Backend, Platform, RunContext
 from amslam.measurements import FILENAME as MEASUREMENTS
 from amslam.measurements import MeasurementLog
 from amslam.mission import Mission
@@ -58,6 +58,30 @@ class RunResult:
     @property
     def report(self) -> Path:
         return self.run_dir / "report.md"
+
+
+def backend_rng(seed: int, kind: str) -> np.random.Generator:
+    """The random generator a run gives the backend of ``kind``: one independent stream per kind
+    from the mission's seed, so a backend configured outside a run (to look at a simulated world
+    before flying it) draws exactly what it draws in the run."""
+    streams = np.random.SeedSequence(seed).spawn(len(BACKEND_KINDS))
+    return np.random.default_rng(streams[list(BACKEND_KINDS).index(kind)])
+
+
+def started_platform(mission: Mission, registry: Registry, run_dir: Path) -> Platform:
+    """The mission's platform configured as its run would configure it, and started: to read
+    its world (``world_summary``) without flying. The caller closes it."""
+    choice = mission.backends["platform"]
+    platform = registry.factory("platform", choice.plugin)()
+    context = RunContext(
+        rng=backend_rng(mission.model.seed, "platform"),
+        run_dir=Path(run_dir),
+        robot=mission.model.robot.spec(),
+        mission_dir=mission.directory,
+    )
+    platform.configure(choice.params, context)
+    platform.start()
+    return platform
 
 
 class Runner:
@@ -99,18 +123,17 @@ class Runner:
 
     def _configure(self) -> None:
         model = self.mission.model
-        seeds = np.random.SeedSequence(model.seed).spawn(len(BACKEND_KINDS))
         context = RunContext(
-            rng=np.random.default_rng(seeds[0]),
+            rng=np.random.default_rng(),
             run_dir=self.rundir.path,
             emit=lambda name, **f: self.rundir.event(self._now(), name, **f),
             robot=model.robot.spec(),
             mission_dir=self.mission.directory,
         )
-        for i, kind in enumerate(BACKEND_KINDS):
+        for kind in BACKEND_KINDS:
             choice = self.mission.backends[kind]
             backend = self.registry.factory(kind, choice.plugin)()
-            context = dataclasses.replace(context, rng=np.random.default_rng(seeds[i]))
+            context = dataclasses.replace(context, rng=backend_rng(model.seed, kind))
             backend.configure(choice.params, context)
             self.backends[kind] = backend
             if kind == "mapping" and model.prior_map:

@@ -41,10 +41,9 @@ import numpy as np
 import amslam
 from amslam.cli import Experiment, positive_int
 from amslam.errors import AmslamError
-from amslam.interfaces import BACKEND_KINDS, RunContext
 from amslam.mission import Mission, load_mission
 from amslam.registry import Registry
-from amslam.runner import Runner
+from amslam.runner import Runner, started_platform
 from amslam.types import WorldSummary
 
 Mode = Literal["homogeneous", "heterogeneous"]
@@ -70,24 +69,6 @@ def team_overrides(
             f"(team_overrides); platform {plugin!r} cannot: use the simulator (plugin sim)"
         )
     return place(spec, registry, n, mode, seed, overrides, **setup)
-
-
-def _build_platform(mission: Mission, registry: Registry, run_dir: Path) -> Any:
-    """The mission's platform, configured and started (to read the world before flying)."""
-    choice = mission.backends["platform"]
-    platform = registry.factory("platform", choice.plugin)()
-    ss = np.random.SeedSequence(mission.model.seed).spawn(len(BACKEND_KINDS))[0]
-    platform.configure(
-        choice.params,
-        RunContext(
-            rng=np.random.default_rng(ss),
-            run_dir=run_dir,
-            robot=mission.model.robot.spec(),
-            mission_dir=mission.directory,
-        ),
-    )
-    platform.start()
-    return platform
 
 
 # -- scoring ------------------------------------------------------------------------------------
@@ -206,7 +187,7 @@ def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
 def _world_of(run_dir: Path, registry: Registry) -> WorldSummary:
     """The world summary of a run, rebuilt from its mission (same seed, same pin)."""
     mission = load_mission(str(Path(run_dir) / "mission.yaml"), registry, [])
-    platform = _build_platform(mission, registry, Path(run_dir).parent)
+    platform = started_platform(mission, registry, Path(run_dir).parent)
     try:
         return platform.world_summary()
     finally:

@@ -15,36 +15,16 @@ from typing import Any, Literal
 
 import numpy as np
 
-from amslam.interfaces import BACKEND_KINDS, RunContext
-from amslam.mission import Mission, load_mission
+from amslam.mission import load_mission
 from amslam.registry import Registry
+from amslam.runner import backend_rng, started_platform
 
 Mode = Literal["homogeneous", "heterogeneous"]
 
 
-def _started_platform(mission: Mission, scratch: Path):
-    """The mission's simulator, configured as a run would configure it and started (to read its world)."""
-    from amslam.plugins.sim.platform import SimPlatform
-
-    platform = SimPlatform()
-    ss = np.random.SeedSequence(mission.model.seed).spawn(len(BACKEND_KINDS))[0]
-    platform.configure(
-        mission.backends["platform"].params,
-        RunContext(
-            rng=np.random.default_rng(ss),
-            run_dir=scratch,
-            robot=mission.model.robot.spec(),
-            mission_dir=mission.directory,
-        ),
-    )
-    platform.start()
-    return platform
-
-
 def sim_world_seed(seed: int) -> int:
     """The world seed the ``sim`` platform derives from a mission seed (see its ``configure``)."""
-    ss = np.random.SeedSequence(seed).spawn(len(BACKEND_KINDS))[list(BACKEND_KINDS).index("platform")]
-    return int(np.random.default_rng(ss).integers(0, 2**63 - 1, size=3)[0])
+    return int(backend_rng(seed, "platform").integers(0, 2**63 - 1, size=3)[0])
 
 
 def robot_seed(seed: int, k: int) -> int:
@@ -187,7 +167,7 @@ def team_overrides(
     base = [*overrides, f"seed={seed}"]
     mission = load_mission(spec, registry, base)
     n_low = n if mode == "homogeneous" else n - 1
-    platform = _started_platform(mission, scratch)
+    platform = started_platform(mission, registry, scratch)
     try:
         world = platform.world_summary()
         area = mission.model.area

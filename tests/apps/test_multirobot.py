@@ -10,7 +10,6 @@ import pytest
 import yaml
 
 from amslam.apps.multirobot import (
-    _build_platform,
     flight_key,
     fly_team,
     index_runs,
@@ -22,7 +21,7 @@ from amslam.measurements import read_measurements
 from amslam.mission import load_mission
 from amslam.plugins.sim.teams import split_area
 from amslam.registry import build_plugin_manager
-from amslam.runner import Runner
+from amslam.runner import Runner, started_platform
 from amslam.types import Landmark, WorldSummary
 
 MISSION = """\
@@ -72,7 +71,7 @@ def test_team_flies_one_world_from_own_bases(registry, tmp_path: Path) -> None: 
         assert area is not None
         start = np.array(mission.backends["platform"].params.start)
         assert area.lo[0] <= start[0] <= area.hi[0] and area.lo[1] <= start[1] <= area.hi[1]
-        platform = _build_platform(mission, registry, tmp_path)
+        platform = started_platform(mission, registry, tmp_path)
         worlds.append(platform.world_summary().object_positions)
         seeds.append(mission.model.seed)
         starts.append(start)
@@ -111,7 +110,7 @@ def test_overhead_lawnmower_stays_high_and_clear(registry, tmp_path: Path) -> No
     (flags,) = team_overrides(str(spec), registry, 1, "heterogeneous", 5, scratch=tmp_path)
     mission = load_mission(str(spec), registry, flags)
     assert mission.model.tree == "waypoints" and mission.model.robot.altitude == 6.0  # 2 × 3 m
-    platform = _build_platform(mission, registry, tmp_path)
+    platform = started_platform(mission, registry, tmp_path)
     try:
         start = np.array([*mission.backends["platform"].params.start, 0.0])
         pts = np.array(mission.model.waypoints.points) + start

@@ -92,7 +92,7 @@ def test_set_plugins_disable_is_honoured_like_the_file(tmp_path):
     [
         (("experiment", "multi-robot", "demo", "--robots", "abc"), "argument --robots: 'abc': team sizes"),
         (("experiment", "planners", "demo", "--seeds", "0"), "argument --seeds: 0 is not at least 1"),
-        (("experiment", "planners", "demo", "--first-seed", "-3"), "argument --first-seed: -3 is negative"),
+        (("experiment", "planners", "demo", "--first-seed", "-3"), "--first-seed: -3 is not at least 0"),
         (("experiment", "no-such", "demo"), "argument NAME: invalid choice: 'no-such'"),
         (("fly-to-the-moon",), "invalid choice: 'fly-to-the-moon'"),
         (("experiment", "planners", "demo", "three_floors"), "planners flies one mission; also given"),
