@@ -64,6 +64,31 @@ def to_z_up(vertices: np.ndarray, up_axis: str) -> np.ndarray:
     return vertices
 
 
+def _collada_node_names(path: Path) -> dict[str, str]:
+    """Geometry id → name of the first COLLADA node instancing it.
+
+    trimesh names a COLLADA scene's nodes after their geometry ids and drops the node names,
+    which are what modelling tools show (and what a class map should see).
+    """
+    from xml.etree import ElementTree as ET
+
+    names: dict[str, str] = {}
+    stack: list[str] = []
+    try:
+        for event, element in ET.iterparse(path, events=("start", "end")):
+            tag = element.tag.rsplit("}", 1)[-1]
+            if tag == "node":
+                if event == "start":
+                    stack.append(element.get("name") or element.get("id") or "")
+                else:
+                    stack.pop()
+            elif tag == "instance_geometry" and event == "start" and stack:
+                names.setdefault(element.get("url", "").lstrip("#"), stack[-1])
+    except ET.ParseError:
+        return {}  # trimesh has read it; names are a nicety
+    return names
+
+
 def load_mesh_file(path: Path, up_axis: str | None = None, where: str | None = None) -> list[Part]:
     """Every triangle mesh node of a file, placed by the file's scene graph, in metres.
 
@@ -79,10 +104,13 @@ def load_mesh_file(path: Path, up_axis: str | None = None, where: str | None = N
             f"{at}: {path.name}: unknown mesh format (known: {', '.join(sorted(MESH_TYPES))})"
         )
     try:
-        scene = trimesh.load_scene(str(path), file_type=file_type, process=False)
+        # OBJ: one mesh per `o` object, so named objects can be classified (trimesh merges them by default)
+        extra = {"split_objects": True, "group_material": False} if file_type == "obj" else {}
+        scene = trimesh.load_scene(str(path), file_type=file_type, process=False, **extra)
     except Exception as exc:  # trimesh and its loaders raise anything from ValueError to KeyError
         raise WorldImportError(f"{at}: cannot read mesh {path}: {type(exc).__name__}: {exc}") from None
     metres = collada_asset(path)[0] if file_type == "dae" else 1.0
+    node_names = _collada_node_names(path) if file_type == "dae" else {}
     parts: list[Part] = []
     for node in scene.graph.nodes_geometry:
         node_T_mesh, geometry_name = scene.graph[node]
@@ -97,7 +125,8 @@ def load_mesh_file(path: Path, up_axis: str | None = None, where: str | None = N
         vertices = vertices * metres
         if up_axis is not None:
             vertices = to_z_up(vertices, up_axis)
-        parts.append(Part(str(node), str(geometry_name), vertices, faces))
+        name = node_names.get(str(geometry_name)) or node_names.get(re.sub(r"_\d+$", "", str(geometry_name)))
+        parts.append(Part(name or str(node), str(geometry_name), vertices, faces))
     return parts
 
 

@@ -464,15 +464,16 @@ class SdfReader:
             if parsed.scheme == "package":  # a ROS package folder: usually the model path's parent
                 roots = roots + [p.parent for p in roots]
             return [root / rest for root in roots], "model path " + os.pathsep.join(map(str, roots))
-        if parsed.scheme == "file":
-            p = Path(unquote(parsed.netloc + parsed.path))
-            return [p if p.is_absolute() else base / p], str(base)
         if parsed.scheme in ("http", "https"):
             return [], "the network (not fetched: download the model and pass its folder with --model-path)"
-        p = Path(uri)
+        p = Path(unquote(parsed.netloc + parsed.path)) if parsed.scheme == "file" else Path(uri)
         if p.is_absolute():
             return [p], str(p.parent)
-        return [base / p] + [root / p for root in self.model_path], f"{base} and the model path"
+        # a relative path: Gazebo looks beside the file, then along its resource paths, which for
+        # ROS world packages is the folder holding models/ ('file://models/x/meshes/x.dae')
+        roots = [base] + self.model_path + [root.parent for root in self.model_path]
+        unique = list(dict.fromkeys(roots))
+        return [root / p for root in unique], ", ".join(map(str, unique))
 
     def _resolve_file(self, uri: str, base: Path, where: str, what: str) -> Path:
         candidates, searched = self._candidates(uri, base)
