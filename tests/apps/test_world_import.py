@@ -495,3 +495,18 @@ def test_not_an_sdf_file(tmp_path):
     world.write_text("<robot name='r'/>")
     with pytest.raises(WorldImportError, match=r"w.world:1: not an SDF file"):
         import_world(world, tmp_path / "o")
+
+
+def test_a_model_far_outside_the_building_is_left_out(tmp_path):
+    # saved worlds keep what physics threw away (the AWS bookstore has a book 343 km up)
+    body = "".join(
+        f'<model name="book_{i}"><pose>{i} 0 0.5 0 0 0</pose>' + box_link("0.2 0.3 0.05") + "</model>"
+        for i in range(6)
+    )
+    body += '<model name="book_lost"><pose>1 1 343582.7 0 0 0</pose>' + box_link("0.2 0.3 0.05") + "</model>"
+    world = tmp_path / "w.sdf"
+    world.write_text(sdf_world(body))
+    result = import_world(world, tmp_path / "out")
+    assert result.hi[2] == pytest.approx(0.525)
+    assert [s.what for s in result.skipped] == ["model book_lost"]
+    assert "far outside the rest of the world (at 1, 1, 343583 m)" in result.skipped[0].reason

@@ -166,7 +166,8 @@ def _import_sdf(
     structure_models: Counter = Counter()
     cache: dict = {}
     planes: list[tuple[Piece, object]] = []
-    seen_structure: set[tuple[str, ...]] = set()
+    seen_structure: set[str] = set()
+    placed: list[tuple[str, object, np.ndarray, np.ndarray]] = []
     for piece in world.pieces:
         names = [(m.name, m.kind) for m in piece.models]
         owner = owner_of(names, class_map)
@@ -194,9 +195,47 @@ def _import_sdf(
             vertices, faces = triangles
         else:
             vertices, faces = primitive(piece.geometry)
-        out.add(owner, *_place(piece.pose, vertices, faces))
+        top = piece.models[0].name if piece.models else piece.link
+        placed.append((top, owner, *_place(piece.pose, vertices, faces)))
+    extents: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for top, _, vertices, _ in placed:
+        lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+        if top in extents:
+            lo, hi = np.minimum(lo, extents[top][0]), np.maximum(hi, extents[top][1])
+        extents[top] = (lo, hi)
+    far = far_away(extents)
+    for top, reason in far.items():
+        skipped.append(Skipped(f"model {top}", reason))
+    for top, owner, vertices, faces in placed:
+        if top not in far:
+            out.add(owner, vertices, faces)
     _add_planes(planes, out, options.plane_margin, result_notes)
     return world.name, skipped, structure_models
+
+
+def far_away(extents: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, str]:
+    """Top-level models lying far outside the rest of the world (name → why they are left out).
+
+    Saved Gazebo worlds keep what physics threw away: the AWS bookstore has a book at z = 343 km.
+    Such a model would make the world's bounds (and so the flyable volume) absurd. "Far" is
+    beyond the box holding the middle 80 % of model centres, widened by its own size and 10 m.
+    """
+    if len(extents) < 5:
+        return {}
+    names = list(extents)
+    lo = {n: extents[n][0] for n in names}
+    hi = {n: extents[n][1] for n in names}
+    centres = np.array([(lo[n] + hi[n]) / 2 for n in names])
+    core_lo, core_hi = np.percentile(centres, 10, axis=0), np.percentile(centres, 90, axis=0)
+    margin = (core_hi - core_lo) + 10.0
+    result = {}
+    for n in names:
+        if np.any(lo[n] > core_hi + margin) or np.any(hi[n] < core_lo - margin):
+            centre = (lo[n] + hi[n]) / 2
+            result[n] = (
+                f"far outside the rest of the world (at {centre[0]:.0f}, {centre[1]:.0f}, {centre[2]:.0f} m)"
+            )
+    return result
 
 
 def _add_planes(planes, out: _Collector, margin: float, notes: list[str]) -> None:
@@ -395,9 +434,13 @@ def summary_text(r: ImportResult) -> str:
         lines.append(f"  structure (no class): {total} models — {common}{more}")
     if r.skipped:
         lines.append(f"  skipped: {len(r.skipped)}")
-        reasons = Counter((s.reason, s.what) for s in r.skipped)
-        for (reason, what), n in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])):
-            lines.append(f"    - {what}: {reason}" + (f" (×{n})" if n > 1 else ""))
+        reasons = Counter(s.reason for s in r.skipped)
+        first = {}
+        for s in r.skipped:
+            first.setdefault(s.reason, s.what)
+        for reason, n in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])):
+            example = f"×{n}, e.g. {first[reason]}" if n > 1 else first[reason]
+            lines.append(f"    - {reason} ({example})")
     for note in r.notes:
         lines.append(f"  note: {note}")
     lines.append(f"  mission: {r.mission}   fly it: amslam run {r.mission}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,7 +107,14 @@ def load_mesh_file(path: Path, up_axis: str | None = None, where: str | None = N
     try:
         # OBJ: one mesh per `o` object, so named objects can be classified (trimesh merges them by default)
         extra = {"split_objects": True, "group_material": False} if file_type == "obj" else {}
-        scene = trimesh.load_scene(str(path), file_type=file_type, process=False, **extra)
+        if file_type == "dae":
+            # pycollada rejects comments inside <geometry> (FBX exporters write them) and trimesh
+            # then silently returns nothing: drop comments first. Reading from memory also skips
+            # loading texture images, which the simulator does not use.
+            text = re.sub(rb"<!--.*?-->", b"", path.read_bytes(), flags=re.S)
+            scene = trimesh.load_scene(io.BytesIO(text), file_type=file_type, process=False)
+        else:
+            scene = trimesh.load_scene(str(path), file_type=file_type, process=False, **extra)
     except Exception as exc:  # trimesh and its loaders raise anything from ValueError to KeyError
         raise WorldImportError(f"{at}: cannot read mesh {path}: {type(exc).__name__}: {exc}") from None
     metres = collada_asset(path)[0] if file_type == "dae" else 1.0
