@@ -510,3 +510,18 @@ def test_a_model_far_outside_the_building_is_left_out(tmp_path):
     assert result.hi[2] == pytest.approx(0.525)
     assert [s.what for s in result.skipped] == ["model book_lost"]
     assert "far outside the rest of the world (at 1, 1, 343583 m)" in result.skipped[0].reason
+
+
+def test_with_skip_missing_a_missing_visual_mesh_falls_back_to_the_collision_shapes(tmp_path):
+    world = tmp_path / "w.sdf"
+    world.write_text(
+        sdf_world(
+            '<model name="bookshelf_1"><link name="l"><visual name="v"><geometry><mesh><uri>gone.dae</uri>'
+            '</mesh></geometry></visual><collision name="c"><geometry><box><size>2 0.5 2</size></box>'
+            "</geometry></collision></link></model>"
+        )
+    )
+    result = import_world(world, tmp_path / "out", ImportOptions(skip_missing=True))
+    assert_bounds(objects_of(tmp_path / "out")["bookshelf_1"], [-1, -0.25, -1], [1, 0.25, 1])
+    assert any("'gone.dae' not found" in s.reason or "gone.dae" in s.reason for s in result.skipped)
+    assert any("imported its <collision> geometry instead" in n for n in result.notes)

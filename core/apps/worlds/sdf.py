@@ -364,13 +364,28 @@ class SdfReader:
         path = f"{scope.path}/link[{name}]"
         world_T_link = world_T_model @ frames.resolve(name)
         wanted = self.geometry
-        elements = element.findall(wanted)
-        if not elements and element.findall("collision" if wanted == "visual" else "visual"):
-            other = "collision" if wanted == "visual" else "visual"
+        other = "collision" if wanted == "visual" else "visual"
+        if not element.findall(wanted) and element.findall(other):
             out.skipped.append(Skipped(f"{path}", f"has only <{other}> geometry, importing <{wanted}>s"))
-        for shape in elements:
+        found = self._read_shapes(scope, frames, element, wanted, world_T_model, world_T_link, out)
+        # every visual mesh was missing (skipped): the link's collision shapes stand in for it,
+        # better than a hole where a bookshelf was
+        fallback = (
+            not found and wanted == "visual" and element.findall("visual") and element.findall("collision")
+        )
+        if fallback and self._read_shapes(
+            scope, frames, element, "collision", world_T_model, world_T_link, out
+        ):
+            out.notes.append(f"{path}: visual mesh missing, imported its <collision> geometry instead")
+
+    def _read_shapes(self, scope, frames, element, tag, world_T_model, world_T_link, out) -> int:
+        """The link's ``tag`` (visual or collision) shapes as pieces; returns how many."""
+        name = element.get("name") or "?"
+        path = f"{scope.path}/link[{name}]"
+        count = 0
+        for shape in element.findall(tag):
             shape_name = shape.get("name") or "?"
-            shape_path = f"{path}/{wanted}[{shape_name}]"
+            shape_path = f"{path}/{tag}[{shape_name}]"
             where = f"{scope.xml.at(shape)} ({shape_path})"
             pose, relative_to = parse_pose(shape.find("pose"), where)
             if relative_to:
@@ -384,6 +399,8 @@ class SdfReader:
             geometry = self._geometry(scope.xml, geometry_el, where, shape_path, out)
             if geometry is not None:
                 out.pieces.append(Piece(geometry, world_T_shape, scope.refs, name, where))
+                count += 1
+        return count
 
     def _geometry(
         self, xml: XmlFile, element: ET.Element, where: str, path: str, out: SdfWorld
