@@ -525,3 +525,28 @@ def test_with_skip_missing_a_missing_visual_mesh_falls_back_to_the_collision_sha
     assert_bounds(objects_of(tmp_path / "out")["bookshelf_1"], [-1, -0.25, -1], [1, 0.25, 1])
     assert any("'gone.dae' not found" in s.reason or "gone.dae" in s.reason for s in result.skipped)
     assert any("imported its <collision> geometry instead" in n for n in result.notes)
+
+
+def test_what_gazebo_tolerates_imports_too(tmp_path):
+    # a bare & in a model.config (AWS hospital) and a comment before the XML declaration (cafe.world)
+    models = tmp_path / "models"
+    folder = write_model(models, "portal", '<model name="portal">' + box_link("1 1 1") + "</model>")
+    (folder / "model.config").write_text(
+        '<?xml version="1.0"?>\n<model><name>portal</name><sdf version="1.6">model.sdf</sdf>\n'
+        "<description>portal, door & car</description></model>\n"
+    )
+    world = tmp_path / "w.world"
+    world.write_text("<!-- usage notes -->\n" + sdf_world("<include><uri>model://portal</uri></include>"))
+    result = import_world(world, tmp_path / "out", ImportOptions(model_path=[models]))
+    assert result.triangles == 12
+
+
+def test_skip_missing_lists_each_missing_model(tmp_path):
+    world = tmp_path / "w.world"
+    body = "".join(f"<include><uri>model://{m}</uri><name>n{i}</name></include>" for i, m in enumerate("aab"))
+    world.write_text(sdf_world(body + '<model name="floor">' + box_link("5 5 0.1") + "</model>"))
+    result = import_world(world, tmp_path / "out", ImportOptions(skip_missing=True))
+    reasons = sorted(s.reason for s in result.skipped)
+    assert reasons == ["model 'a' not found on the model path"] * 2 + [
+        "model 'b' not found on the model path"
+    ]

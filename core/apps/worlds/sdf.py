@@ -36,6 +36,10 @@ class WorldImportError(AmslamError):
     """A world could not be imported; the message names the file, line and element."""
 
 
+class MissingFileError(WorldImportError):
+    """An included model or a mesh is not where its URI says (``--skip-missing`` skips these)."""
+
+
 # -- XML with line numbers ------------------------------------------------------------------------
 
 
@@ -52,11 +56,27 @@ class XmlFile:
         return f"{self.path}:{line}" if line else str(self.path)
 
 
+_BARE_AMPERSAND = re.compile(rb"&(?!#\d+;|#x[0-9a-fA-F]+;|[A-Za-z_][\w.-]*;)")
+_DECLARATION = re.compile(rb"<\?xml[^>]*\?>")
+
+
+def _tolerate_tinyxml(data: bytes) -> bytes:
+    """What Gazebo's TinyXML reads but an XML parser refuses, made valid: a bare ``&`` (``portal,
+    door & car`` in a model.config) and an XML declaration after a comment (gazebo's own
+    cafe.world). Line numbers stay as they were."""
+    data = _BARE_AMPERSAND.sub(b"&amp;", data)
+    first = _DECLARATION.search(data)
+    if first is not None and data[: first.start()].strip(b" \t\r\n\xef\xbb\xbf"):
+        data = data[: first.start()] + b" " * (first.end() - first.start()) + data[first.end() :]
+    return data
+
+
 def parse_xml(path: Path) -> XmlFile:
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise WorldImportError(f"cannot read {path}: {exc.strerror}") from None
+    data = _tolerate_tinyxml(data)
     builder = ET.TreeBuilder()
     parser = expat.ParserCreate()
     lines: dict[int, int] = {}
@@ -333,10 +353,13 @@ class SdfReader:
         uri = uri_el.text.strip()
         try:
             xml = self._load_model_file(uri, scope.xml.path.parent, where)
-        except WorldImportError:
+        except MissingFileError:
             if not self.skip_missing:
                 raise
-            out.skipped.append(Skipped(f"include {uri}", "model not found on the model path"))
+            model = urlparse(uri).netloc or Path(uri).name
+            out.skipped.append(
+                Skipped(f"{scope.path}/include", f"model {model!r} not found on the model path")
+            )
             return
         included = xml.root.find("model")
         if included is None:
@@ -456,7 +479,7 @@ class SdfReader:
                 raise WorldImportError(f"{where}: mesh scale has a zero: {scale}")
             try:
                 mesh_path = self._resolve_file(uri, xml.path.parent, where, "mesh")
-            except WorldImportError:
+            except MissingFileError:
                 if not self.skip_missing:
                     raise
                 out.skipped.append(Skipped(path, f"mesh not found: {uri}"))
@@ -503,7 +526,7 @@ class SdfReader:
                 for sibling in p.parent.iterdir():
                     if sibling.name.lower() == p.name.lower() and sibling.is_file():
                         return sibling
-        raise WorldImportError(f"{where}: {what} {uri!r} not found; searched {searched}")
+        raise MissingFileError(f"{where}: {what} {uri!r} not found; searched {searched}")
 
     def _load_model_file(self, uri: str, base: Path, where: str) -> XmlFile:
         key = f"{base}|{uri}"
@@ -522,7 +545,7 @@ class SdfReader:
             name = urlparse(uri).netloc or Path(uri).name
             stock = STOCK_MODELS.get(name)
             if stock is None:
-                raise WorldImportError(f"{where}: model {name!r} ({uri}) not found; searched {searched}")
+                raise MissingFileError(f"{where}: model {name!r} ({uri}) not found; searched {searched}")
             root = ET.fromstring(stock)
             found = XmlFile(Path(f"<Gazebo's stock {name}>"), root, {})
         elif found.root.tag != "sdf":
