@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,6 +105,10 @@ def load_mesh_file(path: Path, up_axis: str | None = None, where: str | None = N
         raise WorldImportError(
             f"{at}: {path.name}: unknown mesh format (known: {', '.join(sorted(MESH_TYPES))})"
         )
+    quiet = logging.getLogger("trimesh")
+    level = quiet.level
+    # trimesh logs texture and material troubles with tracebacks (textures are not read here)
+    quiet.setLevel(logging.CRITICAL)
     try:
         # OBJ: one mesh per `o` object, so named objects can be classified (trimesh merges them by default)
         extra = {"split_objects": True, "group_material": False} if file_type == "obj" else {}
@@ -117,6 +122,8 @@ def load_mesh_file(path: Path, up_axis: str | None = None, where: str | None = N
             scene = trimesh.load_scene(str(path), file_type=file_type, process=False, **extra)
     except Exception as exc:  # trimesh and its loaders raise anything from ValueError to KeyError
         raise WorldImportError(f"{at}: cannot read mesh {path}: {type(exc).__name__}: {exc}") from None
+    finally:
+        quiet.setLevel(level)
     metres = collada_asset(path)[0] if file_type == "dae" else 1.0
     node_names = _collada_node_names(path) if file_type == "dae" else {}
     parts: list[Part] = []
