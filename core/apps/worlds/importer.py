@@ -431,7 +431,7 @@ def summary_text(r: ImportResult) -> str:
         total = sum(r.structure_models.values())
         common = ", ".join(f"{k} ×{n}" if n > 1 else k for k, n in r.structure_models.most_common(12))
         more = f", … {len(r.structure_models) - 12} more kinds" if len(r.structure_models) > 12 else ""
-        lines.append(f"  structure (no class): {total} models — {common}{more}")
+        lines.append(f"  structure (no class): {total} model{'s' if total > 1 else ''} — {common}{more}")
     if r.skipped:
         lines.append(f"  skipped: {len(r.skipped)}")
         reasons = Counter(s.reason for s in r.skipped)
