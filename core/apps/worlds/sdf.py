@@ -390,12 +390,12 @@ class SdfReader:
         other = "collision" if wanted == "visual" else "visual"
         if not element.findall(wanted) and element.findall(other):
             out.skipped.append(Skipped(f"{path}", f"has only <{other}> geometry, importing <{wanted}>s"))
+        skipped_before = len(out.skipped)
         found = self._read_shapes(scope, frames, element, wanted, world_T_model, world_T_link, out)
         # every visual mesh was missing (skipped): the link's collision shapes stand in for it,
         # better than a hole where a bookshelf was
-        fallback = (
-            not found and wanted == "visual" and element.findall("visual") and element.findall("collision")
-        )
+        missing = any(s.reason.startswith("mesh not found") for s in out.skipped[skipped_before:])
+        fallback = not found and missing and wanted == "visual" and element.findall("collision")
         if fallback and self._read_shapes(
             scope, frames, element, "collision", world_T_model, world_T_link, out
         ):
