@@ -550,3 +550,44 @@ def test_skip_missing_lists_each_missing_model(tmp_path):
     assert reasons == ["model 'a' not found on the model path"] * 2 + [
         "model 'b' not found on the model path"
     ]
+
+
+def test_relative_file_uri_is_found_beside_the_models_folder(tmp_path):
+    # ROS world packages write file://models/NAME/meshes/x.dae, relative to the package folder
+    package = tmp_path / "shop_world"
+    models = package / "models"
+    write_model(
+        models,
+        "rack_1",
+        '<model name="rack_1"><link name="l"><visual name="v"><geometry><mesh>'
+        "<uri>file://models/rack_1/meshes/rack.dae</uri></mesh></geometry></visual></link></model>",
+        {"meshes/rack.dae": collada_box(1, 1.0)},
+    )
+    world = package / "worlds" / "shop.world"
+    world.parent.mkdir()
+    world.write_text(sdf_world("<include><uri>model://rack_1</uri></include>"))
+    import_world(world, tmp_path / "out")  # models/ one folder up from the world: found without a path
+    assert_bounds(objects_of(tmp_path / "out")["rack_1"], [0, 0, 0], [1, 1, 1])
+
+
+def test_submesh_selects_and_centres_one_part_of_a_mesh(tmp_path):
+    (tmp_path / "parts.obj").write_text(
+        "o top\nv 0 0 1\nv 2 0 1\nv 0 2 1\nf 1 2 3\no leg\nv 10 10 0\nv 11 10 0\nv 10 11 0\nf 4 5 6\n"
+    )
+    world = tmp_path / "w.sdf"
+    world.write_text(
+        sdf_world(
+            '<model name="desk"><link name="l"><visual name="v"><geometry><mesh><uri>parts.obj</uri>'
+            "<submesh><name>leg</name><center>true</center></submesh></mesh></geometry></visual></link></model>"
+        )
+    )
+    result = import_world(world, tmp_path / "out")
+    assert result.triangles == 1
+    assert_bounds(objects_of(tmp_path / "out")["desk"], [-0.5, -0.5, 0], [0.5, 0.5, 0])
+
+
+def test_class_map_command_prints_the_default_which_loads_back(tmp_path, capsys):
+    assert main(["world", "class-map"]) == 0
+    printed = capsys.readouterr().out
+    (tmp_path / "mine.yaml").write_text(printed)
+    assert load_class_map(tmp_path / "mine.yaml").rules == load_class_map().rules
