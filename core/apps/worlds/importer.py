@@ -358,7 +358,8 @@ def import_world(source: Path, out_dir: Path, options: ImportOptions | None = No
     else:
         known = ", ".join(sorted(set(WORLD_SUFFIXES) | set(MESH_TYPES)))
         raise WorldImportError(f"{source}: unknown kind of world {suffix!r} (known: {known})")
-    name = options.name or (name if name not in ("default", "") else source.stem)
+    # Gazebo worlds are mostly called "default" or "world": the file name says more
+    name = options.name or (name if name.lower() not in ("default", "world", "") else source.stem)
     name = _safe(name)
 
     all_v = collector.structure_v + [v for o in collector.objects.values() for v in o.vertices]
