@@ -591,3 +591,18 @@ def test_class_map_command_prints_the_default_which_loads_back(tmp_path, capsys)
     printed = capsys.readouterr().out
     (tmp_path / "mine.yaml").write_text(printed)
     assert load_class_map(tmp_path / "mine.yaml").rules == load_class_map().rules
+
+
+def test_plain_glb_is_turned_from_y_up(tmp_path):
+    import trimesh
+
+    scene = trimesh.Scene()
+    box = trimesh.creation.box(extents=(2.0, 1.0, 0.5))  # 1 m tall along glTF's up axis, y
+    box.apply_translation((0.0, 0.5, 0.25))
+    scene.add_geometry(box, node_name="sofa_1", geom_name="sofa_mesh")
+    glb = tmp_path / "lounge.glb"
+    glb.write_bytes(scene.export(file_type="glb"))
+    result = import_world(glb, tmp_path / "out")
+    # y-up (x, y, z) → z-up (x, -z, y): 1 m tall, the 0.5 m depth now along -y
+    assert np.allclose(result.lo, [-1.0, -0.5, 0.0]) and np.allclose(result.hi, [1.0, 0.0, 1.0])
+    assert objects_of(tmp_path / "out")["sofa_1"]["class"] == "sofa"
