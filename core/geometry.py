@@ -16,11 +16,16 @@ def yaw_of(T: np.ndarray) -> float:
     return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
+def yaw_matrix(yaw: float) -> np.ndarray:
+    """The 3×3 rotation by ``yaw`` about the vertical axis, ``R(ψ) = exp([ψ e3]×)``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def pose_from(position: np.ndarray, yaw: float = 0.0) -> np.ndarray:
     """A level pose at ``position`` with heading ``yaw``."""
     T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, :3] = yaw_matrix(yaw)
     T[:3, 3] = position
     return T
 

@@ -51,6 +51,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import ConvexHull, QhullError
 
+from amslam.geometry import wrap_angle, yaw_matrix
+
 __all__ = [
     "GroundPlane",
     "Completion",
@@ -484,8 +486,7 @@ def cuboid_pose(shape: dict) -> np.ndarray:
     if "rotation" in shape:
         T[:3, :3] = np.asarray(shape["rotation"], float)
     else:
-        c, s = np.cos(shape["yaw"]), np.sin(shape["yaw"])
-        T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        T[:3, :3] = yaw_matrix(shape["yaw"])
     T[:3, 3] = shape["center"]
     return T
 
@@ -638,10 +639,6 @@ def transform_shape(shape: dict, T: np.ndarray) -> dict:
     raise ValueError(f"unknown shape model {shape.get('model')!r}")
 
 
-def _wrap(a: float) -> float:
-    return float((a + np.pi) % (2 * np.pi) - np.pi)
-
-
 def shape_errors(est: dict, true: dict) -> dict[str, float]:
     """Errors of an estimated shape against the truth (same model).
 
@@ -658,10 +655,10 @@ def shape_errors(est: dict, true: dict) -> dict[str, float]:
     out: dict[str, float] = {"position": float(np.linalg.norm(shape_center(est) - shape_center(true)))}
     if est["model"] == "cuboid":
         de, dt = np.asarray(est["dims"], float), np.asarray(true["dims"], float)
-        dyaw = _wrap(est["yaw"] - true["yaw"])
+        dyaw = wrap_angle(est["yaw"] - true["yaw"])
         # a half turn is the same box; a quarter turn with length and width swapped is too
-        cands = [(abs(_wrap(dyaw - k * np.pi)), de) for k in (0, 1, -1)]
-        cands += [(abs(_wrap(dyaw - k * np.pi / 2)), de[[1, 0, 2]]) for k in (1, -1)]
+        cands = [(abs(wrap_angle(dyaw - k * np.pi)), de) for k in (0, 1, -1)]
+        cands += [(abs(wrap_angle(dyaw - k * np.pi / 2)), de[[1, 0, 2]]) for k in (1, -1)]
         err, dims = min(cands, key=lambda c: c[0] + np.mean(np.abs(c[1] - dt)))
         out["yaw"] = float(err)
         out["dims"] = float(np.mean(np.abs(dims - dt)))
