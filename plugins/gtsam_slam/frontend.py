@@ -99,6 +99,8 @@ class FrontEnd:
         keys: the gtsam keys of this robot's key poses.
         T_world_odom: the robot's known start: its odometry frame in the world frame.
         emit: ``emit(event, **fields)`` for the run's event log.
+        keep_points: keep each observation's object points (the base fits shapes to all of them;
+            onboard they would pile up over a flight).
     """
 
     def __init__(
@@ -110,6 +112,7 @@ class FrontEnd:
         keys: PoseKeys | None = None,
         T_world_odom: np.ndarray | None = None,
         emit: Callable[..., None] = lambda *a, **k: None,
+        keep_points: bool = False,
     ) -> None:
         self.graph = graph
         self.p = association
@@ -118,6 +121,7 @@ class FrontEnd:
         self.keys = keys or PoseKeys()
         self.T_world_odom_start = np.eye(4) if T_world_odom is None else np.asarray(T_world_odom, float)
         self.emit = emit
+        self.keep_points = keep_points
         self.kps: list[KeyPoseRec] = []
         self.last_odom: Odometry | None = None
         self.distance = 0.0  # travelled so far (VIO), m
@@ -152,6 +156,13 @@ class FrontEnd:
             self.graph.add_odometry(prev.key, key, invert(prev.T_odom_body) @ T, dyaw)
         self.kps.append(KeyPoseRec(i, key, odom.stamp, T.copy(), self.distance))
         return i
+
+    def add_keypose(self, odom: Odometry) -> int:
+        """A key pose at ``odom`` whatever the schedule (the base replays a robot's own key poses)."""
+        self.track(odom)
+        kp = self.new_keypose(odom)
+        self.expire_tentative()
+        return kp
 
     def _due(self, T: np.ndarray, dist: float, dyaw: float) -> bool:
         ref = self.kps[-1].T_odom_body
@@ -224,10 +235,14 @@ class FrontEnd:
                     lm_id = g.new_landmark_id()
                     g.landmarks[lm_id] = self._new_landmark(lm_id, d.class_name, kp)
                 lm = g.landmarks[lm_id]
+                points = None
+                if self.keep_points:
+                    pc = np.asarray(d.points_cam, float).reshape(-1, 3)
+                    points = pc @ T_kp_cam[:3, :3].T + T_kp_cam[:3, 3]
                 g.observe(
                     lm,
                     Observation(
-                        self.robot, kp, rec.key, rec.distance, odom.stamp, d.class_name, pb, po, lm_id
+                        self.robot, kp, rec.key, rec.distance, odom.stamp, d.class_name, pb, po, lm_id, points
                     ),
                     pw,
                 )

@@ -160,6 +160,7 @@ class Observation:
     p_body: np.ndarray  # the object's point in the key pose's body frame
     p_odom: np.ndarray  # the same in the robot's odometry frame (VIO), for panoramas
     landmark: int  # the landmark the front end associated it with
+    points: np.ndarray | None = None  # the object's points, body frame (kept at the base only)
 
 
 @dataclass
@@ -387,33 +388,55 @@ class SlamGraph:
             if o.landmark == dup.id:
                 o.landmark = target.id
 
-    def fuse_duplicates(self, max_distance: float, chi2: float, positions: Callable | None = None) -> int:
+    def fuse_duplicates(
+        self,
+        max_distance: float,
+        chi2: float,
+        positions: Callable[[LandmarkRec], np.ndarray] | None = None,
+        include: Callable[[LandmarkRec], bool] = lambda lm: True,
+        covariances: dict[int, np.ndarray] | None = None,
+    ) -> int:
         """Fuse same-class landmarks that sit on each other and that no key pose saw apart.
 
-        Two landmarks are one object when they are closer than ``max_distance`` and within the χ²
-        gate ``chi2`` of each other's estimate noise (the association's rule), and no key pose
-        observed both (two detections in one view are two objects); :meth:`fusion_order` says which
-        survives. ``positions`` (landmark → position) defaults to the current estimate.
+        Two landmarks are one object when they are closer than ``max_distance`` and their
+        difference is within the χ² gate ``chi2`` (the association's rule) of their position
+        noise, and no key pose observed both (two detections in one view are two objects);
+        :meth:`fusion_order` says which survives. The position noise is each landmark's
+        isotropic observation variance, or with ``covariances`` (landmark id → 3×3 marginal) the
+        sum of their marginals; pairs are then taken most likely first. ``positions`` (landmark →
+        position) defaults to the current estimate; only the landmarks ``include`` accepts are
+        considered.
 
         Returns:
             How many landmarks were fused.
         """
         where = positions or self.landmark_position
-        live = [lm for lm in self.landmarks.values() if lm.alias_of is None and lm.count]
+        live = [lm for lm in self.landmarks.values() if lm.alias_of is None and lm.count and include(lm)]
+
+        def m2(a: LandmarkRec, b: LandmarkRec) -> float:
+            """χ² of the pair (inf beyond ``max_distance`` or without marginals)."""
+            diff = where(a) - where(b)
+            d2 = float(diff @ diff)
+            if d2 > max_distance**2:
+                return np.inf
+            if covariances is None:
+                return d2 / (self.landmark_variance(a) + self.landmark_variance(b))
+            if a.id not in covariances or b.id not in covariances:
+                return np.inf
+            return float(diff @ np.linalg.solve(covariances[a.id] + covariances[b.id], diff))
+
+        pairs = [(a, b) for i, a in enumerate(live) for b in live[i + 1 :] if a.class_name == b.class_name]
+        if covariances is not None:
+            pairs.sort(key=lambda ab: m2(*ab))
         fused = 0
-        for i, a in enumerate(live):
-            for b in live[i + 1 :]:
-                if a.alias_of is not None or b.alias_of is not None or a.class_name != b.class_name:
-                    continue
-                d2 = float(np.sum((where(a) - where(b)) ** 2))
-                var = self.landmark_variance(a) + self.landmark_variance(b)
-                if d2 > max_distance**2 or d2 > chi2 * var:
-                    continue
-                order = self.fusion_order(a, b)
-                if order is None:
-                    continue
-                self.fuse(*order)
-                fused += 1
+        for a, b in pairs:
+            if a.alias_of is not None or b.alias_of is not None or m2(a, b) > chi2:
+                continue
+            order = self.fusion_order(a, b)
+            if order is None:
+                continue
+            self.fuse(*order)
+            fused += 1
         return fused
 
     def fuse_shape_twins(self, twins: list[tuple[int, int]], emit: Callable[..., None]) -> int:

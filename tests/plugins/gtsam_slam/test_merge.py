@@ -122,9 +122,11 @@ def test_gate_too_tight_makes_duplicates_that_fusion_removes(
     world, a, b = two_robots
     logs = [read_measurements(a), read_measurements(b)]
     # a tiny association gate: the second robot's drifted detections start new landmarks
-    loose = merge_measurements(logs, MergeParams(association_gate=0.15, fuse_gate=0.0))
-    fused = merge_measurements(logs, MergeParams(association_gate=0.15, fuse_gate=0.8))
-    assert len(loose.landmarks) > len(world.objects)
+    loose = merge_measurements(logs, MergeParams(association={"gate": 0.15}, fuse_gate=0.0))
+    fused = merge_measurements(logs, MergeParams(association={"gate": 0.15}, fuse_gate=0.8))
+    truth, classes = truth_of(world)
+    # duplicates: landmarks left over by the one-to-one matching to the objects
+    assert len(loose.landmarks) > len(position_errors(loose.landmarks, truth, classes)[1])
     assert fused.fused > 0
     assert len(fused.landmarks) < len(loose.landmarks)
 
