@@ -35,17 +35,21 @@ class RecordingSlam(GtsamSlam):
     def configure(self, params: GtsamSlam.Params, context: RunContext) -> None:
         super().configure(params, context)
         self.updates: list[tuple[gtsam.NonlinearFactorGraph, gtsam.Values, int]] = []
+        graph = self._graph
+        flush = graph.flush
 
-    def _flush(self, extra_iterations: int = 0) -> None:
-        if self._new_graph.size() or self._new_values.size():
-            self.updates.append(
-                (
-                    gtsam.NonlinearFactorGraph(self._new_graph),
-                    gtsam.Values(self._new_values),
-                    extra_iterations,
+        def recording_flush(extra_iterations: int = 0) -> None:
+            if graph._new_graph.size() or graph.new_values.size():
+                self.updates.append(
+                    (
+                        gtsam.NonlinearFactorGraph(graph._new_graph),
+                        gtsam.Values(graph.new_values),
+                        extra_iterations,
+                    )
                 )
-            )
-        super()._flush(extra_iterations)
+            flush(extra_iterations)
+
+        graph.flush = recording_flush
 
 
 def build(poses: int, seed: int) -> tuple[RecordingSlam, list[float], list[int]]:
@@ -90,8 +94,8 @@ def build(poses: int, seed: int) -> tuple[RecordingSlam, list[float], list[int]]
 def replay(slam: RecordingSlam) -> list[float]:
     """Feed the recorded updates to a fresh ISAM2; the time of each update."""
     p = gtsam.ISAM2Params()
-    p.setFactorization(slam.params.factorization)
-    p.setRelinearizeThreshold(slam.params.relinearize_threshold)
+    p.setFactorization(slam.params.graph.factorization)
+    p.setRelinearizeThreshold(slam.params.graph.relinearize_threshold)
     p.relinearizeSkip = 1
     isam = gtsam.ISAM2(p)
     times = []
