@@ -1,7 +1,8 @@
-"""Shape landmarks for :class:`~amslam.plugins.gtsam_slam.backend.GtsamSlam` (paper 2, §IV-A/B).
+"""Shape landmarks of the front end and the graph (paper 2, §IV-A/B), onboard and at the base.
 
-A class declares its landmark model in the backend's ``landmark_models`` (class → ``centroid`` |
-``cuboid`` | ``cylinder`` | ``plane``). This module holds the front end of the shape classes:
+A class declares its landmark model in ``landmark_models`` (the SLAM section's, or the merge's;
+class → ``centroid`` | ``cuboid`` | ``cylinder`` | ``plane``). This module holds the
+front end of the shape classes:
 
 * ``plane`` classes (the ground) make no landmarks: their points (odometry frame) fill a
   voxel-thinned buffer from which the local ground plane of each object is fitted.
@@ -25,6 +26,7 @@ import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from amslam.geometry import yaw_matrix
 from amslam.lib import shapes
 from amslam.lib.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
 
@@ -380,6 +382,21 @@ class ShapeLandmarks:
                     out.append(j)
         return out
 
+    def absorb(self, keep_id: int, gone_id: int) -> None:
+        """Landmark ``keep_id`` takes the points, cameras and per-key-pose slack of its twin ``gone_id``."""
+        keep, gone = self.recs[keep_id], self.recs[gone_id]
+        keep.points = sorted(keep.points + gone.points, key=lambda tq: tq[0])
+        keep.cameras = sorted(keep.cameras + gone.cameras, key=lambda tq: tq[0])
+        for kp, v in gone.slack.items():
+            keep.slack.setdefault(kp, v)
+
+    def new_odometry_frame(self) -> None:
+        """Forget the time windows (points, cameras, fits, ground), which are kept in the odometry
+        frame of the robot that made them: the base replays another robot's log next."""
+        for rec in self.recs.values():
+            rec.points, rec.cameras, rec.fits = [], [], []
+        self._ground = []
+
     def set_world(self, lm_id: int, shape_world: dict) -> None:
         """Record the latest world-frame shape of a landmark (for association)."""
         self.recs[lm_id].last_world = shape_world
@@ -492,8 +509,7 @@ def _closest_equivalent(Z: np.ndarray, dims: np.ndarray, E: np.ndarray) -> tuple
     """Among the box's symmetric poses (turns by k·90° about b3), the one closest to ``E``, and k."""
     best, best_err = (Z, dims, 0), np.inf
     for k in range(4):
-        c, s = np.cos(k * np.pi / 2), np.sin(k * np.pi / 2)
-        Rk = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        Rk = yaw_matrix(k * np.pi / 2)
         Zk = Z.copy()
         Zk[:3, :3] = Z[:3, :3] @ Rk
         dk = dims[[1, 0, 2]] if k % 2 else dims

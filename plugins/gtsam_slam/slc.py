@@ -39,12 +39,15 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from amslam.geometry import wrap_angle, yaw_matrix
+
+#: :func:`amslam.geometry.wrap_angle` over arrays of angles (hypotheses are scored in bulk).
+
 __all__ = [
     "SlcParams",
     "SlcPrior",
     "SlcSolution",
     "align_yaw",
-    "yaw_matrix",
     "solve_exhaustive",
     "solve_scalable",
 ]
@@ -158,7 +161,7 @@ class SlcPrior:
         t = np.asarray(t, float).reshape(-1, 3)
         if len(t) == 0:
             return np.zeros(0, dtype=bool)
-        dyaw = np.abs(_wrap(np.asarray(psi, float).reshape(-1) - self.yaw))
+        dyaw = np.abs(wrap_angle(np.asarray(psi, float).reshape(-1) - self.yaw))
         dt = np.linalg.norm(t - self.translation, axis=1)
         if a_idx is not None:
             a_idx = np.asarray(a_idx, dtype=np.int64).reshape(len(t), -1)
@@ -200,21 +203,6 @@ class SlcSolution:
     def transform(self, points_b: np.ndarray) -> np.ndarray:
         """Map points of B's frame into A's frame: ``R(ψ) p + t``."""
         return np.asarray(points_b) @ yaw_matrix(self.yaw).T + self.translation
-
-
-def yaw_matrix(psi: float) -> np.ndarray:
-    """``R(ψ) = exp([ψ e3]×)``."""
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _wrap(a: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles into (-π, π]."""
-    return (
-        -((-np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi)
-        if np.ndim(a)
-        else float(-((-a + math.pi) % (2.0 * math.pi) - math.pi))
-    )
 
 
 def align_yaw(pa: np.ndarray, pb: np.ndarray) -> tuple[float, np.ndarray, float]:
@@ -280,7 +268,7 @@ class _Candidate:
     def differs(self, other: _Candidate, params: SlcParams) -> bool:
         """Whether the two transforms are apart (yaw or translation)."""
         return (
-            abs(_wrap(self.psi - other.psi)) > params.distinct_yaw
+            abs(wrap_angle(self.psi - other.psi)) > params.distinct_yaw
             or float(np.linalg.norm(self.t - other.t)) > params.distinct_translation
         )
 
@@ -304,7 +292,7 @@ def _decide(
     if best is None:
         where = "" if prior is None else " within the drift bound"
         return SlcSolution(False, f"no consistent set of {params.min_matches} or more landmarks{where}")
-    sol = dict(pairs=best.pairs, yaw=float(_wrap(best.psi)), translation=best.t, residual=best.residual)
+    sol = dict(pairs=best.pairs, yaw=wrap_angle(best.psi), translation=best.t, residual=best.residual)
     if runner is not None and runner.k >= params.ambiguity_ratio * best.k:
         return SlcSolution(
             False,
@@ -775,7 +763,7 @@ def solve_scalable(
     alive = np.ones(len(psi_all), dtype=bool)
 
     def mask_near(psi: float, t: np.ndarray, scale: float) -> None:
-        near = (np.abs(_wrap(psi_all - psi)) <= scale * p.distinct_yaw) & (
+        near = (np.abs(wrap_angle(psi_all - psi)) <= scale * p.distinct_yaw) & (
             np.linalg.norm(t_all - t, axis=1) <= scale * p.distinct_translation
         )
         alive[near] = False

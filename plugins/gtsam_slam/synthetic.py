@@ -13,8 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amslam.geometry import invert, pose_from, yaw_of
-from amslam.plugins.gtsam_slam.slc import yaw_matrix
+from amslam.geometry import invert, pose_from, yaw_matrix, yaw_of
 from amslam.types import R_BODY_CAM, Detection, Odometry
 
 CLASSES = ("chair", "table", "plant")
@@ -93,8 +92,7 @@ class LoopWorld:
         d = float(np.linalg.norm(rel[:3, 3]))
         err = np.eye(4)
         dyaw = self.yaw_bias_per_m * d + self.rng.normal(0, self.yaw_walk_per_sqrt_m * np.sqrt(d) + 1e-12)
-        c, s = np.cos(dyaw), np.sin(dyaw)
-        err[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+        err[:3, :3] = yaw_matrix(dyaw)
         err[:3, 3] = self.rng.normal(0, self.trans_noise_per_m * d + 1e-12, 3)
         self.T_vio = self.T_vio @ rel @ err
         self.T_true = T_new

@@ -11,9 +11,12 @@ import pydantic
 import pytest
 from gtsam.symbol_shorthand import L, X
 
+from amslam.errors import MissionError
 from amslam.geometry import pose_from, yaw_of
 from amslam.interfaces import RunContext
+from amslam.mission import load_mission
 from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.backend import MOVED_PARAMETERS
 from amslam.plugins.gtsam_slam.information import brute_force_information_gain
 from amslam.plugins.gtsam_slam.synthetic import camera_mount
 from amslam.registry import build_plugin_manager
@@ -29,6 +32,23 @@ def test_registered_through_the_entry_point() -> None:
 def test_params_forbid_unknown_keys() -> None:
     with pytest.raises(pydantic.ValidationError):
         GtsamSlam.Params(keypose_distanse=1.0)
+
+
+def test_a_flat_key_of_before_the_split_is_one_located_error_naming_its_new_path(tmp_path, registry) -> None:
+    path = tmp_path / "old.yaml"
+    path.write_text("name: old\nslam:\n  plugin: gtsam\n  association_gate: 0.8\n  slc_tolerance: 0.2\n")
+    with pytest.raises(MissionError) as err:
+        load_mission(path, registry)
+    assert err.value.problems == [
+        f"{path}:4: slam.association_gate: moved: it is now slam.association.gate"
+        " (the gtsam parameters are grouped by part) (got 0.8)",
+        f"{path}:5: slam.slc_tolerance: moved: it is now slam.loop_closure.tolerance"
+        " (the gtsam parameters are grouped by part) (got 0.2)",
+    ]
+    # every old flat name has a new home that exists
+    for old, new in MOVED_PARAMETERS.items():
+        section, name = new.split(".")
+        assert name in type(getattr(GtsamSlam.Params(), section)).model_fields, old
 
 
 def test_keyposes_every_half_metre_and_yaw_step() -> None:
@@ -48,7 +68,7 @@ def chair_at(T_world_body: np.ndarray, p_world: np.ndarray, cls: str = "chair") 
 
 
 def test_landmarks_need_min_observations_and_false_positives_never_enter() -> None:
-    slam = configured(min_observations=3, tentative_timeout=5)
+    slam = configured(association={"min_observations": 3, "tentative_timeout": 5})
     chair = np.array([4.0, 0.5, 0.6])
     ghost = np.array([3.0, -1.0, 0.5])
     for i in range(12):
@@ -66,7 +86,7 @@ def test_landmarks_need_min_observations_and_false_positives_never_enter() -> No
 
 
 def test_nearby_objects_of_one_class_stay_apart() -> None:
-    slam = configured(association_gate=0.4)
+    slam = configured(association={"gate": 0.4})
     chairs = [np.array([4.0, 0.0, 0.5]), np.array([4.0, 0.6, 0.5]), np.array([4.3, -0.6, 0.5])]
     for i in range(6):
         T = pose_from(np.array([i * 0.3, 0.05 * i, 1]), 0.02 * i)
@@ -93,7 +113,7 @@ def test_covariances_match_gtsam_marginals(looped) -> None:  # noqa: ANN001
 
 @pytest.mark.parametrize("variables", ["all", "poses"])
 def test_information_gain_fast_equals_brute_force(variables: str) -> None:
-    slam, _ = drive_loop(3, slam=configured(ig_variables=variables))
+    slam, _ = drive_loop(3, slam=configured(active={"ig_variables": variables}))
     graph, values = slam.graph()
     before = np.array([values.atPose3(X(k.id)).matrix() for k in slam.keyposes()])
     ids, dists = [0, 7, 20, 45, 80], [30.0, 25.0, 12.0, 6.0, 2.0]
@@ -123,10 +143,10 @@ def test_slc_candidates_cluster_landmarks_and_pick_the_oldest_keypose(looped) ->
         assert c.info_gain > 0
         # The oldest key pose from which a panorama (observations from key poses within the
         # panorama radius) saw at least three landmarks of the cluster within sensing range.
-        radius = slam.params.slc_panorama_radius
+        radius = slam.params.loop_closure.panorama_radius
         observed = {}
         for i in c.landmark_ids:
-            for obs in slam._lms[i].observations:
+            for obs in slam._graph.landmarks[i].observations:
                 observed.setdefault(obs.keypose, set()).add(i)
 
         def panorama_sees(k, observed=observed, radius=radius):
@@ -211,11 +231,12 @@ def test_loop_closure_is_held_to_the_drift_bound() -> None:
     assert ev["untied_distance"] > 30.0
     p = GtsamSlam.Params()
     assert ev["bound_translation"] == pytest.approx(
-        p.slc_prior_translation_floor + p.slc_prior_translation_ratio * ev["untied_distance"]
+        p.loop_closure.prior_translation_floor
+        + p.loop_closure.prior_translation_ratio * ev["untied_distance"]
     )
     assert ev["translation_correction"] <= ev["bound_translation"]
     # A bound that does not grow with the untied travel makes the 1 m correction implausible.
-    _, events = _loop_then_panorama(slc_prior_translation_ratio=0.0, slc_prior_yaw_ratio=0.0)
+    _, events = _loop_then_panorama(loop_closure={"prior_translation_ratio": 0.0, "prior_yaw_ratio": 0.0})
     assert not events[-1][1]["accepted"]
     assert "within the drift bound" in events[-1][1]["reason"]
 
@@ -237,7 +258,7 @@ def test_loop_closure_fuses_only_well_aligned_duplicates() -> None:
     assert _near_duplicates(fused) == 0
     # A fusion gate no pair passes: the loop still closes (range-bearing factors to the old
     # landmarks), but the duplicates stay separate landmarks.
-    kept, events = _loop_then_panorama(slc_fuse_ratio=1e-6)
+    kept, events = _loop_then_panorama(loop_closure={"fuse_ratio": 1e-6})
     assert events[-1][1]["accepted"], events[-1][1]
     assert _near_duplicates(kept) > 0
     assert len(kept.landmarks()) > len(fused.landmarks())
@@ -246,21 +267,24 @@ def test_loop_closure_fuses_only_well_aligned_duplicates() -> None:
 def test_duplicate_fusion_leaves_two_tentative_landmarks_to_the_front_end() -> None:
     # Two tentative (not yet in the graph) chairs 5 cm apart, never seen in one frame: fusing them
     # would tie measurements to a variable the graph does not have.
-    slam = configured(min_observations=50)
+    slam = configured(association={"min_observations": 50})
     T = pose_from(np.array([0.0, 0, 1]), 0.0)
     slam.add_odometry(Odometry(0, T))
     slam.add_detections(Odometry(0, T), camera_mount(), [chair_at(T, np.array([2.0, 0.0, 0.5]))])
     T2 = pose_from(np.array([0.3, 0, 1]), 0.0)
     slam.add_odometry(Odometry(1, T2))
-    first = next(iter(slam._lms.values()))
+    first = next(iter(slam._graph.landmarks.values()))
     dup = dataclasses.replace(
         first,
         id=99,
         first_keypose=1,
-        observations=[dataclasses.replace(o, keypose=1, landmark=99) for o in first.observations],
+        observations=[
+            dataclasses.replace(o, keypose=1, pose_key=X(1), landmark=99) for o in first.observations
+        ],
         last_keypose=1,
     )
-    slam._lms[99] = dup
-    slam._fuse_remaining_duplicates()
-    assert all(lm.alias_of is None for lm in slam._lms.values())
+    slam._graph.landmarks[99] = dup
+    lc = slam.params.loop_closure  # the bar after a loop closure
+    slam._graph.fuse_duplicates(lc.fuse_ratio * lc.tolerance, slam.params.association.chi2)
+    assert all(lm.alias_of is None for lm in slam._graph.landmarks.values())
     assert slam.landmarks() == []  # both still tentative; nothing reaches the graph

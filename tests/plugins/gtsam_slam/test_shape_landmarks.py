@@ -52,7 +52,8 @@ def _fly(slam: GtsamSlam, rng: np.random.Generator, noise: float = 0.02) -> None
 def mapped() -> GtsamSlam:
     slam = GtsamSlam()
     params = GtsamSlam.Params(
-        landmark_models={"car": "cuboid", "pole": "cylinder", "ground": "plane"}, max_range=12.0
+        landmark_models={"car": "cuboid", "pole": "cylinder", "ground": "plane"},
+        association={"max_range": 12.0},
     )
     slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
     _fly(slam, np.random.default_rng(2))
@@ -135,13 +136,17 @@ def test_a_car_seen_at_both_ends_is_one_landmark_placed_on_the_car() -> None:
     models = {"car": "cuboid", "ground": "plane"}
     prior = {"car": {"dims": [4.6, 1.85, 1.5]}}
     shape = {"window": 5.0, "size_prior": prior}
-    done = _two_end_passes(GtsamSlam.Params(landmark_models=models, max_range=12.0, shapes=shape))
+    done = _two_end_passes(
+        GtsamSlam.Params(landmark_models=models, association={"max_range": 12.0}, shapes=shape)
+    )
     cars = [lm for lm in done.landmarks() if lm.class_name == "car"]
     assert len(cars) == 1
     assert np.linalg.norm(cars[0].position[:2] - CAR_C[:2]) < 0.25
     # without the completion each end is a landmark of its own, ~1.2 m off the car's centre
     shape["complete"] = False
-    raw = _two_end_passes(GtsamSlam.Params(landmark_models=models, max_range=12.0, shapes=shape))
+    raw = _two_end_passes(
+        GtsamSlam.Params(landmark_models=models, association={"max_range": 12.0}, shapes=shape)
+    )
     cars = [lm for lm in raw.landmarks() if lm.class_name == "car"]
     assert len(cars) == 2
     assert all(np.linalg.norm(lm.position[:2] - CAR_C[:2]) > 0.8 for lm in cars)

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+from amslam.geometry import yaw_matrix
 from amslam.plugins.gtsam_slam.slc import (
     SlcParams,
     SlcPrior,
     align_yaw,
     solve_exhaustive,
     solve_scalable,
-    yaw_matrix,
 )
 
 from .conftest import make_instance

@@ -1,0 +1,497 @@
+"""The semantic factor graph (paper 1 §V-B; paper 2 §IV-B): keys, noise models, fusion, marginals.
+
+One :class:`SlamGraph` holds the variables of one map: key poses (one chain per robot, each robot's
+keys made by its own :class:`PoseKeys`), object landmarks ``L(j)`` (reference points, ``Point3``)
+and the variables of the shape landmarks (:mod:`.shape_landmarks`, eqs. 1–2 of paper 2). It is
+solved incrementally by iSAM2 (a fresh graph of new factors and values per update) and keeps the
+whole history for marginals, eq. (10) and batch optimisation.
+
+The onboard backend (:class:`.backend.GtsamSlam`) is one robot on a graph; the base station's
+merge (:mod:`.merge`) is N robots on one graph. Both use the same :class:`NoiseModels`:
+
+* VIO odometry between consecutive key poses: translation and yaw as random walks in the
+  distance travelled (std ∝ √distance), yaw also per radian turned, roll and pitch tight (the IMU
+  observes them); optionally an attitude factor per key pose (gravity);
+* ``BearingRangeFactor3D`` from a key pose to a landmark, range noise growing with range, widened
+  by the slack of a partial shape view, with a robust kernel;
+* a stiff zero-offset ``BetweenFactorPoint3`` fusing two landmarks of one object.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+from pydantic import BaseModel, ConfigDict, Field
+
+from amslam.lib import shapes
+from amslam.plugins.gtsam_slam.information import LinearizedGraph
+from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks
+
+__all__ = ["GraphParams", "LandmarkRec", "NoiseModels", "Observation", "PoseKeys", "SlamGraph"]
+
+
+class GraphParams(BaseModel):
+    """Noise models and solver of the factor graph (``slam.graph``; the merge's ``graph``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # VIO drifts as a random walk in the distance travelled (variance ∝ distance), so the std of
+    # a relative pose grows with the square root of its length; these match the simulator's VIO.
+    odometry_sigma_translation: float = Field(
+        0.05, gt=0, description="VIO translation random walk per axis, m/√m travelled"
+    )
+    odometry_sigma_translation_min: float = Field(0.005, gt=0, description="VIO translation std floor, m")
+    odometry_sigma_yaw: float = Field(0.004, ge=0, description="VIO yaw random walk, rad/√m travelled")
+    odometry_sigma_yaw_per_rad: float = Field(0.01, ge=0, description="VIO yaw std per radian turned")
+    odometry_sigma_yaw_min: float = Field(0.002, gt=0, description="VIO yaw std floor, rad")
+    odometry_sigma_roll_pitch: float = Field(0.002, gt=0, description="roll/pitch std (IMU), rad")
+    attitude_sigma: float = Field(
+        0.0,
+        ge=0,
+        description="std of each key pose's tilt against gravity (IMU), rad; 0: no attitude factors",
+    )
+    prior_sigma_translation: float = Field(0.01, gt=0, description="prior on a robot's first pose, m")
+    prior_sigma_rotation: float = Field(0.005, gt=0, description="prior on a robot's first pose, rad")
+    bearing_sigma: float = Field(0.05, gt=0, description="bearing std of an object's point, rad")
+    range_sigma: float = Field(0.05, gt=0, description="range std at zero range, m")
+    range_sigma_per_m: float = Field(0.03, ge=0, description="range std growth per metre")
+    robust: Literal["huber", "cauchy", "none"] = Field("huber", description="robust kernel")
+    robust_k: float = Field(1.345, gt=0, description="robust kernel width (whitened units)")
+    fusion_sigma: float = Field(
+        0.05, gt=0, description="std of the zero-offset tie fusing two landmarks of one object, m"
+    )
+    factorization: Literal["QR", "CHOLESKY"] = Field(
+        "QR", description="iSAM2 factorisation (gtsam 4.3 Cholesky fails at loop closures)"
+    )
+    relinearize_threshold: float = Field(0.01, gt=0, description="iSAM2 relinearisation threshold")
+
+
+class NoiseModels:
+    """The noise models of every factor the graph holds, and the variances association gates with."""
+
+    def __init__(self, params: GraphParams) -> None:
+        self.p = params
+
+    def odometry(self, distance: float, dyaw: float) -> gtsam.noiseModel.Base:
+        """VIO motion over ``distance`` metres turning ``dyaw`` radians."""
+        p = self.p
+        st = max(p.odometry_sigma_translation_min, p.odometry_sigma_translation * math.sqrt(distance))
+        sy = p.odometry_sigma_yaw * math.sqrt(distance) + p.odometry_sigma_yaw_per_rad * abs(dyaw)
+        sy = max(p.odometry_sigma_yaw_min, sy)
+        sr = p.odometry_sigma_roll_pitch
+        return gtsam.noiseModel.Diagonal.Sigmas(np.array([sr, sr, sy, st, st, st]))
+
+    def drift_variance(self, travel: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+        """Variance (m², ranges × travel) a point seen at ``ranges`` moves by after ``travel`` m of VIO:
+        the translation random walk, plus the yaw random walk's sweep at that range."""
+        p = self.p
+        return np.asarray(travel)[None, :] * (
+            p.odometry_sigma_translation**2 + p.odometry_sigma_yaw**2 * np.asarray(ranges)[:, None] ** 2
+        )
+
+    def prior(self) -> gtsam.noiseModel.Base:
+        """A robot's first key pose at its known start (base)."""
+        p = self.p
+        return gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([p.prior_sigma_rotation] * 3 + [p.prior_sigma_translation] * 3)
+        )
+
+    def robust(self, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+        """``base`` wrapped in the configured M-estimator (unchanged with ``robust="none"``)."""
+        p = self.p
+        if p.robust == "none":
+            return base
+        kernel = (
+            gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k)
+            if p.robust == "huber"
+            else gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k)
+        )
+        return gtsam.noiseModel.Robust.Create(kernel, base)
+
+    def bearing_range(
+        self, rng: float, slack: float = 0.0, scale: float = 1.0, robust: bool = True
+    ) -> gtsam.noiseModel.Base:
+        """Range-bearing noise at range ``rng``; a shape's reference point from a partial view is as
+        uncertain as its ``slack`` (m), and a window of points counts once (``scale``)."""
+        p = self.p
+        sigmas = np.array(
+            [p.bearing_sigma + slack / max(rng, 1e-3)] * 2
+            + [p.range_sigma + p.range_sigma_per_m * rng + slack]
+        )
+        base = gtsam.noiseModel.Diagonal.Sigmas(scale * sigmas)
+        return self.robust(base) if robust else base
+
+    def detection_variance(self, p_body: np.ndarray) -> float:
+        """Isotropic variance (m²) of a detected point: the largest axis of its range-bearing noise."""
+        p = self.p
+        rng = float(np.linalg.norm(p_body))
+        return max(p.range_sigma + p.range_sigma_per_m * rng, p.bearing_sigma * rng) ** 2
+
+    def fusion(self) -> gtsam.noiseModel.Base:
+        return self.robust(gtsam.noiseModel.Isotropic.Sigma(3, self.p.fusion_sigma))
+
+
+@dataclass(frozen=True)
+class PoseKeys:
+    """The gtsam keys of one robot's key poses: ``X(i)`` onboard, a robot's own letter at the base."""
+
+    char: str = "x"
+
+    def __call__(self, i: int) -> int:
+        return X(i) if self.char == "x" else gtsam.symbol(self.char, i)
+
+
+@dataclass
+class Observation:
+    """One detection of a landmark: where it was seen from and where it was."""
+
+    robot: int
+    keypose: int  # index in that robot's chain
+    pose_key: int  # the key pose's gtsam key
+    distance: float  # the robot's travel at that key pose, m
+    stamp: float
+    class_name: str
+    p_body: np.ndarray  # the object's point in the key pose's body frame
+    p_odom: np.ndarray  # the same in the robot's odometry frame (VIO), for panoramas
+    landmark: int  # the landmark the front end associated it with
+    points: np.ndarray | None = None  # the object's points, body frame (kept at the base only)
+
+
+@dataclass
+class LandmarkRec:
+    id: int
+    class_name: str
+    first_keypose: int
+    first_distance: float
+    sum_world: np.ndarray
+    robot: int = 0  # the robot that first saw it
+    observations: list[Observation] = field(default_factory=list)
+    in_graph: bool = False
+    alias_of: int | None = None  # fused into this landmark; -1: dropped (a tentative one that expired)
+    last_robot: int = 0  # who saw it last, and at which key pose / travel
+    last_keypose: int = 0
+    last_distance: float = 0.0
+    var_sum: float = 0.0  # sum of the observations' isotropic position variances, m²
+
+    @property
+    def count(self) -> int:
+        return len(self.observations)
+
+    def seen_by(self, robot: int, keypose: int, distance: float) -> None:
+        """Record a sighting (kept monotonic per robot: a loop closure may tie it to an older pose)."""
+        if robot != self.last_robot or distance >= self.last_distance:
+            self.last_robot, self.last_keypose, self.last_distance = robot, keypose, distance
+
+
+class SlamGraph:
+    """Variables, factors, estimate and landmark records of one map (one or several robots)."""
+
+    def __init__(self, params: GraphParams, shape_landmarks: ShapeLandmarks) -> None:
+        self.p = params
+        self.noise = NoiseModels(params)
+        self.shapes = shape_landmarks
+        isam_params = gtsam.ISAM2Params()
+        isam_params.setFactorization(params.factorization)
+        isam_params.setRelinearizeThreshold(params.relinearize_threshold)
+        isam_params.relinearizeSkip = 1
+        self._isam = gtsam.ISAM2(isam_params)
+        self.history = gtsam.NonlinearFactorGraph()  # every factor ever added (IG, marginals, batch)
+        self._new_graph = gtsam.NonlinearFactorGraph()
+        self.new_values = gtsam.Values()
+        self.estimate = gtsam.Values()
+        self.version = 0
+        self._cache: dict[str, tuple[int, object]] = {}
+        self.landmarks: dict[int, LandmarkRec] = {}
+        self.observations: list[Observation] = []
+
+    # ---------------------------------------------------------------- plumbing
+
+    def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
+        self._new_graph.add(factor)
+        self.history.add(factor)
+
+    def flush(self, extra_iterations: int = 0) -> None:
+        """One iSAM2 update with the new factors and values (a fresh graph each time)."""
+        if self._new_graph.size() == 0 and self.new_values.size() == 0:
+            return
+        self._isam.update(self._new_graph, self.new_values)
+        for _ in range(extra_iterations):
+            self._isam.update()
+        self._new_graph = gtsam.NonlinearFactorGraph()
+        self.new_values = gtsam.Values()
+        self.estimate = self._isam.calculateEstimate()
+        self.version += 1
+
+    def pose(self, key: int) -> np.ndarray:
+        if self.new_values.exists(key):
+            return self.new_values.atPose3(key).matrix()
+        return self.estimate.atPose3(key).matrix()
+
+    def point(self, lm_id: int) -> np.ndarray:
+        if self.new_values.exists(L(lm_id)):
+            return np.asarray(self.new_values.atPoint3(L(lm_id)))
+        return np.asarray(self.estimate.atPoint3(L(lm_id)))
+
+    def cached(self, name: str, compute: Callable[[], object]) -> object:
+        """``compute()``, once per graph version."""
+        hit = self._cache.get(name)
+        if hit is not None and hit[0] == self.version:
+            return hit[1]
+        value = compute()
+        self._cache[name] = (self.version, value)
+        return value
+
+    # ---------------------------------------------------------------- key poses
+
+    def add_first_pose(self, key: int, T_world_body: np.ndarray) -> None:
+        """A robot's first key pose, held at its known start by a prior."""
+        self.add_factor(gtsam.PriorFactorPose3(key, gtsam.Pose3(T_world_body), self.noise.prior()))
+        self.new_values.insert(key, gtsam.Pose3(T_world_body))
+        self._add_attitude(key, T_world_body)
+
+    def add_odometry(self, prev_key: int, key: int, rel: np.ndarray, dyaw: float) -> None:
+        """The VIO motion ``rel`` from key pose ``prev_key`` to the new key pose ``key``."""
+        noise = self.noise.odometry(float(np.linalg.norm(rel[:3, 3])), dyaw)
+        self.add_factor(gtsam.BetweenFactorPose3(prev_key, key, gtsam.Pose3(rel), noise))
+        T = self.pose(prev_key) @ rel
+        self.new_values.insert(key, gtsam.Pose3(T))
+        self._add_attitude(key, T)
+
+    def _add_attitude(self, key: int, T_world_body: np.ndarray) -> None:
+        # The IMU observes roll and pitch against gravity at every key pose; without this the
+        # between-factors let the tilt random-walk along a long chain.
+        if self.p.attitude_sigma <= 0:
+            return
+        up = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
+        noise = gtsam.noiseModel.Isotropic.Sigma(2, self.p.attitude_sigma)
+        self.add_factor(gtsam.AttitudeFactorPose3(key, up, noise, gtsam.Unit3(T_world_body[2, :3])))
+
+    # ---------------------------------------------------------------- landmarks
+
+    def new_landmark_id(self) -> int:
+        return max(max(self.landmarks, default=-1), max(self.shapes.recs, default=-1)) + 1
+
+    def live_id(self, lm_id: int) -> int:
+        """The landmark an id stands for now (following fusions; a dropped one stands for itself)."""
+        seen = {lm_id}
+        while (nxt := self.landmarks[lm_id].alias_of) is not None and nxt >= 0 and nxt not in seen:
+            lm_id = nxt
+            seen.add(lm_id)
+        return lm_id
+
+    def live_landmarks(self) -> list[LandmarkRec]:
+        """Landmarks in the graph or tentative, not fused into another nor dropped."""
+        return [lm for lm in self.landmarks.values() if lm.alias_of is None]
+
+    def graph_landmarks(self) -> list[LandmarkRec]:
+        return [lm for lm in self.landmarks.values() if lm.in_graph and lm.alias_of is None]
+
+    def landmark_position(self, lm: LandmarkRec) -> np.ndarray:
+        return self.point(lm.id) if lm.in_graph else lm.sum_world / max(lm.count, 1)
+
+    def landmark_variance(self, lm: LandmarkRec) -> float:
+        """Isotropic variance of a landmark's position as the mean of its observations, m²."""
+        return lm.var_sum / max(lm.count, 1) ** 2
+
+    def bearing_range(
+        self, pose_key: int, lm_id: int, p_body: np.ndarray, robust: bool = True
+    ) -> gtsam.NonlinearFactor:
+        rng = float(np.linalg.norm(p_body))
+        noise = self.noise.bearing_range(
+            rng, self.shapes.point_slack(lm_id, pose_key), self.shapes.point_scale(lm_id, pose_key), robust
+        )
+        return gtsam.BearingRangeFactor3D(pose_key, L(lm_id), gtsam.Unit3(p_body), rng, noise)
+
+    def observe(self, lm: LandmarkRec, ob: Observation, p_world: np.ndarray) -> None:
+        """Record an observation; its factor joins the graph if the landmark is in it."""
+        self.observations.append(ob)
+        lm.observations.append(ob)
+        lm.sum_world = lm.sum_world + p_world
+        lm.var_sum += self.noise.detection_variance(ob.p_body)
+        lm.seen_by(ob.robot, ob.keypose, ob.distance)
+        if lm.in_graph:
+            self.add_factor(self.bearing_range(ob.pose_key, lm.id, ob.p_body))
+
+    def admit(self, lm: LandmarkRec) -> None:
+        """Put a tentative landmark into the graph with all its buffered observations."""
+        lm.in_graph = True
+        self.new_values.insert(L(lm.id), lm.sum_world / lm.count)
+        for o in lm.observations:
+            self.add_factor(self.bearing_range(o.pose_key, lm.id, o.p_body))
+
+    def observe_shape(self, lm: LandmarkRec, pose_key: int, shape_body: dict) -> None:
+        """Queue or add the eq. 1 / eq. 2 factor of one shape measurement (body frame) of ``lm``."""
+        sh = self.shapes
+        rec = sh.recs[lm.id]
+        rec.pending.append((pose_key, shape_body))
+        if not lm.in_graph:
+            return
+        if not rec.in_graph:
+            sh.initial_values(lm.id, shapes.transform_shape(shape_body, self.pose(pose_key)), self.new_values)
+        est = sh.estimate(lm.id, self.new_values) or sh.estimate(lm.id, self.estimate)
+        if not sh.p.factors:  # shapes are reported, not optimised: keep the variables anchored
+            if not self.estimate.exists(gtsam.symbol("o" if rec.model == "cuboid" else "b", lm.id)):
+                k, s = rec.pending[0]
+                self.add_factor(sh.factor(k, k, lm.id, s, self.pose(k), est, lambda n: n))
+            rec.pending = []
+            return
+        for k, s in rec.pending:
+            self.add_factor(sh.factor(k, k, lm.id, s, self.pose(k), est, self.noise.robust))
+        rec.pending = []
+
+    # ---------------------------------------------------------------- fusion
+
+    @staticmethod
+    def fusion_order(a: LandmarkRec, b: LandmarkRec) -> tuple[LandmarkRec, LandmarkRec] | None:
+        """(survivor, fused) for two landmarks of one object, or None when they must stay apart.
+
+        Two landmarks a single key pose observed are two objects. Otherwise the one seen first
+        survives (the first robot's, at the base), unless only the other is in the graph; two
+        tentative landmarks are left to the front end.
+        """
+        if {o.pose_key for o in a.observations} & {o.pose_key for o in b.observations}:
+            return None
+        old, new = (a, b) if (a.robot, a.first_distance) <= (b.robot, b.first_distance) else (b, a)
+        if not old.in_graph:
+            if not new.in_graph:
+                return None
+            old, new = new, old
+        return old, new
+
+    def fuse(self, target: LandmarkRec, dup: LandmarkRec, skip_pose_keys: Iterable[int] = ()) -> None:
+        """Make ``dup`` an alias of ``target`` (which is in the graph): a stiff zero-offset tie, or
+        its measurements moved over (except those from ``skip_pose_keys``, already tied)."""
+        assert target.in_graph, "a duplicate is fused into a landmark of the graph"
+        skip = set(skip_pose_keys)
+        target.sum_world = target.sum_world + dup.sum_world
+        if dup.in_graph:
+            self.add_factor(
+                gtsam.BetweenFactorPoint3(L(target.id), L(dup.id), np.zeros(3), self.noise.fusion())
+            )
+        else:
+            for o in dup.observations:
+                if o.pose_key not in skip:
+                    self.add_factor(self.bearing_range(o.pose_key, target.id, o.p_body))
+        target.observations.extend(dup.observations)
+        target.var_sum += dup.var_sum
+        if dup.last_distance > target.last_distance or dup.last_robot != target.last_robot:
+            target.seen_by(dup.last_robot, dup.last_keypose, dup.last_distance)
+        dup.observations = []
+        dup.alias_of = target.id
+        for o in self.observations:
+            if o.landmark == dup.id:
+                o.landmark = target.id
+
+    def fuse_duplicates(
+        self,
+        max_distance: float,
+        chi2: float,
+        positions: Callable[[LandmarkRec], np.ndarray] | None = None,
+        include: Callable[[LandmarkRec], bool] = lambda lm: True,
+        covariances: dict[int, np.ndarray] | None = None,
+    ) -> int:
+        """Fuse same-class landmarks that sit on each other and that no key pose saw apart.
+
+        Two landmarks are one object when they are closer than ``max_distance`` and their
+        difference is within the χ² gate ``chi2`` (the association's rule) of their position
+        noise, and no key pose observed both (two detections in one view are two objects);
+        :meth:`fusion_order` says which survives. The position noise is each landmark's
+        isotropic observation variance, or with ``covariances`` (landmark id → 3×3 marginal) the
+        sum of their marginals; pairs are then taken most likely first. ``positions`` (landmark →
+        position) defaults to the current estimate; only the landmarks ``include`` accepts are
+        considered.
+
+        Returns:
+            How many landmarks were fused.
+        """
+        where = positions or self.landmark_position
+        live = [lm for lm in self.landmarks.values() if lm.alias_of is None and lm.count and include(lm)]
+
+        def m2(a: LandmarkRec, b: LandmarkRec) -> float:
+            """χ² of the pair (inf beyond ``max_distance`` or without marginals)."""
+            diff = where(a) - where(b)
+            d2 = float(diff @ diff)
+            if d2 > max_distance**2:
+                return np.inf
+            if covariances is None:
+                return d2 / (self.landmark_variance(a) + self.landmark_variance(b))
+            if a.id not in covariances or b.id not in covariances:
+                return np.inf
+            return float(diff @ np.linalg.solve(covariances[a.id] + covariances[b.id], diff))
+
+        pairs = [(a, b) for i, a in enumerate(live) for b in live[i + 1 :] if a.class_name == b.class_name]
+        if covariances is not None:
+            pairs.sort(key=lambda ab: m2(*ab))
+        fused = 0
+        for a, b in pairs:
+            if a.alias_of is not None or b.alias_of is not None or m2(a, b) > chi2:
+                continue
+            order = self.fusion_order(a, b)
+            if order is None:
+                continue
+            self.fuse(*order)
+            fused += 1
+        return fused
+
+    def fuse_shape_twins(self, twins: list[tuple[int, int]], emit: Callable[..., None]) -> int:
+        """Fuse shape landmarks found to be one object (:meth:`.ShapeLandmarks.twins`).
+
+        Two landmarks a single view observed are two objects and stay apart; otherwise
+        :meth:`fusion_order` picks the survivor (it must be in the graph, else both wait until one
+        is), with a stiff tie of the reference points (:meth:`fuse`), and its shape record takes
+        the twin's points, cameras and per-key-pose slack.
+        """
+        fused = 0
+        for a, b in twins:
+            a, b = self.live_id(a), self.live_id(b)
+            if a == b or a < 0 or b < 0:
+                continue
+            la, lb = self.landmarks[a], self.landmarks[b]
+            if la.alias_of is not None or lb.alias_of is not None:
+                continue
+            order = self.fusion_order(la, lb)
+            if order is None:
+                continue
+            old, new = order
+            self.shapes.absorb(old.id, new.id)
+            self.fuse(old, new)
+            emit("slam_shape_twins_fused", kept=old.id, fused=new.id, cls=old.class_name)
+            fused += 1
+        return fused
+
+    # ---------------------------------------------------------------- outputs
+
+    def linearized(self) -> LinearizedGraph:
+        self.flush()
+        return self.cached("linearized", lambda: LinearizedGraph.build(self.history, self.estimate))
+
+    def marginals(self, keys: Callable[[], list[int]]) -> dict[int, np.ndarray]:
+        """Marginal covariances of ``keys()`` (and every graph landmark), once per graph version.
+
+        ``gtsam.Marginals`` eliminates the whole graph at the current estimate (multifrontal
+        Cholesky); measured faster than per-key ``ISAM2.marginalCovariance`` and than solving for
+        every column of H⁻¹ (benchmarks/slam.py).
+        """
+
+        def compute() -> dict[int, np.ndarray]:
+            self.flush()
+            wanted = keys() + [L(lm.id) for lm in self.graph_landmarks()]
+            if not wanted:
+                return {}
+            marginals = gtsam.Marginals(self.history, self.estimate)
+            return {k: marginals.marginalCovariance(k) for k in wanted}
+
+        return self.cached("marginals", compute)
+
+    def optimise(self, max_iterations: int = 100) -> gtsam.Values:
+        """Levenberg–Marquardt on the whole graph from the current estimate (batch smoothing)."""
+        self.flush()
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(max_iterations)
+        return gtsam.LevenbergMarquardtOptimizer(self.history, self.estimate, params).optimize()
