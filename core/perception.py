@@ -44,11 +44,15 @@ class Snapshot:
     """What perception knew at the end of one tick; copies only, safe to hand to another thread."""
 
     t: float
-    T_odom_body: np.ndarray  # VIO pose
+    odometry: Odometry  # the latest VIO pose, with its own stamp
     T_world_odom: np.ndarray  # SLAM correction (drift compensation)
     distance: float  # travelled since the start, m (VIO)
     viewpoints: tuple[Viewpoint, ...]  # the mapping backend's latest, in the safe height band
     explored_volume: float  # m³, at the latest sample
+
+    @property
+    def T_odom_body(self) -> np.ndarray:
+        return self.odometry.T_odom_body
 
     @property
     def T_world_body(self) -> np.ndarray:
@@ -61,10 +65,6 @@ class Snapshot:
     @property
     def yaw_world(self) -> float:
         return yaw_of(self.T_world_body)
-
-    @property
-    def odometry(self) -> Odometry:
-        return Odometry(self.t, self.T_odom_body.copy())
 
 
 @dataclass
@@ -187,7 +187,7 @@ class Perception:
         explored = self.samples["explored"]
         return Snapshot(
             t=t,
-            T_odom_body=_frozen(odom.T_odom_body),
+            odometry=Odometry(odom.stamp, _frozen(odom.T_odom_body)),
             T_world_odom=_frozen(self.slam.T_world_odom()),
             distance=self.distance,
             viewpoints=self._viewpoints,
