@@ -238,6 +238,28 @@ class World:
             closed |= np.isfinite(self.cast_rays(rays)["t_hit"]).reshape(n, n_dirs)
         return closed.mean(axis=1)
 
+    def backface_share(self, points: np.ndarray, n_dirs: int = 16) -> np.ndarray:
+        """Share of the surfaces seen from each point (horizontally, up and down) seen from behind.
+
+        Inside a closed solid (a thick pillar, a cabinet modelled as a box) every ray leaves
+        through the back of an outward-facing triangle, and the unsigned distance alone cannot
+        tell such a point from free space. In a room nearly none is seen from behind.
+        """
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        n = len(pts)
+        if n == 0:
+            return np.zeros(0)
+        ang = np.arange(n_dirs) * (2 * np.pi / n_dirs)
+        dirs = np.vstack(
+            [np.column_stack([np.cos(ang), np.sin(ang), np.zeros(n_dirs)]), [0, 0, 1], [0, 0, -1]]
+        )
+        k = len(dirs)
+        rays = np.column_stack([np.repeat(pts, k, axis=0), np.tile(dirs, (n, 1))])
+        ans = self.cast_rays(rays)
+        hit = np.isfinite(ans["t_hit"]).reshape(n, k)
+        back = (np.einsum("ij,ij->i", ans["primitive_normals"], rays[:, 3:]) > 0).reshape(n, k) & hit
+        return back.sum(axis=1) / np.maximum(hit.sum(axis=1), 1)
+
     def floor_index(self, z: np.ndarray | float) -> np.ndarray:
         """Index of the floor holding height ``z`` (clipped to the valid range)."""
         fh = np.asarray(self.spec.floor_heights)
