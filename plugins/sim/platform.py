@@ -330,8 +330,17 @@ class SimPlatform(Platform):
             alo, ahi = area
             in_area = np.all((g[idx] >= alo[:2] + need) & (g[idx] <= ahi[:2] - need), axis=1)
             rank += 2.0 * in_area
-        top = idx[rank == rank.max()]
-        return g[top[np.argmax(clear[top])]]
+        # openness: the column clearance counts only what is nearer than the floor, so it cannot
+        # rank spots farther than the flight altitude from any wall: the horizontal room can
+        room = np.minimum.reduce(
+            [
+                world.horizontal_room(np.column_stack([g[idx], np.full(len(idx), floor + h)]))
+                for h in (need + 0.1, self.robot.altitude)
+            ]
+        )
+        score = np.minimum(clear[idx], room)
+        top = np.flatnonzero(rank == rank.max())
+        return g[idx[top[np.argmax(score[top])]]]
 
     def _hover_point(self) -> np.ndarray:
         return np.array([self._start[0], self._start[1], self._ground_z + self.robot.altitude])

@@ -238,6 +238,20 @@ class World:
             closed |= np.isfinite(self.cast_rays(rays)["t_hit"]).reshape(n, n_dirs)
         return closed.mean(axis=1)
 
+    def horizontal_room(self, points: np.ndarray, n_dirs: int = 16) -> np.ndarray:
+        """Distance to the nearest surface along ``n_dirs`` horizontal rays from each point (m).
+
+        Unlike :meth:`distance` it does not see the floor under a point: it tells how open a
+        spot is around it (inf where nothing is hit in any direction).
+        """
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        if len(pts) == 0:
+            return np.zeros(0)
+        ang = np.arange(n_dirs) * (2 * np.pi / n_dirs)
+        dirs = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(n_dirs)])
+        rays = np.column_stack([np.repeat(pts, n_dirs, axis=0), np.tile(dirs, (len(pts), 1))])
+        return self.cast_rays(rays)["t_hit"].astype(float).reshape(len(pts), n_dirs).min(axis=1)
+
     def backface_share(self, points: np.ndarray, n_dirs: int = 16) -> np.ndarray:
         """Share of the surfaces seen from each point (horizontally, up and down) seen from behind.
 
