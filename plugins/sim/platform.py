@@ -234,12 +234,20 @@ class SimPlatform(Platform):
 
     def _check_start(self, world: World, xy: np.ndarray, ground: float, what: str) -> None:
         """Refuse a start whose take-off column is not clear (before anything flies)."""
+        assert self.params is not None
+        z = ground + np.array([self.robot.radius + self.params.landed_clearance, self.robot.altitude])
+        column = np.column_stack([np.tile(xy, (2, 1)), z])
+        if np.any(world.backface_share(column) >= 0.75):  # far from surfaces, but inside a solid
+            _, _, hit = world.closest(column[1])
+            raise PlatformError(
+                f"no room to take off at {what}: it is inside {hit} (every surface around it is seen"
+                " from behind); set platform.start to a spot in free space"
+            )
         clear, at = self._column_clearance(world, np.reshape(xy, (1, 2)), np.array([ground]))
         need = self._needed_clearance()
         if clear[0] >= need:
             return
         d, _, hit = world.closest(np.array([xy[0], xy[1], at[0]]))
-        assert self.params is not None
         raise PlatformError(
             f"no room to take off at {what}: at height {at[0]:.2f} m it is {d:.2f} m from {hit}; the"
             " take-off column from the landed height to the flight altitude"
@@ -278,8 +286,10 @@ class SimPlatform(Platform):
         below flight height is the floor, not a table top) and have their whole take-off column
         clear by the robot radius plus ``start_margin``, not only at flight height, and must not
         lie inside a closed solid. No roof is required (open-topped buildings). Among them the
-        most open spot is taken, preferring spots inside the mission area (when the mission has
-        one) and spots with walls on most sides (inside the building, not on the ground around it).
+        most open spot (largest column clearance and horizontal room) is taken, preferring spots
+        inside the mission area (when the mission has one) and spots with walls on most sides
+        (inside the building, not on the ground around it). The best few are then looked at again
+        on a finer grid: a corridor just wide enough may have its middle between two grid lines.
         """
         floor = float(spec.floor_heights[0])
         need = self._needed_clearance()
@@ -289,58 +299,66 @@ class SimPlatform(Platform):
         xs = np.arange(lo[0] + step, hi[0] - step / 2, step)
         ys = np.arange(lo[1] + step, hi[1] - step / 2, step)
         g = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+        key, clear = self._rate_spots(world, g, floor)
+        fine = np.linspace(-step / 2, step / 2, 5)
+        offsets = np.stack(np.meshgrid(fine, fine, indexing="ij"), -1).reshape(-1, 2)
+        best = np.lexsort((key[:, 1], key[:, 0]))[::-1][:6]
+        g2 = (g[best][:, None, :] + offsets[None, :, :]).reshape(-1, 2)
+        key2, clear2 = self._rate_spots(world, g2, floor)
+        g, key, clear = np.vstack([g, g2]), np.vstack([key, key2]), np.concatenate([clear, clear2])
+        i = int(np.lexsort((key[:, 1], key[:, 0]))[-1])
+        if key[i, 0] >= 0:
+            return g[i]
+        z_fly = floor + self.robot.altitude
+        assert self.params is not None
+        where = (
+            f"the best spot, {np.round(g[i], 2).tolist()}, has {max(clear[i], 0.0):.2f} m"
+            if np.isfinite(clear[i])
+            else f"no point of the world stands on the ground floor under {z_fly:.2f} m"
+        )
+        raise PlatformError(
+            f"world {spec.name}: no start spot: a spot must stand on the ground floor (z = {floor:.2f} m)"
+            f" with its take-off column clear by {need:.2f} m (robot radius {self.robot.radius} m +"
+            f" start_margin {self.params.start_margin} m) from the landed height to the flight altitude"
+            f" ({z_fly:.2f} m); {where}. Set platform.start to a clear spot, or"
+            " platform.world.floor_heights if the ground floor is wrong"
+        )
+
+    def _rate_spots(self, world: World, g: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rank start candidates: (tier, openness) per spot, higher is better, and their clearance.
+
+        The tier is −1 for spots that do not qualify (openness is then their clearance, to name the
+        best of them), else 2 × inside the mission area + 1 × inside walls. The column clearance
+        counts only what is nearer than the floor, so it cannot rank spots farther than the flight
+        altitude from any wall: openness is the smaller of it and the horizontal room.
+        """
+        need = self._needed_clearance()
         z_fly = floor + self.robot.altitude
         down = np.column_stack([g, np.full(len(g), z_fly), np.tile([0.0, 0.0, -1.0], (len(g), 1))])
         ground = z_fly - world.cast_rays(down)["t_hit"].astype(float)
-        on_floor = np.abs(ground - floor) < 0.05
+        idx = np.flatnonzero(np.abs(ground - floor) < 0.05)  # on the floor, not on a table or a step
         clear = np.full(len(g), -np.inf)
-        # cheap first cut at two heights, then the whole column for the spots that pass it
-        idx = np.flatnonzero(on_floor)
-        for h in (need + 0.1, self.robot.altitude):
-            if len(idx):
-                d = world.distance(np.column_stack([g[idx], np.full(len(idx), floor + h)]))
-                clear[idx] = np.minimum(np.where(np.isfinite(clear[idx]), clear[idx], np.inf), d)
-                idx = idx[d >= need]
-        if len(idx):
-            clear[idx] = self._column_clearance(world, g[idx], np.full(len(idx), floor))[0]
-            idx = idx[clear[idx] >= need]
+        clear[idx] = self._column_clearance(world, g[idx], np.full(len(idx), floor))[0]
+        key = np.column_stack([np.full(len(g), -1.0), clear])
+        idx = idx[clear[idx] >= need]
         if len(idx):  # a point deep inside a closed solid is far from its surfaces too
-            solid = world.backface_share(np.column_stack([g[idx], np.full(len(idx), z_fly)])) >= 0.75
-            clear[idx[solid]] = -np.inf
-            idx = idx[~solid]
+            idx = idx[world.backface_share(np.column_stack([g[idx], np.full(len(idx), z_fly)])) < 0.75]
         if not len(idx):
-            pool = np.flatnonzero(on_floor)
-            best = pool[np.argmax(clear[pool])] if len(pool) else None
-            where = (
-                f"the best spot, {np.round(g[best], 2).tolist()}, has {max(clear[best], 0.0):.2f} m"
-                if best is not None
-                else f"no point of the world stands on the ground floor under {z_fly:.2f} m"
-            )
-            raise PlatformError(
-                f"world {spec.name}: no start spot: a spot must stand on the ground floor (z = {floor:.2f} m)"
-                f" with its take-off column clear by {need:.2f} m (robot radius {self.robot.radius} m +"
-                f" start_margin {self.params.start_margin} m) from the landed height to the flight altitude"
-                f" ({z_fly:.2f} m); {where}. Set platform.start to a clear spot, or"
-                " platform.world.floor_heights if the ground floor is wrong"
-            )
-        inside = world.enclosed_share(g[idx], np.array([floor + 1.2, floor + 1.8])) >= 0.75
-        rank = inside.astype(float)
+            return key, clear
+        tier = (world.enclosed_share(g[idx], np.array([floor + 1.2, floor + 1.8])) >= 0.75).astype(float)
         area = self._mission_area()
         if area is not None:
             alo, ahi = area
-            in_area = np.all((g[idx] >= alo[:2] + need) & (g[idx] <= ahi[:2] - need), axis=1)
-            rank += 2.0 * in_area
-        # openness: the column clearance counts only what is nearer than the floor, so it cannot
-        # rank spots farther than the flight altitude from any wall: the horizontal room can
+            tier += 2.0 * np.all((g[idx] >= alo[:2] + need) & (g[idx] <= ahi[:2] - need), axis=1)
         room = np.minimum.reduce(
             [
                 world.horizontal_room(np.column_stack([g[idx], np.full(len(idx), floor + h)]))
                 for h in (need + 0.1, self.robot.altitude)
             ]
         )
-        score = np.minimum(clear[idx], room)
-        top = np.flatnonzero(rank == rank.max())
-        return g[idx[top[np.argmax(score[top])]]]
+        key[idx, 0] = tier
+        key[idx, 1] = np.minimum(clear[idx], room)
+        return key, clear
 
     def _hover_point(self) -> np.ndarray:
         return np.array([self._start[0], self._start[1], self._ground_z + self.robot.altitude])
