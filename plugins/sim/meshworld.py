@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams
-from amslam.plugins.sim.world import MeshPart, WorldObject, WorldSpec, class_colour
+from amslam.plugins.sim.world import MeshPart, World, WorldObject, WorldSpec, class_colour, survey_floors
 
 #: classes treated as building structure (instance 0) unless the mission says otherwise
 DEFAULT_STRUCTURE = (
@@ -44,7 +44,9 @@ class MeshWorldParams(BackendParams):
     up_axis: Literal["z", "y"] = Field("z", description="'y' for y-up files such as glTF/GLB exports")
     scale: float = Field(1.0, gt=0.0, description="multiplies coordinates (e.g. 0.01 for centimetres)")
     floor_heights: tuple[float, ...] | None = Field(
-        None, description="z of each floor (ascending); default: the bottom of the mesh"
+        None,
+        description="z of each floor (ascending); default: found in the mesh (the lowest large walkable"
+        " surface inside walls, and the storeys above it; see docs/worlds.md)",
     )
     normalize_classes: bool = Field(
         True, description="'ChairA' → 'chair', 'KitchenTable' → 'kitchen_table' (variant letter dropped)"
@@ -84,19 +86,6 @@ def _read_mesh(path: Path, p: MeshWorldParams) -> tuple[np.ndarray, np.ndarray, 
         v = np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)
     colours = np.asarray(mesh.vertex_colors, dtype=np.float64) if mesh.has_vertex_colors() else None
     return v, t, colours
-
-
-def _ground_height(V: np.ndarray, T: np.ndarray, normals: np.ndarray) -> float:
-    """z of the ground floor: the up-facing surface with the most area in the lowest metre."""
-    area = 0.5 * np.linalg.norm(np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]]), axis=1)
-    z = V[T].mean(axis=1)[:, 2]
-    up = (normals[:, 2] > 0.9) & (z < V[:, 2].min() + 1.0)
-    if not up.any():
-        return float(V[:, 2].min())
-    bins = np.round(z[up] / 0.02).astype(np.int64)
-    uniq, inv = np.unique(bins, return_inverse=True)
-    best = uniq[np.argmax(np.bincount(inv, weights=area[up]))]
-    return float(np.median(z[up][bins == best]))
 
 
 def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
@@ -205,16 +194,22 @@ def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
     )
     all_v = np.concatenate([V] + [q.vertices for q in extra_parts])
     lo, hi = all_v.min(axis=0), all_v.max(axis=0)
-    floors = tuple(p.floor_heights) if p.floor_heights else (_ground_height(V, T, normals),)
     name = p.name or (mesh_path.parent.name if mesh_path.stem == "world" else mesh_path.stem)
-    return WorldSpec(
+    spec = WorldSpec(
         name=name,
         parts=[world_part, *extra_parts],
         objects=objects,
-        floor_heights=floors,
+        floor_heights=tuple(p.floor_heights) if p.floor_heights else (float(lo[2]),),
         bounds_lo=lo,
         bounds_hi=hi,
-        start_xy=np.array([np.nan, np.nan]),  # chosen by the platform (largest clearance) unless given
-        start_floor_z=floors[0],
+        start_xy=np.array([np.nan, np.nan]),  # chosen by the platform (a clear, open spot) unless given
+        start_floor_z=0.0,
         start_yaw=0.0,
     )
+    if not p.floor_heights:
+        # The floors are found in the scene the platform will fly: the lowest geometry of an
+        # imported mesh is often not the ground floor (a ground plane under the slab, stairs
+        # down, a basement), see survey_floors.
+        spec.floor_heights = survey_floors(World(spec)).floors
+    spec.start_floor_z = spec.floor_heights[0]
+    return spec

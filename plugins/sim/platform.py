@@ -63,8 +63,15 @@ class SimPlatform(Platform):
         )
         start: tuple[float, float] | None = Field(
             None,
-            description="start (x, y) on the lowest floor; default: the procedural world's corridor end,"
-            " or the point of a mesh world's lowest floor farthest from any geometry",
+            description="start (x, y) on the ground floor; default: the procedural world's corridor end,"
+            " or a mesh world's most open spot on its ground floor whose take-off column is clear, inside"
+            " the building (see docs/simulator.md)",
+        )
+        start_margin: float = Field(
+            0.2,
+            ge=0.0,
+            description="clearance beyond the robot radius that the take-off column needs at the start,"
+            " from the landed height to the flight altitude (m)",
         )
         start_yaw: float | None = Field(None, description="start heading in radians; default: the world's")
         camera: CameraParams = Field(default_factory=CameraParams)
@@ -131,17 +138,25 @@ class SimPlatform(Platform):
         p = self.params
         spec = self._make_world_spec(p)
         self._world = World(spec)
+        floor = float(spec.floor_heights[0])
         if p.start is not None:
             xy = np.asarray(p.start, float)
+            what = f"the start {np.round(xy, 2).tolist()} (platform.start)"
         elif np.all(np.isfinite(spec.start_xy)):
-            xy = spec.start_xy
+            xy = np.asarray(spec.start_xy, float)
+            what = f"the start {np.round(xy, 2).tolist()} of world {spec.name}"
         else:
             xy = self._open_spot(self._world, spec)
+            what = ""
         self._ground_z = spec.start_floor_z
-        if p.start is not None:  # the ground under the given point, on the lowest floor
-            g = self._world.ground_below(np.array([xy[0], xy[1], spec.floor_heights[0] + 1.0]))
+        if p.start is not None:  # the ground under the given point: the first surface below flight height
+            g = self._world.ground_below(np.array([xy[0], xy[1], floor + self.robot.altitude]))
             if np.isfinite(g):
-                self._ground_z = g
+                # the ray cast is float32: a floor found within a millimetre is the floor itself
+                near = [f for f in spec.floor_heights if abs(f - g) < 1e-3]
+                self._ground_z = float(near[0]) if near else g
+        if what:  # a start given by the user or the world is checked as a chosen one would be
+            self._check_start(self._world, xy, self._ground_z, what)
         yaw = float(p.start_yaw if p.start_yaw is not None else spec.start_yaw)
         self._landed_height = self.robot.radius + p.landed_clearance
         pos = np.array([xy[0], xy[1], self._ground_z + self._landed_height])
@@ -168,16 +183,6 @@ class SimPlatform(Platform):
         self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
         self._check_due_frame()
         self._frames_rendered = 0
-        # the take-off column must be free: from just above the landed pose up to the hover point
-        column = np.linspace(pos + [0, 0, 0.1], self._hover_point(), 20)
-        clear = self._world.distance(column)
-        if clear.min() <= self.robot.radius:
-            q = column[int(np.argmin(clear))]
-            d, _, what = self._world.closest(q)
-            raise PlatformError(
-                f"no room to take off at the start {np.round(pos[:2], 2).tolist()}: at height {q[2]:.2f} m"
-                f" it is {d:.2f} m from {what}, closer than the robot radius ({self.robot.radius} m)"
-            )
 
     def use_world(self, spec: WorldSpec) -> None:
         """Fly in a world built by the caller (tests, scripts) instead of the one in the params.
@@ -197,24 +202,163 @@ class SimPlatform(Platform):
             return generate_outdoor(p.world, np.random.default_rng(self._world_seed))
         return generate_building(p.world, np.random.default_rng(self._world_seed))
 
+    # ---------------------------------------------------------------------------------------
+    # the start
+    # ---------------------------------------------------------------------------------------
+    def _needed_clearance(self) -> float:
+        assert self.params is not None
+        return self.robot.radius + self.params.start_margin
+
+    def _column_clearance(
+        self, world: World, xy: np.ndarray, ground: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Clearance of the take-off column over each (x, y) and the height where it is smallest.
+
+        The column runs from the landed height to the flight altitude above ``ground`` (N,). The
+        floor the vehicle stands on is not an obstacle: at each height only geometry closer than
+        the floor counts, and a rug or a door sill less than 5 cm high is part of the floor (what
+        the picker stands on too).
+        """
+        assert self.params is not None
+        z0 = self.robot.radius + self.params.landed_clearance
+        z1 = max(self.robot.altitude, z0)
+        rel = np.linspace(z0, z1, max(2, int(np.ceil((z1 - z0) / 0.1)) + 1))
+        clear = np.full(len(xy), np.inf)
+        worst = np.full(len(xy), rel[-1])
+        for h in rel:
+            d = world.distance(np.column_stack([xy, ground + h]))
+            d = np.where(d < h - 0.05, d, np.inf)
+            lower = d < clear
+            clear[lower], worst[lower] = d[lower], h
+        return clear, ground + worst
+
+    def _check_start(self, world: World, xy: np.ndarray, ground: float, what: str) -> None:
+        """Refuse a start whose take-off column is not clear (before anything flies)."""
+        assert self.params is not None
+        z = ground + np.array([self.robot.radius + self.params.landed_clearance, self.robot.altitude])
+        column = np.column_stack([np.tile(xy, (2, 1)), z])
+        if np.any(world.backface_share(column) >= 0.75):  # far from surfaces, but inside a solid
+            _, _, hit = world.closest(column[1])
+            raise PlatformError(
+                f"no room to take off at {what}: it is inside {hit} (every surface around it is seen"
+                " from behind); set platform.start to a spot in free space"
+            )
+        clear, at = self._column_clearance(world, np.reshape(xy, (1, 2)), np.array([ground]))
+        need = self._needed_clearance()
+        if clear[0] >= need:
+            return
+        d, _, hit = world.closest(np.array([xy[0], xy[1], at[0]]))
+        raise PlatformError(
+            f"no room to take off at {what}: at height {at[0]:.2f} m it is {d:.2f} m from {hit}; the"
+            " take-off column from the landed height to the flight altitude"
+            f" ({ground + self.robot.altitude:.2f} m) needs {need:.2f} m (robot radius"
+            f" {self.robot.radius} m + start_margin {self.params.start_margin} m)"
+        )
+
+    def _mission_area(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The mission's exploration ``area`` (lo, hi), if it has one.
+
+        The runner writes the run's resolved mission into the run folder before it configures
+        the platform, and hands the area itself to backends only after the platform has
+        started: the file is where the start can learn it.
+        """
+        area = getattr(self.context, "area", None)
+        if area is not None:
+            return np.asarray(area.lo, float), np.asarray(area.hi, float)
+        path = Path(self.context.run_dir) / "mission.yaml"
+        if not path.is_file():
+            return None
+        import yaml
+
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except (OSError, yaml.YAMLError):
+            return None
+        a = data.get("area") if isinstance(data, dict) else None
+        if not isinstance(a, dict) or "lo" not in a or "hi" not in a:
+            return None
+        return np.asarray(a["lo"], float), np.asarray(a["hi"], float)
+
     def _open_spot(self, world: World, spec: WorldSpec) -> np.ndarray:
-        """(x, y) on the lowest floor, under a ceiling, farthest from any geometry at flight height."""
-        lo, hi = spec.bounds_lo, spec.bounds_hi
-        z = spec.floor_heights[0] + self.robot.altitude
-        xs = np.arange(lo[0] + 0.25, hi[0], 0.25)
-        ys = np.arange(lo[1] + 0.25, hi[1], 0.25)
+        """The start (x, y): a clear take-off column standing on the ground floor, inside, open.
+
+        Candidates on a grid over the world must stand on the ground floor (the first surface
+        below flight height is the floor, not a table top) and have their whole take-off column
+        clear by the robot radius plus ``start_margin``, not only at flight height, and must not
+        lie inside a closed solid. No roof is required (open-topped buildings). Among them the
+        most open spot (largest column clearance and horizontal room) is taken, preferring spots
+        inside the mission area (when the mission has one) and spots with walls on most sides
+        (inside the building, not on the ground around it). The best few are then looked at again
+        on a finer grid: a corridor just wide enough may have its middle between two grid lines.
+        """
+        floor = float(spec.floor_heights[0])
+        need = self._needed_clearance()
+        lo, hi = np.asarray(spec.bounds_lo, float), np.asarray(spec.bounds_hi, float)
+        span = np.maximum(hi[:2] - lo[:2], 0.25)
+        step = max(0.25, float(np.sqrt(span[0] * span[1] / 40000)))
+        xs = np.arange(lo[0] + step, hi[0] - step / 2, step)
+        ys = np.arange(lo[1] + step, hi[1] - step / 2, step)
         g = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
-        pts = np.column_stack([g, np.full(len(g), z)])
-        clearance = world.distance(pts)
-        down = np.column_stack([pts, np.tile([0.0, 0.0, -1.0], (len(pts), 1))])
-        up = np.column_stack([pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1))])
-        t_down = world.cast_rays(down)["t_hit"]
-        t_up = world.cast_rays(up)["t_hit"]
-        # indoors: floor right below (at the floor height) and a roof above
-        ok = np.isfinite(t_up) & (np.abs(z - t_down - spec.floor_heights[0]) < 0.1)
-        if not ok.any():
-            raise PlatformError(f"mesh world {spec.name}: no open indoor spot found; set 'start'")
-        return g[np.argmax(np.where(ok, clearance, -1.0))]
+        key, clear = self._rate_spots(world, g, floor)
+        fine = np.linspace(-step / 2, step / 2, 5)
+        offsets = np.stack(np.meshgrid(fine, fine, indexing="ij"), -1).reshape(-1, 2)
+        best = np.lexsort((key[:, 1], key[:, 0]))[::-1][:6]
+        g2 = (g[best][:, None, :] + offsets[None, :, :]).reshape(-1, 2)
+        key2, clear2 = self._rate_spots(world, g2, floor)
+        g, key, clear = np.vstack([g, g2]), np.vstack([key, key2]), np.concatenate([clear, clear2])
+        i = int(np.lexsort((key[:, 1], key[:, 0]))[-1])
+        if key[i, 0] >= 0:
+            return g[i]
+        z_fly = floor + self.robot.altitude
+        assert self.params is not None
+        where = (
+            f"the best spot, {np.round(g[i], 2).tolist()}, has {max(clear[i], 0.0):.2f} m"
+            if np.isfinite(clear[i])
+            else f"no point of the world stands on the ground floor under {z_fly:.2f} m"
+        )
+        raise PlatformError(
+            f"world {spec.name}: no start spot: a spot must stand on the ground floor (z = {floor:.2f} m)"
+            f" with its take-off column clear by {need:.2f} m (robot radius {self.robot.radius} m +"
+            f" start_margin {self.params.start_margin} m) from the landed height to the flight altitude"
+            f" ({z_fly:.2f} m); {where}. Set platform.start to a clear spot, or"
+            " platform.world.floor_heights if the ground floor is wrong"
+        )
+
+    def _rate_spots(self, world: World, g: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rank start candidates: (tier, openness) per spot, higher is better, and their clearance.
+
+        The tier is −1 for spots that do not qualify (openness is then their clearance, to name the
+        best of them), else 2 × inside the mission area + 1 × inside walls. The column clearance
+        counts only what is nearer than the floor, so it cannot rank spots farther than the flight
+        altitude from any wall: openness is the smaller of it and the horizontal room.
+        """
+        need = self._needed_clearance()
+        z_fly = floor + self.robot.altitude
+        down = np.column_stack([g, np.full(len(g), z_fly), np.tile([0.0, 0.0, -1.0], (len(g), 1))])
+        ground = z_fly - world.cast_rays(down)["t_hit"].astype(float)
+        idx = np.flatnonzero(np.abs(ground - floor) < 0.05)  # on the floor, not on a table or a step
+        clear = np.full(len(g), -np.inf)
+        clear[idx] = self._column_clearance(world, g[idx], np.full(len(idx), floor))[0]
+        key = np.column_stack([np.full(len(g), -1.0), clear])
+        idx = idx[clear[idx] >= need]
+        if len(idx):  # a point deep inside a closed solid is far from its surfaces too
+            idx = idx[world.backface_share(np.column_stack([g[idx], np.full(len(idx), z_fly)])) < 0.75]
+        if not len(idx):
+            return key, clear
+        tier = (world.enclosed_share(g[idx], np.array([floor + 1.2, floor + 1.8])) >= 0.75).astype(float)
+        area = self._mission_area()
+        if area is not None:
+            alo, ahi = area
+            tier += 2.0 * np.all((g[idx] >= alo[:2] + need) & (g[idx] <= ahi[:2] - need), axis=1)
+        room = np.minimum.reduce(
+            [
+                world.horizontal_room(np.column_stack([g[idx], np.full(len(idx), floor + h)]))
+                for h in (need + 0.1, self.robot.altitude)
+            ]
+        )
+        key[idx, 0] = tier
+        key[idx, 1] = np.minimum(clear[idx], room)
+        return key, clear
 
     def _hover_point(self) -> np.ndarray:
         return np.array([self._start[0], self._start[1], self._ground_z + self.robot.altitude])

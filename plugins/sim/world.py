@@ -153,6 +153,16 @@ class World:
         self._offsets = np.array(offsets + [total], dtype=np.int64)
         self.tri_instance = np.concatenate(inst).astype(np.int32)
         self.tri_albedo = np.concatenate(albedo).astype(np.float32)
+        # |z| of each triangle's unit normal: horizontal surfaces (floors, table tops) are found by
+        # it whatever the winding of an imported mesh (its normals may point up or down).
+        nz = []
+        for part in spec.parts:
+            if len(part.triangles) == 0:
+                continue
+            v = np.asarray(part.vertices, dtype=np.float64)[np.asarray(part.triangles)]
+            n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+            nz.append(np.abs(n[:, 2]) / np.maximum(np.linalg.norm(n, axis=1), 1e-12))
+        self.tri_abs_nz = np.concatenate(nz) if nz else np.zeros(0)
         self.part_names = names
         self.n_triangles = total
         self._summary: WorldSummary | None = None
@@ -204,6 +214,65 @@ class World:
         ray = np.array([[*position, 0.0, 0.0, -1.0]])
         t = float(self.cast_rays(ray)["t_hit"][0])
         return float(position[2] - t) if np.isfinite(t) else -np.inf
+
+    def enclosed_share(self, xy: np.ndarray, heights: np.ndarray, n_dirs: int = 16) -> np.ndarray:
+        """Share of ``n_dirs`` horizontal directions in which geometry surrounds each (x, y).
+
+        A direction counts as closed when a horizontal ray from the point at any of its
+        ``heights`` (N×k absolute z, or k values for all points) hits something, however far:
+        inside a building the walls close nearly every direction (a window or a door leaves
+        one open at one height, rarely at all), outside it half of them at most.
+        """
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        n = len(xy)
+        h = np.asarray(heights, dtype=float)
+        h = np.broadcast_to(h if h.ndim == 2 else h[None, :], (n, h.shape[-1]))
+        if n == 0:
+            return np.zeros(0)
+        ang = np.arange(n_dirs) * (2 * np.pi / n_dirs)
+        dirs = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(n_dirs)])
+        closed = np.zeros((n, n_dirs), dtype=bool)
+        for k in range(h.shape[1]):
+            origins = np.repeat(np.column_stack([xy, h[:, k]]), n_dirs, axis=0)
+            rays = np.column_stack([origins, np.tile(dirs, (n, 1))])
+            closed |= np.isfinite(self.cast_rays(rays)["t_hit"]).reshape(n, n_dirs)
+        return closed.mean(axis=1)
+
+    def horizontal_room(self, points: np.ndarray, n_dirs: int = 16) -> np.ndarray:
+        """Distance to the nearest surface along ``n_dirs`` horizontal rays from each point (m).
+
+        Unlike :meth:`distance` it does not see the floor under a point: it tells how open a
+        spot is around it (inf where nothing is hit in any direction).
+        """
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        if len(pts) == 0:
+            return np.zeros(0)
+        ang = np.arange(n_dirs) * (2 * np.pi / n_dirs)
+        dirs = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(n_dirs)])
+        rays = np.column_stack([np.repeat(pts, n_dirs, axis=0), np.tile(dirs, (len(pts), 1))])
+        return self.cast_rays(rays)["t_hit"].astype(float).reshape(len(pts), n_dirs).min(axis=1)
+
+    def backface_share(self, points: np.ndarray, n_dirs: int = 16) -> np.ndarray:
+        """Share of the surfaces seen from each point (horizontally, up and down) seen from behind.
+
+        Inside a closed solid (a thick pillar, a cabinet modelled as a box) every ray leaves
+        through the back of an outward-facing triangle, and the unsigned distance alone cannot
+        tell such a point from free space. In a room nearly none is seen from behind.
+        """
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        n = len(pts)
+        if n == 0:
+            return np.zeros(0)
+        ang = np.arange(n_dirs) * (2 * np.pi / n_dirs)
+        dirs = np.vstack(
+            [np.column_stack([np.cos(ang), np.sin(ang), np.zeros(n_dirs)]), [0, 0, 1], [0, 0, -1]]
+        )
+        k = len(dirs)
+        rays = np.column_stack([np.repeat(pts, k, axis=0), np.tile(dirs, (n, 1))])
+        ans = self.cast_rays(rays)
+        hit = np.isfinite(ans["t_hit"]).reshape(n, k)
+        back = (np.einsum("ij,ij->i", ans["primitive_normals"], rays[:, 3:]) > 0).reshape(n, k) & hit
+        return back.sum(axis=1) / np.maximum(hit.sum(axis=1), 1)
 
     def floor_index(self, z: np.ndarray | float) -> np.ndarray:
         """Index of the floor holding height ``z`` (clipped to the valid range)."""
@@ -263,6 +332,162 @@ class World:
         )
         self._summary_key = key
         return self._summary
+
+
+# -------------------------------------------------------------------------------------------
+# floors of a building
+# -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Level:
+    """Walkable surfaces of a world at one height (see :func:`survey_floors`).
+
+    Attributes:
+        z: height of the surfaces (m).
+        area: walkable area (m²): horizontal structure with ``headroom`` of free space above.
+        enclosed_area: the part of it with walls around (inside the building).
+        open_sky_area: the part with nothing above, no walls around and no storey below: the
+            ground around a building (a roof lies over a storey, a courtyard inside walls).
+        over_storey_area: the part lying over a storey: over a walkable surface with ``storey``
+            of headroom below it (a mezzanine or an upper floor, not a raised step or a table).
+    """
+
+    z: float
+    area: float
+    enclosed_area: float
+    open_sky_area: float
+    over_storey_area: float
+
+
+@dataclass(frozen=True)
+class FloorSurvey:
+    """What :func:`survey_floors` found: every level, the ground floor and the floor heights."""
+
+    levels: tuple[Level, ...]
+    floors: tuple[float, ...]
+    terrain: float | None  # z of the ground outside the building, if the mesh has some
+    large: float  # smallest area (m²) of a level that counts as a floor
+
+    def describe(self) -> str:
+        rows = [
+            f"z {lv.z:.2f} m: {lv.area:.1f} m² walkable, {lv.enclosed_area:.1f} m² inside walls"
+            for lv in self.levels
+            if lv.area >= self.large
+        ]
+        return "; ".join(rows) or "no walkable surface"
+
+
+def survey_floors(
+    world: World,
+    *,
+    cell: float = 0.25,
+    headroom: float = 1.0,
+    storey: float = 1.8,
+    large: float = 4.0,
+    share: float = 0.1,
+    enclosed: float = 0.75,
+    basement_tolerance: float = 0.5,
+    max_columns: int = 40000,
+) -> FloorSurvey:
+    """Floor heights of a building mesh, found from vertical rays through the whole world.
+
+    Every column of a ``cell`` grid is cut by one ray from above the world, listing every
+    surface it crosses. A **walkable** surface is a horizontal piece of structure (not an object)
+    with at least ``headroom`` of free space above it: a slab's underside, a floor under a
+    table or a shelf's inner boards are not. Walkable surfaces are grouped by height into
+    levels. A surface is **inside** the building where walls close at least ``enclosed`` of the
+    horizontal directions around it (at 1.2 m and 1.8 m above it: over a parapet, under a
+    ceiling). A level is **large** from ``large`` m² and ``share`` of the largest level inside
+    walls on (of the ground floor, for the floors above it).
+
+    * The ground outside (``terrain``) is the lowest large level open to the sky and outside
+      walls (a ground plane or a terrain skirt around the building), if there is one.
+    * The **ground floor** is the lowest large level inside walls (more of it inside than open
+      ground) that is not more than ``basement_tolerance`` below the terrain: geometry under it
+      (a basement, foundations, stairs down, the ground plane under the floor slab) does not count.
+      Without terrain (a mesh of the building alone), the lowest large level inside walls.
+    * An **upper floor** (a storey, a mezzanine) is a large level inside walls lying over at least
+      ``large`` m² of a walkable surface with ``storey`` of headroom below it; a raised platform
+      on solid ground beside a floor, a table or a rack top is not a floor of its own.
+    """
+    lo, hi = np.asarray(world.spec.bounds_lo, float), np.asarray(world.spec.bounds_hi, float)
+    span = np.maximum(hi[:2] - lo[:2], cell)
+    cell = max(cell, float(np.sqrt(span[0] * span[1] / max_columns)))
+    xs = np.arange(lo[0] + cell / 2, hi[0], cell)
+    ys = np.arange(lo[1] + cell / 2, hi[1], cell)
+    xy = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+    top = hi[2] + 1.0
+    rays = np.column_stack([xy, np.full(len(xy), top), np.tile([0.0, 0.0, -1.0], (len(xy), 1))])
+    import open3d as o3d
+
+    ans = world.scene.list_intersections(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+    ray = ans["ray_ids"].numpy().astype(np.int64)
+    t = ans["t_hit"].numpy().astype(np.float64)
+    tri = world.triangle_index(ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy())
+    order = np.lexsort((t, ray))
+    ray, t, tri = ray[order], t[order], tri[order]
+    z = top - t
+    first = np.r_[True, ray[1:] != ray[:-1]]
+    # headroom: to the next surface above in the same column (none above: open sky)
+    above = np.where(first, np.inf, np.r_[np.inf, z[:-1]])
+    room = above - z
+    # the same surface twice (both faces of a plane, coincident meshes): keep the upper copy
+    dup = ~first & (room < 0.01)
+    horizontal = world.tri_abs_nz[tri] > 0.9
+    structure = world.tri_instance[tri] == 0
+    walk = horizontal & structure & (room >= headroom) & ~dup
+    # storey below a walkable surface: a walkable surface lower in the same column with `storey`
+    # of headroom (under this one's slab)
+    tall = (walk & (room >= storey)).astype(np.int64)
+    last = np.searchsorted(ray, ray, side="right") - 1  # last (lowest) hit of each hit's column
+    cs = np.cumsum(tall)
+    storey_below = (cs[last] - cs) > 0
+
+    wz, wxy = z[walk], xy[ray[walk]]
+    sky, over = first[walk], storey_below[walk]
+    if len(wz) == 0:
+        return FloorSurvey((), (float(lo[2]),), None, large)
+    closed = world.enclosed_share(wxy, np.column_stack([wz + 1.2, wz + 1.8]))
+    inside = closed >= enclosed
+    cell_area = cell * cell
+    # levels: the heights holding the most walkable area first, each claiming what lies within 6 cm
+    bins = np.round(wz / 0.02).astype(np.int64)
+    ub, inv = np.unique(bins, return_inverse=True)
+    weight = np.bincount(inv, minlength=len(ub)).astype(float)
+    claimed = np.zeros(len(wz), dtype=bool)
+    levels: list[Level] = []
+    for b in ub[np.argsort(-weight, kind="stable")]:
+        sel = ~claimed & (np.abs(wz - b * 0.02) <= 0.06)
+        if not sel.any():
+            continue
+        claimed |= sel
+        levels.append(
+            Level(
+                z=float(np.median(wz[sel])),
+                area=float(sel.sum() * cell_area),
+                enclosed_area=float((sel & inside).sum() * cell_area),
+                open_sky_area=float((sel & sky & ~inside & ~over).sum() * cell_area),
+                over_storey_area=float((sel & inside & over).sum() * cell_area),
+            )
+        )
+    levels.sort(key=lambda lv: lv.z)
+    # a floor (and the ground around) is a large share of the building, not a patch of ground in
+    # a corner of its walls, nor the eaves of a roof
+    big = max(large, share * max((lv.enclosed_area for lv in levels), default=0.0))
+    terrain = next((lv.z for lv in levels if lv.open_sky_area >= big), None)
+    grounds = [lv for lv in levels if lv.enclosed_area >= big and lv.enclosed_area >= lv.open_sky_area]
+    at_ground = [lv for lv in grounds if terrain is None or lv.z >= terrain - basement_tolerance]
+    floors: list[float] = []
+    if grounds:
+        ground = (at_ground or grounds)[0]
+        floors.append(ground.z)
+        big = max(large, share * ground.enclosed_area)
+        for lv in levels:
+            if lv.z - floors[-1] >= storey and lv.enclosed_area >= big and lv.over_storey_area >= big:
+                floors.append(lv.z)
+    else:  # nothing inside walls: the lowest large walkable level, else the bottom of the mesh
+        wide = [lv for lv in levels if lv.area >= large]
+        floors = [wide[0].z if wide else float(lo[2])]
+    return FloorSurvey(tuple(levels), tuple(floors), terrain, large)
 
 
 # -------------------------------------------------------------------------------------------
