@@ -19,6 +19,7 @@ from pydantic import Field
 from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
+    blind_vertical_ok,
     known_along,
     samples_clear,
     segment_samples,
@@ -120,6 +121,18 @@ class VoxelMapParams(BackendParams):
         0.6,
         ge=0,
         description="Path start/goal off the free graph connect to the nearest free voxel within this.",
+    )
+    unseen_surface_reach: float = Field(
+        0.25,
+        ge=0,
+        description="Unknown voxels connected to a seen slab, floor or ceiling within this distance (m)"
+        " count as occupied in path search and segment checks, both maps (the unseen top or edge of a"
+        " slab seen from one side); 0: only occupied voxels keep paths away.",
+    )
+    observed_floor_changes: bool = Field(
+        True,
+        description="Near a slab, floor or ceiling, paths move vertically only where every voxel within"
+        " the robot radius was observed: a floor change never passes through unknown space.",
     )
     plan_through_unknown: bool = Field(
         False,
@@ -319,8 +332,10 @@ class VoxelMapBase(Mapping):
             lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
-        passable = traversable(states, self.robot_radius, self.global_map.voxel, unknown_free=unknown_free)
-        roomy = traversable(states, self.segment_radius, self.global_map.voxel, unknown_free=unknown_free)
+        v, reach = self.global_map.voxel, self.params.unseen_surface_reach
+        observed = self.params.observed_floor_changes
+        passable = traversable(states, self.robot_radius, v, unknown_free=unknown_free, unseen_reach=reach)
+        roomy = traversable(states, self.segment_radius, v, unknown_free=unknown_free, unseen_reach=reach)
         if unknown_free:
             # Unknown space is free only inside the mission area (not under the ground, say).
             a, b = index_box(self.area, self.global_map.voxel)
@@ -335,6 +350,7 @@ class VoxelMapBase(Mapping):
             self.params.snap_radius,
             states,
             penalty=np.where(roomy, 1.0, self.params.tight_penalty),
+            vertical_ok=blind_vertical_ok(states, self.robot_radius, v) if observed else None,
         )
         self._graph = (self._version, graph)
         return graph
@@ -348,7 +364,8 @@ class VoxelMapBase(Mapping):
         """Shortest 26-connected path over clear known-free voxels, shortcut-smoothed; or None."""
         self._require()
         start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
-        raw = self._free_graph().shortest_path(start, goal)
+        graph = self._free_graph()
+        raw = graph.shortest_path(start, goal)
         if raw is None:
             return None
         v = self.global_map.voxel
@@ -358,6 +375,9 @@ class VoxelMapBase(Mapping):
             samples = segment_samples(a, b, 0.5 * v)
             idx = to_index(samples, v)
             at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
+            # A shortcut that climbs or descends obeys the graph's rule for vertical moves.
+            if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
+                return False
             if self.params.plan_through_unknown:
                 return self.segment_free(a, b)
             known = known_along(samples, v, self.global_map.states_at_index)
@@ -366,14 +386,17 @@ class VoxelMapBase(Mapping):
         return smooth_path(raw, line_of_sight)
 
     def segment_free(self, a: np.ndarray, b: np.ndarray, *, local: bool = False) -> bool:
-        """No occupied voxel within the robot radius of the segment (unknown counts as free)."""
+        """No occupied voxel within the robot radius of the segment; unknown counts as free except
+        the unseen continuation of a seen slab, floor or ceiling (``unseen_surface_reach``)."""
         self._require()
         store = self.local_map if local else self.global_map
         samples = segment_samples(a, b, 0.5 * store.voxel)
         # The local check guards against collision (see local_radius); global segments are
         # planning shortcuts and keep the clearance margin as well.
         radius = self.local_radius if local else self.segment_radius
-        return samples_clear(samples, radius, store.voxel, store.states_at_index)
+        return samples_clear(
+            samples, radius, store.voxel, store.states_at_index, self.params.unseen_surface_reach
+        )
 
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""

@@ -1,0 +1,157 @@
+"""Floor changes and slabs (issue #19): paths never cross a slab through unseen space.
+
+Synthetic global maps (0.25 m voxels) of a 6 × 6 m two-storey box, loaded through the public
+``load``: a floor, a 0.25 m slab at z 2.75–3.0 and a ceiling, with the air of both storeys known
+free. Demo flights crashed where the SLAM-posed global map had carved a small hole into the slab
+whose rim was never seen (unknown): with only occupied voxels keeping paths away, the planner
+routed the floor change through it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amslam.lib.free_space import samples_clear
+from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, logit, to_index
+from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.testing.mapping import make_context
+from amslam.types import BoundingBox
+
+V = 0.25
+N = (24, 24, 24)  # 6 × 6 × 6 m
+SLAB = 11  # z layer 2.75–3.0 m
+AREA = BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([6.0, 6.0, 5.5]))
+BELOW, ABOVE = np.array([1.0, 1.0, 1.5]), np.array([1.0, 1.0, 4.2])
+FREE_L, OCC_L = logit(0.2), logit(0.95)
+
+
+def building() -> np.ndarray:
+    """int8 states: floor (z layer 0), slab (layer 11), ceiling (layer 21), free air between."""
+    s = np.full(N, UNKNOWN, dtype=np.int8)
+    s[:, :, 1:21] = 0  # FREE
+    s[:, :, [0, SLAB, 21]] = OCCUPIED
+    return s
+
+
+def load(mapping_cls, tmp_path, states: np.ndarray, **params):
+    m = mapping_cls()
+    m.configure(mapping_cls.Params(**params), make_context(tmp_path, area=AREA))
+    idx = np.argwhere(states != UNKNOWN)
+    logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
+    empty = np.zeros((0, 3), np.int64)
+    path = tmp_path / "map.npz"
+    np.savez_compressed(
+        path,
+        format=np.array("amslam-voxels-1"),
+        global_index=idx,
+        global_logodds=logodds,
+        global_voxel=np.array(V),
+        local_index=empty,
+        local_logodds=np.zeros(0, np.float32),
+        local_voxel=np.array(m.params.local_voxel),
+    )
+    m.load(path)
+    return m
+
+
+def carved_hole(states: np.ndarray) -> np.ndarray:
+    """A 0.5 × 0.5 m hole carved free in the slab at x, y 2.5–3.0, its one-voxel rim never seen."""
+    s = states.copy()
+    s[9:13, 9:13, SLAB] = UNKNOWN
+    s[10:12, 10:12, SLAB] = 0
+    return s
+
+
+BACKENDS = [NumpyVoxelMap, Open3dVoxelMap]
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_no_floor_change_through_a_carved_hole_with_an_unseen_rim(cls, tmp_path) -> None:
+    states = carved_hole(building())
+    # The old rules (only occupied voxels keep paths off; vertical moves anywhere) fly through it:
+    # the occupied slab is 0.375 m from the hole's centre line, more than the 0.325 m planning radius.
+    old = load(cls, tmp_path, states, unseen_surface_reach=0.0, observed_floor_changes=False)
+    path = old.plan_path(BELOW, ABOVE)
+    assert path is not None, "the scene must expose the defect"
+    crossing = path[np.argmax(path[:, 2] > 3.0)]
+    assert 2.4 < crossing[0] < 3.1 and 2.4 < crossing[1] < 3.1
+    # Each rule alone refuses the hole: the unknown rim next to the seen slab is an obstacle, and a
+    # vertical move near a slab needs the robot's whole disc observed.
+    for params in (
+        {"unseen_surface_reach": 0.25, "observed_floor_changes": False},
+        {"unseen_surface_reach": 0.0, "observed_floor_changes": True},
+        {},  # the defaults: both
+    ):
+        m = load(cls, tmp_path, states, **params)
+        assert m.plan_path(BELOW, ABOVE) is None, params
+        assert np.isinf(m.path_costs(BELOW[None], ABOVE[None])[0, 0]), params
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_an_observed_shaft_is_still_a_way_between_floors(cls, tmp_path) -> None:
+    states = carved_hole(building())
+    states[16:22, 14:22, SLAB] = 0  # a 1.5 × 2 m shaft at x 4–5.5, y 3.5–5.5, seen all round
+    m = load(cls, tmp_path, states)
+    path = m.plan_path(BELOW, ABOVE)
+    assert path is not None
+    # the climb happens in the shaft, not in the carved hole
+    crossing = path[np.argmax(path[:, 2] > 2.7)]
+    prev = path[np.argmax(path[:, 2] > 2.7) - 1]
+    for p in (prev, crossing):
+        if 2.7 <= p[2] <= 3.05:
+            assert 4.0 <= p[0] <= 5.5 and 3.5 <= p[1] <= 5.5
+    # every climbing leg runs inside the shaft's footprint at slab height
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        t = np.linspace(0, 1, 50)[:, None]
+        pts = a + t * (b - a)
+        at_slab = (pts[:, 2] > 2.75 - 0.3) & (pts[:, 2] < 3.0 + 0.3)
+        assert np.all((pts[at_slab, 0] > 4.0) & (pts[at_slab, 0] < 5.5)), (a, b)
+        assert m.segment_free(a, b)
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_segment_free_keeps_clear_of_the_unseen_edge_of_a_slab(cls, tmp_path) -> None:
+    states = building()
+    states[12:, :, SLAB] = UNKNOWN  # the slab seen only for x < 3.0: its edge beyond is unseen
+    a, b = np.array([3.2, 2.0, 2.4]), np.array([3.2, 2.5, 2.4])  # 0.35 m under the unseen part
+    old = load(cls, tmp_path, states, unseen_surface_reach=0.0)
+    assert old.segment_free(a, b)  # 0.40 m from the seen edge's box: clear by the old rule
+    m = load(cls, tmp_path, states)
+    assert not m.segment_free(a, b)
+    # further along, under unknown space two voxels from the seen slab, nothing is assumed
+    assert m.segment_free(a + [0.6, 0, 0], b + [0.6, 0, 0])
+
+
+def test_samples_clear_unknown_next_to_a_slab_in_a_fine_map() -> None:
+    # 0.1 m voxels (the local map): a slab bottom seen at z 2.8 for x < 1, unknown beyond.
+    v = 0.1
+    s = np.full((40, 20, 40), UNKNOWN, dtype=np.int8)
+    s[:, :, :28] = 0
+    s[:10, :, 28] = OCCUPIED
+
+    def states_at(index: np.ndarray) -> np.ndarray:
+        out = np.full(len(index), UNKNOWN, dtype=np.int8)
+        ok = np.all((index >= 0) & (index < np.array(s.shape)), axis=1)
+        out[ok] = s[tuple(index[ok].T)]
+        return out
+
+    seg = np.array([[1.12, 0.5, 2.62], [1.12, 1.5, 2.62]])  # 0.18 m under the unseen edge
+    assert samples_clear(seg, 0.2, v, states_at)  # 0.18 m below, 0.12 m beside the seen part: 0.216
+    assert not samples_clear(seg, 0.2, v, states_at, unseen_reach=0.25)
+    # wall-like surfaces are not extended: an unknown voxel beside a vertical wall stays free
+    w = np.full((40, 20, 40), UNKNOWN, dtype=np.int8)
+    w[:20, :, :] = 0
+    w[20, :, :] = OCCUPIED  # a wall at x 2.0–2.1, unknown behind it
+    w[21:, :10, :] = 0
+
+    def wall_at(index: np.ndarray) -> np.ndarray:
+        out = np.full(len(index), UNKNOWN, dtype=np.int8)
+        ok = np.all((index >= 0) & (index < np.array(w.shape)), axis=1)
+        out[ok] = w[tuple(index[ok].T)]
+        return out
+
+    beside = np.array([[2.35, 1.05, 2.0], [2.35, 1.05, 2.5]])  # behind the wall, next to the unknown
+    assert samples_clear(beside, 0.2, v, wall_at, unseen_reach=0.25)
+    assert to_index(beside, v)[0, 0] == 23
