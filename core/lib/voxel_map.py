@@ -19,12 +19,12 @@ from pydantic import Field
 from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
-    blind_vertical_ok,
     known_along,
     samples_clear,
     segment_samples,
     smooth_path,
     traversable,
+    vertical_ok,
 )
 from amslam.lib.frontiers import FrontierConfig, FrontierTracker
 from amslam.lib.voxel_grid import (
@@ -133,6 +133,13 @@ class VoxelMapParams(BackendParams):
         True,
         description="Near a slab, floor or ceiling, paths move vertically only where every voxel within"
         " the robot radius was observed: a floor change never passes through unknown space.",
+    )
+    floor_change_opening: float = Field(
+        0.75,
+        ge=0,
+        description="In the z layer of a slab, floor or ceiling, paths move vertically only this far (m)"
+        " horizontally from it: floors are changed through wide openings (a shaft, a stairwell), not"
+        " through a hole the global map carved into a slab from drifted poses; 0: no such rule.",
     )
     plan_through_unknown: bool = Field(
         False,
@@ -333,7 +340,6 @@ class VoxelMapBase(Mapping):
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
         v, reach = self.global_map.voxel, self.params.unseen_surface_reach
-        observed = self.params.observed_floor_changes
         passable = traversable(states, self.robot_radius, v, unknown_free=unknown_free, unseen_reach=reach)
         roomy = traversable(states, self.segment_radius, v, unknown_free=unknown_free, unseen_reach=reach)
         if unknown_free:
@@ -350,7 +356,14 @@ class VoxelMapBase(Mapping):
             self.params.snap_radius,
             states,
             penalty=np.where(roomy, 1.0, self.params.tight_penalty),
-            vertical_ok=blind_vertical_ok(states, self.robot_radius, v) if observed else None,
+            vertical_ok=vertical_ok(
+                states,
+                self.robot_radius,
+                v,
+                observed=self.params.observed_floor_changes,
+                opening=self.params.floor_change_opening,
+                unseen_reach=reach,
+            ),
         )
         self._graph = (self._version, graph)
         return graph

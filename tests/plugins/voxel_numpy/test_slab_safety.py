@@ -65,6 +65,8 @@ def carved_hole(states: np.ndarray) -> np.ndarray:
 
 
 BACKENDS = [NumpyVoxelMap, Open3dVoxelMap]
+#: the rules before issue #19: only occupied voxels keep paths off, vertical moves anywhere
+OLD_RULES = {"unseen_surface_reach": 0.0, "observed_floor_changes": False, "floor_change_opening": 0.0}
 
 
 @pytest.mark.parametrize("cls", BACKENDS)
@@ -72,17 +74,19 @@ def test_no_floor_change_through_a_carved_hole_with_an_unseen_rim(cls, tmp_path)
     states = carved_hole(building())
     # The old rules (only occupied voxels keep paths off; vertical moves anywhere) fly through it:
     # the occupied slab is 0.375 m from the hole's centre line, more than the 0.325 m planning radius.
-    old = load(cls, tmp_path, states, unseen_surface_reach=0.0, observed_floor_changes=False)
+    old = load(cls, tmp_path, states, **OLD_RULES)
     path = old.plan_path(BELOW, ABOVE)
     assert path is not None, "the scene must expose the defect"
     crossing = path[np.argmax(path[:, 2] > 3.0)]
     assert 2.4 < crossing[0] < 3.1 and 2.4 < crossing[1] < 3.1
-    # Each rule alone refuses the hole: the unknown rim next to the seen slab is an obstacle, and a
-    # vertical move near a slab needs the robot's whole disc observed.
+    # Each rule alone refuses the hole: the unknown rim next to the seen slab is an obstacle; a
+    # vertical move near a slab needs the robot's whole ball observed; a floor change needs an
+    # opening wider than 1 m.
     for params in (
-        {"unseen_surface_reach": 0.25, "observed_floor_changes": False},
-        {"unseen_surface_reach": 0.0, "observed_floor_changes": True},
-        {},  # the defaults: both
+        {**OLD_RULES, "unseen_surface_reach": 0.25},
+        {**OLD_RULES, "observed_floor_changes": True},
+        {**OLD_RULES, "floor_change_opening": 0.75},
+        {},  # the defaults: all three
     ):
         m = load(cls, tmp_path, states, **params)
         assert m.plan_path(BELOW, ABOVE) is None, params
@@ -92,23 +96,30 @@ def test_no_floor_change_through_a_carved_hole_with_an_unseen_rim(cls, tmp_path)
 @pytest.mark.parametrize("cls", BACKENDS)
 def test_an_observed_shaft_is_still_a_way_between_floors(cls, tmp_path) -> None:
     states = carved_hole(building())
-    states[16:22, 14:22, SLAB] = 0  # a 1.5 × 2 m shaft at x 4–5.5, y 3.5–5.5, seen all round
+    states[13:23, 13:23, SLAB] = 0  # a 2.5 × 2.5 m shaft at x, y 3.25–5.75 (the demo's is 2.6 m)
     m = load(cls, tmp_path, states)
     path = m.plan_path(BELOW, ABOVE)
     assert path is not None
-    # the climb happens in the shaft, not in the carved hole
-    crossing = path[np.argmax(path[:, 2] > 2.7)]
-    prev = path[np.argmax(path[:, 2] > 2.7) - 1]
-    for p in (prev, crossing):
-        if 2.7 <= p[2] <= 3.05:
-            assert 4.0 <= p[0] <= 5.5 and 3.5 <= p[1] <= 5.5
-    # every climbing leg runs inside the shaft's footprint at slab height
+    # every leg at slab height runs inside the shaft's footprint, none through the carved hole
     for a, b in zip(path[:-1], path[1:], strict=True):
-        t = np.linspace(0, 1, 50)[:, None]
-        pts = a + t * (b - a)
+        pts = a + np.linspace(0, 1, 50)[:, None] * (b - a)
         at_slab = (pts[:, 2] > 2.75 - 0.3) & (pts[:, 2] < 3.0 + 0.3)
-        assert np.all((pts[at_slab, 0] > 4.0) & (pts[at_slab, 0] < 5.5)), (a, b)
+        assert np.all((pts[at_slab, :2] > 3.25) & (pts[at_slab, :2] < 5.75)), (a, b)
         assert m.segment_free(a, b)
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_a_carved_hole_seen_all_round_is_too_narrow_for_a_floor_change(cls, tmp_path) -> None:
+    # A 1 × 1 m patch of the slab carved free with its rim seen occupied and the air above and
+    # below it observed: by clearance alone the robot fits (0.375 m from the rim > 0.325 m).
+    states = building()
+    states[8:12, 8:12, SLAB] = 0
+    old = load(cls, tmp_path, states, **OLD_RULES)
+    assert old.plan_path(BELOW, ABOVE) is not None, "the scene must expose the defect"
+    m = load(cls, tmp_path, states)
+    assert m.plan_path(BELOW, ABOVE) is None
+    # ... while flying level through the same layer's air elsewhere is untouched
+    assert m.plan_path(BELOW, BELOW + [3.5, 3.5, 0.0]) is not None
 
 
 @pytest.mark.parametrize("cls", BACKENDS)
