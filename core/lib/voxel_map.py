@@ -20,6 +20,7 @@ from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
     known_along,
+    obstacles,
     samples_clear,
     segment_samples,
     smooth_path,
@@ -410,6 +411,24 @@ class VoxelMapBase(Mapping):
         return samples_clear(
             samples, radius, store.voxel, store.states_at_index, self.params.unseen_surface_reach
         )
+
+    def blocked(self, points: np.ndarray, *, local: bool = False) -> np.ndarray:
+        """Whether each point lies in an obstacle voxel: occupied, or unknown continuing a seen slab,
+        floor or ceiling (``unseen_surface_reach``), the rule paths and ``segment_free`` use.
+
+        For clearance checks outside the planner (a setpoint filter): ``states(...) == OCCUPIED``
+        misses the unseen top or edge of a slab seen from one side.
+        """
+        self._require()
+        store = self.local_map if local else self.global_map
+        idx = to_index(np.asarray(points, dtype=float).reshape(-1, 3), store.voxel)
+        if len(idx) == 0:
+            return np.zeros(0, dtype=bool)
+        reach = self.params.unseen_surface_reach
+        pad = max(1, int(round(reach / store.voxel))) + 2  # the surface an unknown voxel continues
+        lo = idx.min(axis=0) - pad
+        shape = tuple(int(s) for s in idx.max(axis=0) + pad + 1 - lo)
+        return obstacles(store.dense_states(lo, shape), store.voxel, reach)[tuple((idx - lo).T)]
 
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""

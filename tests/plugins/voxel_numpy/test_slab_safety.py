@@ -133,6 +133,11 @@ def test_segment_free_keeps_clear_of_the_unseen_edge_of_a_slab(cls, tmp_path) ->
     assert not m.segment_free(a, b)
     # further along, under unknown space two voxels from the seen slab, nothing is assumed
     assert m.segment_free(a + [0.6, 0, 0], b + [0.6, 0, 0])
+    # the same rule point-wise, for clearance checks outside the planner
+    # slab, its unseen edge, unknown two voxels on, free below, free above
+    pts = np.array([[2.9, 2.1, 2.85], [3.1, 2.1, 2.85], [3.6, 2.1, 2.85], [3.1, 2.1, 2.4], [3.1, 2.1, 3.1]])
+    np.testing.assert_array_equal(m.blocked(pts), [True, True, False, False, False])
+    np.testing.assert_array_equal(old.blocked(pts), [True, False, False, False, False])
 
 
 def test_samples_clear_unknown_next_to_a_slab_in_a_fine_map() -> None:
