@@ -62,6 +62,60 @@ def horizontal_surfaces(states: np.ndarray) -> np.ndarray:
     return occ & along[0] & along[1] & open_vertically
 
 
+#: a horizontal surface larger than this (m², one z layer, 8-connected) is a slab, floor or
+#: ceiling; smaller ones are furniture tops (a 2.4 × 1.2 m conference table is 2.9 m²)
+SLAB_MIN_AREA = 4.0
+
+
+def slabs(states: np.ndarray, voxel: float) -> np.ndarray:
+    """The :func:`horizontal_surfaces` voxels of slabs, floors and ceilings: components of at least
+    ``SLAB_MIN_AREA`` within their z layer (furniture tops excluded)."""
+    surf = horizontal_surfaces(states)
+    if not surf.any():
+        return surf
+    eight = np.zeros((3, 3, 3), dtype=bool)
+    eight[:, :, 1] = True  # connected within the layer only
+    labels, n = ndimage.label(surf, structure=eight)
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)
+    big = sizes * voxel**2 >= SLAB_MIN_AREA
+    big[0] = False
+    return big[labels]
+
+
+def _disc(radius: float, voxel: float) -> np.ndarray:
+    """Flat structuring element: the voxels of one z layer whose box comes within ``radius``."""
+    k = clearance_kernel(radius, voxel)
+    return k[:, :, k.shape[2] // 2 : k.shape[2] // 2 + 1]
+
+
+def narrow_slab_gaps(
+    states: np.ndarray, voxel: float, opening: float, unseen_reach: float = 0.0
+) -> np.ndarray:
+    """Free voxels in a slab's z layer, near it, in a part of the layer too narrow for an opening.
+
+    A hole the global map carved into a slab from drifted poses is free space in the slab's layer
+    where there is none: a robot under or over it would fly into the slab. Free voxels of a slab's
+    layer within ``opening`` of the slab (horizontally), with nothing occupied right above or below,
+    that no disc of radius ``opening`` of free voxels in that layer covers (a morphological opening
+    per layer) are taken for such holes. A real
+    opening between floors — a shaft, a stairwell, an atrium — is wider and keeps its free space.
+    """
+    slab = slabs(states, voxel)
+    if opening <= 0 or not slab.any():
+        return np.zeros(states.shape, dtype=bool)
+    slab |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(slab, structure=_CROSS)
+    disc = _disc(opening, voxel)
+    free = states == FREE
+    near = ndimage.binary_dilation(slab, structure=disc)
+    wide = ndimage.binary_opening(free, structure=disc)
+    # A hole goes through: nothing occupied right above or below. (Air next to a ragged ceiling or
+    # floor, whose surface straddles two layers where poses differed, has the surface above or
+    # below it and is no hole.)
+    occ = states == OCCUPIED
+    through = ~_shift(occ, 2, 1) & ~_shift(occ, 2, -1)
+    return free & near & ~wide & through
+
+
 def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray:
     """Unknown voxels taken for the unseen continuation of a seen slab, floor or ceiling.
 
@@ -82,20 +136,31 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     return grown & unknown
 
 
-def obstacles(states: np.ndarray, voxel: float, unseen_reach: float = 0.0) -> np.ndarray:
-    """Voxels the robot must keep its radius from: occupied ones and :func:`unseen_surface`."""
+def obstacles(
+    states: np.ndarray, voxel: float, unseen_reach: float = 0.0, slab_opening: float = 0.0
+) -> np.ndarray:
+    """Voxels the robot must keep its radius from: occupied ones, :func:`unseen_surface` and (with
+    ``slab_opening``, on a block holding whole free regions, e.g. the path graph's) the
+    :func:`narrow_slab_gaps`."""
     occ = states == OCCUPIED
     if unseen_reach > 0:
         occ |= unseen_surface(states, voxel, unseen_reach)
+    if slab_opening > 0:
+        occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach)
     return occ
 
 
 def traversable(
-    states: np.ndarray, radius: float, voxel: float, unknown_free: bool = False, unseen_reach: float = 0.0
+    states: np.ndarray,
+    radius: float,
+    voxel: float,
+    unknown_free: bool = False,
+    unseen_reach: float = 0.0,
+    slab_opening: float = 0.0,
 ) -> np.ndarray:
     """Known-free (or, with ``unknown_free``, not occupied) voxels with no :func:`obstacles` voxel
     within ``radius`` of their centre."""
-    occ = obstacles(states, voxel, unseen_reach)
+    occ = obstacles(states, voxel, unseen_reach, slab_opening)
     free = ((states != OCCUPIED) if unknown_free else (states == FREE)) & ~occ
     if radius > 0 and occ.any():
         occ = ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
@@ -122,8 +187,8 @@ def vertical_ok(
     * ``observed``: within ``radius`` plus one voxel of a horizontal surface, a vertical move only
       where every voxel within ``radius`` was observed (free or occupied, no unknown): a hole whose
       rim was never seen, or the unseen top of a slab seen from below, is not a way up or down.
-    * ``opening``: in the z layer of a horizontal surface (or of its unseen continuation, see
-      :func:`unseen_surface`), a vertical move only at least ``opening`` metres horizontally from it:
+    * ``opening``: in the z layer of a slab, floor or ceiling (:func:`slabs`, or its unseen
+      continuation, :func:`unseen_surface`), a vertical move only ``opening`` metres from it:
       floors are changed through wide openings (a shaft, a stairwell), not through a patch the map
       carved into a slab, which is only as wide as the pose error that carved it allows.
 
@@ -140,10 +205,10 @@ def vertical_ok(
             m = int(np.ceil(radius / voxel)) + 1
             near_slab = ndimage.binary_dilation(slab, structure=np.ones((2 * m + 1,) * 3, dtype=bool))
             ok &= seen_around | ~near_slab
-    if opening > 0:
-        k = clearance_kernel(opening, voxel)
-        disc = k[:, :, k.shape[2] // 2 : k.shape[2] // 2 + 1]  # the horizontal slice: same layer only
-        ok &= ~ndimage.binary_dilation(slab | unseen_surface(states, voxel, unseen_reach), structure=disc)
+    big = slabs(states, voxel)
+    if opening > 0 and big.any():
+        big |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(big, structure=_CROSS)
+        ok &= ~ndimage.binary_dilation(big, structure=_disc(opening, voxel))
     return ok
 
 
@@ -261,6 +326,14 @@ class FreeSpaceGraph:
             return inside
         out = np.zeros(len(rel), dtype=bool)
         out[inside] = self.vertical_ok[tuple(rel[inside].T)]
+        return out
+
+    def passable_at(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point's voxel is a graph node."""
+        rel = to_index(np.asarray(points, dtype=float).reshape(-1, 3), self.voxel) - self.lo
+        inside = np.all((rel >= 0) & (rel < np.array(self.shape)), axis=1)
+        out = np.zeros(len(rel), dtype=bool)
+        out[inside] = self.node_of_voxel[tuple(rel[inside].T)] >= 0
         return out
 
     def snap(self, point: np.ndarray) -> int:

@@ -341,8 +341,13 @@ class VoxelMapBase(Mapping):
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
         v, reach = self.global_map.voxel, self.params.unseen_surface_reach
-        passable = traversable(states, self.robot_radius, v, unknown_free=unknown_free, unseen_reach=reach)
-        roomy = traversable(states, self.segment_radius, v, unknown_free=unknown_free, unseen_reach=reach)
+        rules = {
+            "unknown_free": unknown_free,
+            "unseen_reach": reach,
+            "slab_opening": self.params.floor_change_opening,
+        }
+        passable = traversable(states, self.robot_radius, v, **rules)
+        roomy = traversable(states, self.segment_radius, v, **rules)
         if unknown_free:
             # Unknown space is free only inside the mission area (not under the ground, say).
             a, b = index_box(self.area, self.global_map.voxel)
@@ -389,8 +394,11 @@ class VoxelMapBase(Mapping):
             samples = segment_samples(a, b, 0.5 * v)
             idx = to_index(samples, v)
             at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
-            # A shortcut that climbs or descends obeys the graph's rule for vertical moves.
+            # A shortcut that climbs or descends obeys the graph's rule for vertical moves, and
+            # stays on graph nodes (clear of every obstacle the graph knows, carved slab holes too).
             if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
+                return False
+            if not np.all(graph.passable_at(samples) | at_end):
                 return False
             if self.params.plan_through_unknown:
                 return self.segment_free(a, b)

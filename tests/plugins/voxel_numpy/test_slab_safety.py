@@ -120,6 +120,18 @@ def test_a_carved_hole_seen_all_round_is_too_narrow_for_a_floor_change(cls, tmp_
     assert m.plan_path(BELOW, ABOVE) is None
     # ... while flying level through the same layer's air elsewhere is untouched
     assert m.plan_path(BELOW, BELOW + [3.5, 3.5, 0.0]) is not None
+    # Nor may a path hover under the patch, 0.125 m below where the slab really is: the patch is an
+    # obstacle, not a skylight (snap radius 0: the very voxel must be a graph node).
+    under = np.array([[2.375, 2.375, 2.625]])
+    exact = {"snap_radius": 0.0}
+    assert np.isfinite(load(cls, tmp_path, states, **OLD_RULES, **exact).path_costs(BELOW[None], under)[0, 0])
+    assert np.isinf(load(cls, tmp_path, states, **exact).path_costs(BELOW[None], under)[0, 0])
+    # a wide shaft is no such patch: its air in the slab's layer stays a way up
+    shaft = building()
+    shaft[13:23, 13:23, SLAB] = 0
+    assert np.isfinite(
+        load(cls, tmp_path, shaft, **exact).path_costs(BELOW[None], [[4.375, 4.375, 2.875]])[0, 0]
+    )
 
 
 @pytest.mark.parametrize("cls", BACKENDS)
