@@ -160,11 +160,15 @@ def traversable(
 ) -> np.ndarray:
     """Known-free (or, with ``unknown_free``, not occupied) voxels with no :func:`obstacles` voxel
     within ``radius`` of their centre."""
-    occ = obstacles(states, voxel, unseen_reach, slab_opening)
-    free = ((states != OCCUPIED) if unknown_free else (states == FREE)) & ~occ
+    free = (states != OCCUPIED) if unknown_free else (states == FREE)
+    return free & ~inflate(obstacles(states, voxel, unseen_reach, slab_opening), radius, voxel)
+
+
+def inflate(occ: np.ndarray, radius: float, voxel: float) -> np.ndarray:
+    """Voxels of ``occ`` and those whose centre lies within ``radius`` of an ``occ`` voxel's box."""
     if radius > 0 and occ.any():
-        occ = ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
-    return free & ~occ
+        return ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
+    return occ.copy()
 
 
 def vertical_ok(
@@ -269,6 +273,8 @@ class FreeSpaceGraph:
             walls where there is room without closing narrow doors.
         vertical_ok: optional boolean block; an edge with a vertical component joins two voxels
             only where it is True at both ends (see :func:`vertical_ok`).
+        near_obstacle: optional boolean block of voxels within the robot radius of an obstacle
+            (:meth:`near_obstacle_at`).
     """
 
     def __init__(
@@ -280,9 +286,11 @@ class FreeSpaceGraph:
         states: np.ndarray,
         penalty: np.ndarray | None = None,
         vertical_ok: np.ndarray | None = None,
+        near_obstacle: np.ndarray | None = None,
     ):
         self.lo = np.asarray(lo, dtype=np.int64)
         self.vertical_ok = vertical_ok
+        self.near_obstacle = near_obstacle
         self.voxel = voxel
         self.snap_radius = snap_radius
         self.states = states
@@ -326,6 +334,16 @@ class FreeSpaceGraph:
             return inside
         out = np.zeros(len(rel), dtype=bool)
         out[inside] = self.vertical_ok[tuple(rel[inside].T)]
+        return out
+
+    def near_obstacle_at(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point's voxel is within the robot radius of an obstacle (False outside the
+        block or without the mask)."""
+        rel = to_index(np.asarray(points, dtype=float).reshape(-1, 3), self.voxel) - self.lo
+        inside = np.all((rel >= 0) & (rel < np.array(self.shape)), axis=1)
+        out = np.zeros(len(rel), dtype=bool)
+        if self.near_obstacle is not None:
+            out[inside] = self.near_obstacle[tuple(rel[inside].T)]
         return out
 
     def passable_at(self, points: np.ndarray) -> np.ndarray:

@@ -19,12 +19,12 @@ from pydantic import Field
 from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
+    inflate,
     known_along,
     obstacles,
     samples_clear,
     segment_samples,
     smooth_path,
-    traversable,
     vertical_ok,
 )
 from amslam.lib.frontiers import FrontierConfig, FrontierTracker
@@ -341,13 +341,11 @@ class VoxelMapBase(Mapping):
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
         v, reach = self.global_map.voxel, self.params.unseen_surface_reach
-        rules = {
-            "unknown_free": unknown_free,
-            "unseen_reach": reach,
-            "slab_opening": self.params.floor_change_opening,
-        }
-        passable = traversable(states, self.robot_radius, v, **rules)
-        roomy = traversable(states, self.segment_radius, v, **rules)
+        occ = obstacles(states, v, reach, self.params.floor_change_opening)
+        near = inflate(occ, self.robot_radius, v)  # within the robot radius of an obstacle
+        base = (states != OCCUPIED) if unknown_free else (states == FREE)
+        passable = base & ~near
+        roomy = base & ~inflate(occ, self.segment_radius, v)
         if unknown_free:
             # Unknown space is free only inside the mission area (not under the ground, say).
             a, b = index_box(self.area, self.global_map.voxel)
@@ -361,6 +359,7 @@ class VoxelMapBase(Mapping):
             self.global_map.voxel,
             self.params.snap_radius,
             states,
+            near_obstacle=near,
             penalty=np.where(roomy, 1.0, self.params.tight_penalty),
             vertical_ok=vertical_ok(
                 states,
@@ -387,6 +386,12 @@ class VoxelMapBase(Mapping):
         raw = graph.shortest_path(start, goal)
         if raw is None:
             return None
+        if graph.near_obstacle_at(goal[None])[0]:
+            # The goal snapped onto the graph from a voxel within the robot radius of an obstacle
+            # (a viewpoint moved into a height band under a carved ceiling patch, say): end the
+            # path at the node it snapped to rather than fly the last, unchecked stretch into it.
+            raw = raw[:-1] if len(raw) > 2 else np.array([start, graph.node_position(graph.snap(goal))])
+            goal = raw[-1]
         v = self.global_map.voxel
         ends = to_index(np.array([start, goal]), v)
 

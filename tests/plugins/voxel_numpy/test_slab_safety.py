@@ -126,6 +126,11 @@ def test_a_carved_hole_seen_all_round_is_too_narrow_for_a_floor_change(cls, tmp_
     exact = {"snap_radius": 0.0}
     assert np.isfinite(load(cls, tmp_path, states, **OLD_RULES, **exact).path_costs(BELOW[None], under)[0, 0])
     assert np.isinf(load(cls, tmp_path, states, **exact).path_costs(BELOW[None], under)[0, 0])
+    # A goal there (a viewpoint the height band let float up under the patch) is reached only as
+    # far as the graph goes: the path ends on the node it snapped to, not in the danger zone.
+    assert np.allclose(load(cls, tmp_path, states, **OLD_RULES).plan_path(BELOW, under[0])[-1], under[0])
+    end = m.plan_path(BELOW, under[0])[-1]
+    assert np.linalg.norm(end - under[0]) <= 0.6 and end[2] <= 2.75 - 0.325 - 1e-9
     # a wide shaft is no such patch: its air in the slab's layer stays a way up
     shaft = building()
     shaft[13:23, 13:23, SLAB] = 0
