@@ -150,6 +150,22 @@ class VoxelMapParams(BackendParams):
     )
 
 
+def _end_on_graph(
+    graph: FreeSpaceGraph, raw: np.ndarray, start: np.ndarray, goal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """A raw path, and its goal, ending on the graph when the goal is within the robot radius of an
+    obstacle.
+
+    The goal snapped onto the graph from such a voxel (a viewpoint moved into a height band under a
+    carved ceiling patch, say): end the path at the node it snapped to rather than fly the last,
+    unchecked stretch into it.
+    """
+    if not graph.near_obstacle_at(goal[None])[0]:
+        return raw, goal
+    raw = raw[:-1] if len(raw) > 2 else np.array([start, graph.node_position(graph.snap(goal))])
+    return raw, raw[-1]
+
+
 def auto_stride(K: np.ndarray, voxel: float, max_range: float) -> int:
     """Largest pixel stride whose neighbouring rays are at most half a voxel apart at ``max_range``.
 
@@ -386,12 +402,7 @@ class VoxelMapBase(Mapping):
         raw = graph.shortest_path(start, goal)
         if raw is None:
             return None
-        if graph.near_obstacle_at(goal[None])[0]:
-            # The goal snapped onto the graph from a voxel within the robot radius of an obstacle
-            # (a viewpoint moved into a height band under a carved ceiling patch, say): end the
-            # path at the node it snapped to rather than fly the last, unchecked stretch into it.
-            raw = raw[:-1] if len(raw) > 2 else np.array([start, graph.node_position(graph.snap(goal))])
-            goal = raw[-1]
+        raw, goal = _end_on_graph(graph, raw, start, goal)
         v = self.global_map.voxel
         ends = to_index(np.array([start, goal]), v)
 
@@ -409,6 +420,62 @@ class VoxelMapBase(Mapping):
                 return self.segment_free(a, b)
             known = known_along(samples, v, self.global_map.states_at_index)
             return bool(np.all(known | at_end)) and self.segment_free(a, b)
+
+        return smooth_path(raw, line_of_sight)
+
+    def plan_local_path(
+        self, start: np.ndarray, goal: np.ndarray, *, margin: float = 1.0
+    ) -> np.ndarray | None:
+        """A path on the fine local map (odometry frame) from ``start`` to ``goal``, or None.
+
+        The building block of local planning (paper 1 plans trajectories on the local map): the
+        same graph rules as the global planner — known free voxels clear of obstacles (occupied,
+        unseen slab continuation, carved slab patches) by the local check's radius, vertical moves
+        near slabs only through observed space and wide openings — on the 0.1 m voxels the vehicle
+        flies by, inside the box spanned by the two ends plus ``margin``. Both ends should lie in
+        the local window (a runtime plans to a point of the global path a few metres ahead).
+        Line-of-sight shortcuts are checked with :meth:`segment_free` (``local=True``).
+        """
+        self._require()
+        store, p = self.local_map, self.params
+        v = store.voxel
+        start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+        ends = to_index(np.array([start, goal]), v)
+        pad = int(np.ceil(margin / v))
+        lo = ends.min(axis=0) - pad
+        shape = tuple(int(s) for s in ends.max(axis=0) + pad + 1 - lo)
+        states = store.dense_states(lo, shape)
+        occ = obstacles(states, v, p.unseen_surface_reach, p.floor_change_opening)
+        near = inflate(occ, self.local_radius, v)
+        graph = FreeSpaceGraph(
+            (states == FREE) & ~near,
+            lo,
+            v,
+            min(p.snap_radius, 3 * v),  # the vehicle's own voxel may be unseen; no more slack than that
+            states,
+            near_obstacle=near,
+            vertical_ok=vertical_ok(
+                states,
+                self.local_radius,
+                v,
+                observed=p.observed_floor_changes,
+                opening=p.floor_change_opening,
+                unseen_reach=p.unseen_surface_reach,
+            ),
+        )
+        raw = graph.shortest_path(start, goal)
+        if raw is None:
+            return None
+        raw, goal = _end_on_graph(graph, raw, start, goal)
+        ends = to_index(np.array([start, goal]), v)
+
+        def line_of_sight(a: np.ndarray, b: np.ndarray) -> bool:
+            samples = segment_samples(a, b, 0.5 * v)
+            idx = to_index(samples, v)
+            at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
+            if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
+                return False
+            return bool(np.all(graph.passable_at(samples) | at_end)) and self.segment_free(a, b, local=True)
 
         return smooth_path(raw, line_of_sight)
 

@@ -188,3 +188,23 @@ def test_samples_clear_unknown_next_to_a_slab_in_a_fine_map() -> None:
     beside = np.array([[2.35, 1.05, 2.0], [2.35, 1.05, 2.5]])  # behind the wall, next to the unknown
     assert samples_clear(beside, 0.2, v, wall_at, unseen_reach=0.25)
     assert to_index(beside, v)[0, 0] == 23
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_local_path_on_the_fine_map(cls, tmp_path) -> None:
+    # The contract's wall scene on the local map (0.1 m): a wall at x 3.15 seen from the origin.
+    from amslam.testing.mapping import CAMERA, camera_pose, wall_depth
+
+    m = cls()
+    m.configure(cls.Params(), make_context(tmp_path))
+    m.integrate_local(wall_depth(), CAMERA.K, camera_pose())
+    a, b = np.array([0.5, 0.0, 0.0]), np.array([2.5, 0.0, 0.0])
+    path = m.plan_local_path(a, b)
+    assert path is not None and np.allclose(path[0], a) and np.allclose(path[-1], b)
+    assert len(path) == 2  # a clear straight line stays one leg
+    assert m.plan_local_path(a, np.array([4.0, 0.0, 0.0])) is None  # behind the wall: unknown
+    # a goal in the wall's clearance band: the path ends on the graph, out of the band
+    end = m.plan_local_path(a, np.array([2.95, 0.0, 0.0]))[-1]
+    assert end[0] <= 3.1 - m.local_radius + 1e-9 and np.linalg.norm(end - [2.95, 0.0, 0.0]) <= 0.3 + 1e-9
+    for s, e in zip(path[:-1], path[1:], strict=True):
+        assert m.segment_free(s, e, local=True)
