@@ -31,13 +31,189 @@ def clearance_kernel(radius: float, voxel: float) -> np.ndarray:
     return np.sqrt((gap**2).sum(-1)) < radius
 
 
-def traversable(states: np.ndarray, radius: float, voxel: float, unknown_free: bool = False) -> np.ndarray:
-    """Known-free (or, with ``unknown_free``, not occupied) voxels with no occupied voxel within
-    ``radius`` of their centre."""
+#: 6-connected structuring element
+_CROSS = ndimage.generate_binary_structure(3, 1)
+
+
+def _shift(mask: np.ndarray, axis: int, step: int) -> np.ndarray:
+    """``mask`` moved by ``step`` voxels along ``axis`` (out of the block: False)."""
+    out = np.zeros_like(mask)
+    src = [slice(None)] * 3
+    dst = [slice(None)] * 3
+    if step > 0:
+        src[axis], dst[axis] = slice(0, -step), slice(step, None)
+    else:
+        src[axis], dst[axis] = slice(-step, None), slice(0, step)
+    out[tuple(dst)] = mask[tuple(src)]
+    return out
+
+
+def horizontal_surfaces(states: np.ndarray) -> np.ndarray:
+    """Occupied voxels of horizontal surfaces: slabs, floors, ceilings (and table tops).
+
+    An occupied voxel that spreads in both horizontal directions (an occupied neighbour along x and
+    one along y) and has a non-occupied voxel above or below it. Walls are excluded by the last
+    condition (their voxels have occupied voxels above and below) except their top and bottom rows,
+    which meet a slab anyway.
+    """
     occ = states == OCCUPIED
+    along = [_shift(occ, a, 1) | _shift(occ, a, -1) for a in range(3)]
+    open_vertically = ~(_shift(occ, 2, 1) & _shift(occ, 2, -1))
+    return occ & along[0] & along[1] & open_vertically
+
+
+#: a horizontal surface larger than this (m², one z layer, 8-connected) is a slab, floor or
+#: ceiling; smaller ones are furniture tops (a 2.4 × 1.2 m conference table is 2.9 m²)
+SLAB_MIN_AREA = 4.0
+
+
+def slabs(states: np.ndarray, voxel: float) -> np.ndarray:
+    """The :func:`horizontal_surfaces` voxels of slabs, floors and ceilings: components of at least
+    ``SLAB_MIN_AREA`` within their z layer (furniture tops excluded)."""
+    surf = horizontal_surfaces(states)
+    if not surf.any():
+        return surf
+    eight = np.zeros((3, 3, 3), dtype=bool)
+    eight[:, :, 1] = True  # connected within the layer only
+    labels, n = ndimage.label(surf, structure=eight)
+    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)
+    big = sizes * voxel**2 >= SLAB_MIN_AREA
+    big[0] = False
+    return big[labels]
+
+
+def _disc(radius: float, voxel: float) -> np.ndarray:
+    """Flat structuring element: the voxels of one z layer whose box comes within ``radius``."""
+    k = clearance_kernel(radius, voxel)
+    return k[:, :, k.shape[2] // 2 : k.shape[2] // 2 + 1]
+
+
+def narrow_slab_gaps(
+    states: np.ndarray, voxel: float, opening: float, unseen_reach: float = 0.0
+) -> np.ndarray:
+    """Free voxels in a slab's z layer, near it, in a part of the layer too narrow for an opening.
+
+    A hole the global map carved into a slab from drifted poses is free space in the slab's layer
+    where there is none: a robot under or over it would fly into the slab. Free voxels of a slab's
+    layer within ``opening`` of the slab (horizontally), with nothing occupied right above or below,
+    that no disc of radius ``opening`` of free voxels in that layer covers (a morphological opening
+    per layer) are taken for such holes. A real
+    opening between floors — a shaft, a stairwell, an atrium — is wider and keeps its free space.
+    """
+    slab = slabs(states, voxel)
+    if opening <= 0 or not slab.any():
+        return np.zeros(states.shape, dtype=bool)
+    slab |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(slab, structure=_CROSS)
+    disc = _disc(opening, voxel)
+    free = states == FREE
+    near = ndimage.binary_dilation(slab, structure=disc)
+    wide = ndimage.binary_opening(free, structure=disc)
+    # A hole goes through: nothing occupied right above or below. (Air next to a ragged ceiling or
+    # floor, whose surface straddles two layers where poses differed, has the surface above or
+    # below it and is no hole.)
+    occ = states == OCCUPIED
+    through = ~_shift(occ, 2, 1) & ~_shift(occ, 2, -1)
+    return free & near & ~wide & through
+
+
+def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray:
+    """Unknown voxels taken for the unseen continuation of a seen slab, floor or ceiling.
+
+    A 0.2 m slab seen from below is one layer of occupied voxels with unknown above it; a slab edge
+    or the rim of a hole seen for a moment stays unknown next to the occupied part. Only occupied
+    voxels keep a path off a surface, so a path along (or through) such a slab can pass within a
+    radius of it. Unknown voxels connected to a horizontal surface through unknown voxels within
+    ``reach`` metres (6-connected steps) are treated as occupied for clearance instead.
+    """
+    if reach <= 0:
+        return np.zeros(states.shape, dtype=bool)
+    slab = horizontal_surfaces(states)
+    if not slab.any():
+        return np.zeros(states.shape, dtype=bool)
+    unknown = states == UNKNOWN
+    steps = max(1, int(round(reach / voxel)))
+    grown = ndimage.binary_dilation(slab, structure=_CROSS, iterations=steps, mask=slab | unknown)
+    return grown & unknown
+
+
+def obstacles(
+    states: np.ndarray, voxel: float, unseen_reach: float = 0.0, slab_opening: float = 0.0
+) -> np.ndarray:
+    """Voxels the robot must keep its radius from: occupied ones, :func:`unseen_surface` and (with
+    ``slab_opening``, on a block holding whole free regions, e.g. the path graph's) the
+    :func:`narrow_slab_gaps`."""
+    occ = states == OCCUPIED
+    if unseen_reach > 0:
+        occ |= unseen_surface(states, voxel, unseen_reach)
+    if slab_opening > 0:
+        occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach)
+    return occ
+
+
+def traversable(
+    states: np.ndarray,
+    radius: float,
+    voxel: float,
+    unknown_free: bool = False,
+    unseen_reach: float = 0.0,
+    slab_opening: float = 0.0,
+) -> np.ndarray:
+    """Known-free (or, with ``unknown_free``, not occupied) voxels with no :func:`obstacles` voxel
+    within ``radius`` of their centre."""
+    free = (states != OCCUPIED) if unknown_free else (states == FREE)
+    return free & ~inflate(obstacles(states, voxel, unseen_reach, slab_opening), radius, voxel)
+
+
+def inflate(occ: np.ndarray, radius: float, voxel: float) -> np.ndarray:
+    """Voxels of ``occ`` and those whose centre lies within ``radius`` of an ``occ`` voxel's box."""
     if radius > 0 and occ.any():
-        occ = ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
-    return ((states != OCCUPIED) if unknown_free else (states == FREE)) & ~occ
+        return ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
+    return occ.copy()
+
+
+def vertical_ok(
+    states: np.ndarray,
+    radius: float,
+    voxel: float,
+    *,
+    observed: bool = True,
+    opening: float = 0.0,
+    unseen_reach: float = 0.0,
+) -> np.ndarray:
+    """Voxels where a path may move vertically (climb, descend) near slabs, floors and ceilings.
+
+    The camera looks level (±29° for a D435): a robot climbing or descending does not see where it
+    goes, so a floor change can only trust what was observed before, and the global map it trusts
+    carves holes into 0.2 m slabs wherever a slab was seen from poses a few centimetres off in z
+    (measured on the demo: 157 of 1931 slab voxels free at the end of a flight, in patches of
+    0.25–2.75 m, most at the lowest log-odds). Two rules, each optional:
+
+    * ``observed``: within ``radius`` plus one voxel of a horizontal surface, a vertical move only
+      where every voxel within ``radius`` was observed (free or occupied, no unknown): a hole whose
+      rim was never seen, or the unseen top of a slab seen from below, is not a way up or down.
+    * ``opening``: in the z layer of a slab, floor or ceiling (:func:`slabs`, or its unseen
+      continuation, :func:`unseen_surface`), a vertical move only ``opening`` metres from it:
+      floors are changed through wide openings (a shaft, a stairwell), not through a patch the map
+      carved into a slab, which is only as wide as the pose error that carved it allows.
+
+    Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles).
+    """
+    ok = np.ones(states.shape, dtype=bool)
+    slab = horizontal_surfaces(states)
+    if not slab.any():
+        return ok
+    if observed:
+        unknown = states == UNKNOWN
+        if unknown.any():
+            seen_around = ~ndimage.binary_dilation(unknown, structure=clearance_kernel(radius, voxel))
+            m = int(np.ceil(radius / voxel)) + 1
+            near_slab = ndimage.binary_dilation(slab, structure=np.ones((2 * m + 1,) * 3, dtype=bool))
+            ok &= seen_around | ~near_slab
+    big = slabs(states, voxel)
+    if opening > 0 and big.any():
+        big |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(big, structure=_CROSS)
+        ok &= ~ndimage.binary_dilation(big, structure=_disc(opening, voxel))
+    return ok
 
 
 def segment_samples(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
@@ -48,14 +224,32 @@ def segment_samples(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
 
 
 def samples_clear(
-    samples: np.ndarray, radius: float, voxel: float, states_at: Callable[[np.ndarray], np.ndarray]
+    samples: np.ndarray,
+    radius: float,
+    voxel: float,
+    states_at: Callable[[np.ndarray], np.ndarray],
+    unseen_reach: float = 0.0,
 ) -> bool:
-    """Whether no occupied voxel comes within ``radius`` of any sample point (unknown counts as free)."""
+    """Whether no occupied voxel comes within ``radius`` of any sample point.
+
+    Unknown counts as free, except (with ``unseen_reach`` > 0) the :func:`unseen_surface` voxels
+    next to a seen slab, floor or ceiling, which count as occupied (the same rule as the path graph).
+    """
     m = int(np.ceil(radius / voxel)) + 1
+    idx = to_index(samples, voxel)
     g = np.arange(-m, m + 1)
     offsets = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    cand = np.unique((to_index(samples, voxel)[:, None, :] + offsets[None]).reshape(-1, 3), axis=0)
-    occ = cand[states_at(cand) == OCCUPIED]
+    cand = np.unique((idx[:, None, :] + offsets[None]).reshape(-1, 3), axis=0)
+    if unseen_reach > 0:
+        # Classify a block around the samples, wide enough that the rule sees every surface voxel
+        # an unknown voxel within reach of the samples could be connected to.
+        pad = m + max(1, int(round(unseen_reach / voxel))) + 2
+        lo = idx.min(axis=0) - pad
+        shape = tuple(int(s) for s in idx.max(axis=0) + pad + 1 - lo)
+        block = states_at(np.indices(shape).reshape(3, -1).T + lo).reshape(shape)
+        occ = cand[obstacles(block, voxel, unseen_reach)[tuple((cand - lo).T)]]
+    else:
+        occ = cand[states_at(cand) == OCCUPIED]
     if len(occ) == 0:
         return True
     lo = occ * voxel
@@ -77,6 +271,10 @@ class FreeSpaceGraph:
         penalty: optional per-voxel cost multiplier (≥ 1); an edge costs its length times the mean
             of its two ends' multipliers. Like a costmap's inflation layer, it keeps paths away from
             walls where there is room without closing narrow doors.
+        vertical_ok: optional boolean block; an edge with a vertical component joins two voxels
+            only where it is True at both ends (see :func:`vertical_ok`).
+        near_obstacle: optional boolean block of voxels within the robot radius of an obstacle
+            (:meth:`near_obstacle_at`).
     """
 
     def __init__(
@@ -87,8 +285,12 @@ class FreeSpaceGraph:
         snap_radius: float,
         states: np.ndarray,
         penalty: np.ndarray | None = None,
+        vertical_ok: np.ndarray | None = None,
+        near_obstacle: np.ndarray | None = None,
     ):
         self.lo = np.asarray(lo, dtype=np.int64)
+        self.vertical_ok = vertical_ok
+        self.near_obstacle = near_obstacle
         self.voxel = voxel
         self.snap_radius = snap_radius
         self.states = states
@@ -102,6 +304,8 @@ class FreeSpaceGraph:
             sa = tuple(slice(max(0, -o), s - max(0, o)) for o, s in zip(off, passable.shape, strict=True))
             sb = tuple(slice(max(0, o), s - max(0, -o)) for o, s in zip(off, passable.shape, strict=True))
             both = passable[sa] & passable[sb]
+            if vertical_ok is not None and off[2] != 0:
+                both &= vertical_ok[sa] & vertical_ok[sb]
             rows.append(self.node_of_voxel[sa][both])
             cols.append(self.node_of_voxel[sb][both])
             length = voxel * float(np.linalg.norm(off))
@@ -120,6 +324,35 @@ class FreeSpaceGraph:
     def node_position(self, node: np.ndarray) -> np.ndarray:
         """World positions of nodes (voxel centres)."""
         return centres(self.node_index[node] + self.lo, self.voxel)
+
+    def vertical_ok_at(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point's voxel allows vertical moves (True everywhere without the rule;
+        False outside the block)."""
+        rel = to_index(np.asarray(points, dtype=float).reshape(-1, 3), self.voxel) - self.lo
+        inside = np.all((rel >= 0) & (rel < np.array(self.shape)), axis=1)
+        if self.vertical_ok is None:
+            return inside
+        out = np.zeros(len(rel), dtype=bool)
+        out[inside] = self.vertical_ok[tuple(rel[inside].T)]
+        return out
+
+    def near_obstacle_at(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point's voxel is within the robot radius of an obstacle (False outside the
+        block or without the mask)."""
+        rel = to_index(np.asarray(points, dtype=float).reshape(-1, 3), self.voxel) - self.lo
+        inside = np.all((rel >= 0) & (rel < np.array(self.shape)), axis=1)
+        out = np.zeros(len(rel), dtype=bool)
+        if self.near_obstacle is not None:
+            out[inside] = self.near_obstacle[tuple(rel[inside].T)]
+        return out
+
+    def passable_at(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point's voxel is a graph node."""
+        rel = to_index(np.asarray(points, dtype=float).reshape(-1, 3), self.voxel) - self.lo
+        inside = np.all((rel >= 0) & (rel < np.array(self.shape)), axis=1)
+        out = np.zeros(len(rel), dtype=bool)
+        out[inside] = self.node_of_voxel[tuple(rel[inside].T)] >= 0
+        return out
 
     def snap(self, point: np.ndarray) -> int:
         """Graph node for a point: its own voxel, or the nearest node within the snap radius; -1."""

@@ -19,11 +19,13 @@ from pydantic import Field
 from amslam.interfaces import BackendParams, Mapping, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
+    inflate,
     known_along,
+    obstacles,
     samples_clear,
     segment_samples,
     smooth_path,
-    traversable,
+    vertical_ok,
 )
 from amslam.lib.frontiers import FrontierConfig, FrontierTracker
 from amslam.lib.voxel_grid import (
@@ -121,12 +123,47 @@ class VoxelMapParams(BackendParams):
         ge=0,
         description="Path start/goal off the free graph connect to the nearest free voxel within this.",
     )
+    unseen_surface_reach: float = Field(
+        0.25,
+        ge=0,
+        description="Unknown voxels connected to a seen slab, floor or ceiling within this distance (m)"
+        " count as occupied in path search and segment checks, both maps (the unseen top or edge of a"
+        " slab seen from one side); 0: only occupied voxels keep paths away.",
+    )
+    observed_floor_changes: bool = Field(
+        True,
+        description="Near a slab, floor or ceiling, paths move vertically only where every voxel within"
+        " the robot radius was observed: a floor change never passes through unknown space.",
+    )
+    floor_change_opening: float = Field(
+        0.75,
+        ge=0,
+        description="In the z layer of a slab, floor or ceiling, paths move vertically only this far (m)"
+        " horizontally from it: floors are changed through wide openings (a shaft, a stairwell), not"
+        " through a hole the global map carved into a slab from drifted poses; 0: no such rule.",
+    )
     plan_through_unknown: bool = Field(
         False,
         description="Plan paths through unknown voxels inside the mission area too (open outdoor areas,"
         " where a robot must cross ground it has not mapped to reach a known object); the local map"
         " still checks every step. Off: paths stay in known free space (buildings).",
     )
+
+
+def _end_on_graph(
+    graph: FreeSpaceGraph, raw: np.ndarray, start: np.ndarray, goal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """A raw path, and its goal, ending on the graph when the goal is within the robot radius of an
+    obstacle.
+
+    The goal snapped onto the graph from such a voxel (a viewpoint moved into a height band under a
+    carved ceiling patch, say): end the path at the node it snapped to rather than fly the last,
+    unchecked stretch into it.
+    """
+    if not graph.near_obstacle_at(goal[None])[0]:
+        return raw, goal
+    raw = raw[:-1] if len(raw) > 2 else np.array([start, graph.node_position(graph.snap(goal))])
+    return raw, raw[-1]
 
 
 def auto_stride(K: np.ndarray, voxel: float, max_range: float) -> int:
@@ -319,8 +356,12 @@ class VoxelMapBase(Mapping):
             lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         shape = tuple(int(s) for s in hi - lo)
         states = self.global_map.dense_states(lo, shape)
-        passable = traversable(states, self.robot_radius, self.global_map.voxel, unknown_free=unknown_free)
-        roomy = traversable(states, self.segment_radius, self.global_map.voxel, unknown_free=unknown_free)
+        v, reach = self.global_map.voxel, self.params.unseen_surface_reach
+        occ = obstacles(states, v, reach, self.params.floor_change_opening)
+        near = inflate(occ, self.robot_radius, v)  # within the robot radius of an obstacle
+        base = (states != OCCUPIED) if unknown_free else (states == FREE)
+        passable = base & ~near
+        roomy = base & ~inflate(occ, self.segment_radius, v)
         if unknown_free:
             # Unknown space is free only inside the mission area (not under the ground, say).
             a, b = index_box(self.area, self.global_map.voxel)
@@ -334,7 +375,16 @@ class VoxelMapBase(Mapping):
             self.global_map.voxel,
             self.params.snap_radius,
             states,
+            near_obstacle=near,
             penalty=np.where(roomy, 1.0, self.params.tight_penalty),
+            vertical_ok=vertical_ok(
+                states,
+                self.robot_radius,
+                v,
+                observed=self.params.observed_floor_changes,
+                opening=self.params.floor_change_opening,
+                unseen_reach=reach,
+            ),
         )
         self._graph = (self._version, graph)
         return graph
@@ -348,9 +398,11 @@ class VoxelMapBase(Mapping):
         """Shortest 26-connected path over clear known-free voxels, shortcut-smoothed; or None."""
         self._require()
         start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
-        raw = self._free_graph().shortest_path(start, goal)
+        graph = self._free_graph()
+        raw = graph.shortest_path(start, goal)
         if raw is None:
             return None
+        raw, goal = _end_on_graph(graph, raw, start, goal)
         v = self.global_map.voxel
         ends = to_index(np.array([start, goal]), v)
 
@@ -358,6 +410,12 @@ class VoxelMapBase(Mapping):
             samples = segment_samples(a, b, 0.5 * v)
             idx = to_index(samples, v)
             at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
+            # A shortcut that climbs or descends obeys the graph's rule for vertical moves, and
+            # stays on graph nodes (clear of every obstacle the graph knows, carved slab holes too).
+            if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
+                return False
+            if not np.all(graph.passable_at(samples) | at_end):
+                return False
             if self.params.plan_through_unknown:
                 return self.segment_free(a, b)
             known = known_along(samples, v, self.global_map.states_at_index)
@@ -365,15 +423,92 @@ class VoxelMapBase(Mapping):
 
         return smooth_path(raw, line_of_sight)
 
+    def plan_local_path(
+        self, start: np.ndarray, goal: np.ndarray, *, margin: float = 1.0
+    ) -> np.ndarray | None:
+        """A path on the fine local map (odometry frame) from ``start`` to ``goal``, or None.
+
+        The building block of local planning (paper 1 plans trajectories on the local map): the
+        same graph rules as the global planner — known free voxels clear of obstacles (occupied,
+        unseen slab continuation, carved slab patches) by the local check's radius, vertical moves
+        near slabs only through observed space and wide openings — on the 0.1 m voxels the vehicle
+        flies by, inside the box spanned by the two ends plus ``margin``. Both ends should lie in
+        the local window (a runtime plans to a point of the global path a few metres ahead).
+        Line-of-sight shortcuts are checked with :meth:`segment_free` (``local=True``).
+        """
+        self._require()
+        store, p = self.local_map, self.params
+        v = store.voxel
+        start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+        ends = to_index(np.array([start, goal]), v)
+        pad = int(np.ceil(margin / v))
+        lo = ends.min(axis=0) - pad
+        shape = tuple(int(s) for s in ends.max(axis=0) + pad + 1 - lo)
+        states = store.dense_states(lo, shape)
+        occ = obstacles(states, v, p.unseen_surface_reach, p.floor_change_opening)
+        near = inflate(occ, self.local_radius, v)
+        graph = FreeSpaceGraph(
+            (states == FREE) & ~near,
+            lo,
+            v,
+            min(p.snap_radius, 3 * v),  # the vehicle's own voxel may be unseen; no more slack than that
+            states,
+            near_obstacle=near,
+            vertical_ok=vertical_ok(
+                states,
+                self.local_radius,
+                v,
+                observed=p.observed_floor_changes,
+                opening=p.floor_change_opening,
+                unseen_reach=p.unseen_surface_reach,
+            ),
+        )
+        raw = graph.shortest_path(start, goal)
+        if raw is None:
+            return None
+        raw, goal = _end_on_graph(graph, raw, start, goal)
+        ends = to_index(np.array([start, goal]), v)
+
+        def line_of_sight(a: np.ndarray, b: np.ndarray) -> bool:
+            samples = segment_samples(a, b, 0.5 * v)
+            idx = to_index(samples, v)
+            at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
+            if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
+                return False
+            return bool(np.all(graph.passable_at(samples) | at_end)) and self.segment_free(a, b, local=True)
+
+        return smooth_path(raw, line_of_sight)
+
     def segment_free(self, a: np.ndarray, b: np.ndarray, *, local: bool = False) -> bool:
-        """No occupied voxel within the robot radius of the segment (unknown counts as free)."""
+        """No occupied voxel within the robot radius of the segment; unknown counts as free except
+        the unseen continuation of a seen slab, floor or ceiling (``unseen_surface_reach``)."""
         self._require()
         store = self.local_map if local else self.global_map
         samples = segment_samples(a, b, 0.5 * store.voxel)
         # The local check guards against collision (see local_radius); global segments are
         # planning shortcuts and keep the clearance margin as well.
         radius = self.local_radius if local else self.segment_radius
-        return samples_clear(samples, radius, store.voxel, store.states_at_index)
+        return samples_clear(
+            samples, radius, store.voxel, store.states_at_index, self.params.unseen_surface_reach
+        )
+
+    def blocked(self, points: np.ndarray, *, local: bool = False) -> np.ndarray:
+        """Whether each point lies in an obstacle voxel: occupied, or unknown continuing a seen slab,
+        floor or ceiling (``unseen_surface_reach``), the rule paths and ``segment_free`` use.
+
+        For clearance checks outside the planner (a setpoint filter): ``states(...) == OCCUPIED``
+        misses the unseen top or edge of a slab seen from one side.
+        """
+        self._require()
+        store = self.local_map if local else self.global_map
+        idx = to_index(np.asarray(points, dtype=float).reshape(-1, 3), store.voxel)
+        if len(idx) == 0:
+            return np.zeros(0, dtype=bool)
+        reach = self.params.unseen_surface_reach
+        pad = max(1, int(round(reach / store.voxel))) + 2  # the surface an unknown voxel continues
+        lo = idx.min(axis=0) - pad
+        shape = tuple(int(s) for s in idx.max(axis=0) + pad + 1 - lo)
+        return obstacles(store.dense_states(lo, shape), store.voxel, reach)[tuple((idx - lo).T)]
 
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""

@@ -43,7 +43,8 @@ class PauseInGraphBuild:
         self.resume = threading.Event()
 
     def __call__(self, frame, event, arg):
-        if event == "call" and frame.f_code.co_name == "traversable" and not self.paused.is_set():
+        # the search graph's obstacles are computed from the dense states the map just read
+        if event == "call" and frame.f_code.co_name == "obstacles" and not self.paused.is_set():
             self.paused.set()
             self.resume.wait(timeout=10.0)
         return None

@@ -1,0 +1,210 @@
+"""Floor changes and slabs (issue #19): paths never cross a slab through unseen space.
+
+Synthetic global maps (0.25 m voxels) of a 6 × 6 m two-storey box, loaded through the public
+``load``: a floor, a 0.25 m slab at z 2.75–3.0 and a ceiling, with the air of both storeys known
+free. Demo flights crashed where the SLAM-posed global map had carved a small hole into the slab
+whose rim was never seen (unknown): with only occupied voxels keeping paths away, the planner
+routed the floor change through it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amslam.lib.free_space import samples_clear
+from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, logit, to_index
+from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.testing.mapping import make_context
+from amslam.types import BoundingBox
+
+V = 0.25
+N = (24, 24, 24)  # 6 × 6 × 6 m
+SLAB = 11  # z layer 2.75–3.0 m
+AREA = BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([6.0, 6.0, 5.5]))
+BELOW, ABOVE = np.array([1.0, 1.0, 1.5]), np.array([1.0, 1.0, 4.2])
+FREE_L, OCC_L = logit(0.2), logit(0.95)
+
+
+def building() -> np.ndarray:
+    """int8 states: floor (z layer 0), slab (layer 11), ceiling (layer 21), free air between."""
+    s = np.full(N, UNKNOWN, dtype=np.int8)
+    s[:, :, 1:21] = 0  # FREE
+    s[:, :, [0, SLAB, 21]] = OCCUPIED
+    return s
+
+
+def load(mapping_cls, tmp_path, states: np.ndarray, **params):
+    m = mapping_cls()
+    m.configure(mapping_cls.Params(**params), make_context(tmp_path, area=AREA))
+    idx = np.argwhere(states != UNKNOWN)
+    logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
+    empty = np.zeros((0, 3), np.int64)
+    path = tmp_path / "map.npz"
+    np.savez_compressed(
+        path,
+        format=np.array("amslam-voxels-1"),
+        global_index=idx,
+        global_logodds=logodds,
+        global_voxel=np.array(V),
+        local_index=empty,
+        local_logodds=np.zeros(0, np.float32),
+        local_voxel=np.array(m.params.local_voxel),
+    )
+    m.load(path)
+    return m
+
+
+def carved_hole(states: np.ndarray) -> np.ndarray:
+    """A 0.5 × 0.5 m hole carved free in the slab at x, y 2.5–3.0, its one-voxel rim never seen."""
+    s = states.copy()
+    s[9:13, 9:13, SLAB] = UNKNOWN
+    s[10:12, 10:12, SLAB] = 0
+    return s
+
+
+BACKENDS = [NumpyVoxelMap, Open3dVoxelMap]
+#: the rules before issue #19: only occupied voxels keep paths off, vertical moves anywhere
+OLD_RULES = {"unseen_surface_reach": 0.0, "observed_floor_changes": False, "floor_change_opening": 0.0}
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_no_floor_change_through_a_carved_hole_with_an_unseen_rim(cls, tmp_path) -> None:
+    states = carved_hole(building())
+    # The old rules (only occupied voxels keep paths off; vertical moves anywhere) fly through it:
+    # the occupied slab is 0.375 m from the hole's centre line, more than the 0.325 m planning radius.
+    old = load(cls, tmp_path, states, **OLD_RULES)
+    path = old.plan_path(BELOW, ABOVE)
+    assert path is not None, "the scene must expose the defect"
+    crossing = path[np.argmax(path[:, 2] > 3.0)]
+    assert 2.4 < crossing[0] < 3.1 and 2.4 < crossing[1] < 3.1
+    # Each rule alone refuses the hole: the unknown rim next to the seen slab is an obstacle; a
+    # vertical move near a slab needs the robot's whole ball observed; a floor change needs an
+    # opening wider than 1 m.
+    for params in (
+        {**OLD_RULES, "unseen_surface_reach": 0.25},
+        {**OLD_RULES, "observed_floor_changes": True},
+        {**OLD_RULES, "floor_change_opening": 0.75},
+        {},  # the defaults: all three
+    ):
+        m = load(cls, tmp_path, states, **params)
+        assert m.plan_path(BELOW, ABOVE) is None, params
+        assert np.isinf(m.path_costs(BELOW[None], ABOVE[None])[0, 0]), params
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_an_observed_shaft_is_still_a_way_between_floors(cls, tmp_path) -> None:
+    states = carved_hole(building())
+    states[13:23, 13:23, SLAB] = 0  # a 2.5 × 2.5 m shaft at x, y 3.25–5.75 (the demo's is 2.6 m)
+    m = load(cls, tmp_path, states)
+    path = m.plan_path(BELOW, ABOVE)
+    assert path is not None
+    # every leg at slab height runs inside the shaft's footprint, none through the carved hole
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        pts = a + np.linspace(0, 1, 50)[:, None] * (b - a)
+        at_slab = (pts[:, 2] > 2.75 - 0.3) & (pts[:, 2] < 3.0 + 0.3)
+        assert np.all((pts[at_slab, :2] > 3.25) & (pts[at_slab, :2] < 5.75)), (a, b)
+        assert m.segment_free(a, b)
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_a_carved_hole_seen_all_round_is_too_narrow_for_a_floor_change(cls, tmp_path) -> None:
+    # A 1 × 1 m patch of the slab carved free with its rim seen occupied and the air above and
+    # below it observed: by clearance alone the robot fits (0.375 m from the rim > 0.325 m).
+    states = building()
+    states[8:12, 8:12, SLAB] = 0
+    old = load(cls, tmp_path, states, **OLD_RULES)
+    assert old.plan_path(BELOW, ABOVE) is not None, "the scene must expose the defect"
+    m = load(cls, tmp_path, states)
+    assert m.plan_path(BELOW, ABOVE) is None
+    # ... while flying level through the same layer's air elsewhere is untouched
+    assert m.plan_path(BELOW, BELOW + [3.5, 3.5, 0.0]) is not None
+    # Nor may a path hover under the patch, 0.125 m below where the slab really is: the patch is an
+    # obstacle, not a skylight (snap radius 0: the very voxel must be a graph node).
+    under = np.array([[2.375, 2.375, 2.625]])
+    exact = {"snap_radius": 0.0}
+    assert np.isfinite(load(cls, tmp_path, states, **OLD_RULES, **exact).path_costs(BELOW[None], under)[0, 0])
+    assert np.isinf(load(cls, tmp_path, states, **exact).path_costs(BELOW[None], under)[0, 0])
+    # A goal there (a viewpoint the height band let float up under the patch) is reached only as
+    # far as the graph goes: the path ends on the node it snapped to, not in the danger zone.
+    assert np.allclose(load(cls, tmp_path, states, **OLD_RULES).plan_path(BELOW, under[0])[-1], under[0])
+    end = m.plan_path(BELOW, under[0])[-1]
+    assert np.linalg.norm(end - under[0]) <= 0.6 and end[2] <= 2.75 - 0.325 - 1e-9
+    # a wide shaft is no such patch: its air in the slab's layer stays a way up
+    shaft = building()
+    shaft[13:23, 13:23, SLAB] = 0
+    assert np.isfinite(
+        load(cls, tmp_path, shaft, **exact).path_costs(BELOW[None], [[4.375, 4.375, 2.875]])[0, 0]
+    )
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_segment_free_keeps_clear_of_the_unseen_edge_of_a_slab(cls, tmp_path) -> None:
+    states = building()
+    states[12:, :, SLAB] = UNKNOWN  # the slab seen only for x < 3.0: its edge beyond is unseen
+    a, b = np.array([3.2, 2.0, 2.4]), np.array([3.2, 2.5, 2.4])  # 0.35 m under the unseen part
+    old = load(cls, tmp_path, states, unseen_surface_reach=0.0)
+    assert old.segment_free(a, b)  # 0.40 m from the seen edge's box: clear by the old rule
+    m = load(cls, tmp_path, states)
+    assert not m.segment_free(a, b)
+    # further along, under unknown space two voxels from the seen slab, nothing is assumed
+    assert m.segment_free(a + [0.6, 0, 0], b + [0.6, 0, 0])
+    # the same rule point-wise, for clearance checks outside the planner
+    # slab, its unseen edge, unknown two voxels on, free below, free above
+    pts = np.array([[2.9, 2.1, 2.85], [3.1, 2.1, 2.85], [3.6, 2.1, 2.85], [3.1, 2.1, 2.4], [3.1, 2.1, 3.1]])
+    np.testing.assert_array_equal(m.blocked(pts), [True, True, False, False, False])
+    np.testing.assert_array_equal(old.blocked(pts), [True, False, False, False, False])
+
+
+def test_samples_clear_unknown_next_to_a_slab_in_a_fine_map() -> None:
+    # 0.1 m voxels (the local map): a slab bottom seen at z 2.8 for x < 1, unknown beyond.
+    v = 0.1
+    s = np.full((40, 20, 40), UNKNOWN, dtype=np.int8)
+    s[:, :, :28] = 0
+    s[:10, :, 28] = OCCUPIED
+
+    def states_at(index: np.ndarray) -> np.ndarray:
+        out = np.full(len(index), UNKNOWN, dtype=np.int8)
+        ok = np.all((index >= 0) & (index < np.array(s.shape)), axis=1)
+        out[ok] = s[tuple(index[ok].T)]
+        return out
+
+    seg = np.array([[1.12, 0.5, 2.62], [1.12, 1.5, 2.62]])  # 0.18 m under the unseen edge
+    assert samples_clear(seg, 0.2, v, states_at)  # 0.18 m below, 0.12 m beside the seen part: 0.216
+    assert not samples_clear(seg, 0.2, v, states_at, unseen_reach=0.25)
+    # wall-like surfaces are not extended: an unknown voxel beside a vertical wall stays free
+    w = np.full((40, 20, 40), UNKNOWN, dtype=np.int8)
+    w[:20, :, :] = 0
+    w[20, :, :] = OCCUPIED  # a wall at x 2.0–2.1, unknown behind it
+    w[21:, :10, :] = 0
+
+    def wall_at(index: np.ndarray) -> np.ndarray:
+        out = np.full(len(index), UNKNOWN, dtype=np.int8)
+        ok = np.all((index >= 0) & (index < np.array(w.shape)), axis=1)
+        out[ok] = w[tuple(index[ok].T)]
+        return out
+
+    beside = np.array([[2.35, 1.05, 2.0], [2.35, 1.05, 2.5]])  # behind the wall, next to the unknown
+    assert samples_clear(beside, 0.2, v, wall_at, unseen_reach=0.25)
+    assert to_index(beside, v)[0, 0] == 23
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_local_path_on_the_fine_map(cls, tmp_path) -> None:
+    # The contract's wall scene on the local map (0.1 m): a wall at x 3.15 seen from the origin.
+    from amslam.testing.mapping import CAMERA, camera_pose, wall_depth
+
+    m = cls()
+    m.configure(cls.Params(), make_context(tmp_path))
+    m.integrate_local(wall_depth(), CAMERA.K, camera_pose())
+    a, b = np.array([0.5, 0.0, 0.0]), np.array([2.5, 0.0, 0.0])
+    path = m.plan_local_path(a, b)
+    assert path is not None and np.allclose(path[0], a) and np.allclose(path[-1], b)
+    assert len(path) == 2  # a clear straight line stays one leg
+    assert m.plan_local_path(a, np.array([4.0, 0.0, 0.0])) is None  # behind the wall: unknown
+    # a goal in the wall's clearance band: the path ends on the graph, out of the band
+    end = m.plan_local_path(a, np.array([2.95, 0.0, 0.0]))[-1]
+    assert end[0] <= 3.1 - m.local_radius + 1e-9 and np.linalg.norm(end - [2.95, 0.0, 0.0]) <= 0.3 + 1e-9
+    for s, e in zip(path[:-1], path[1:], strict=True):
+        assert m.segment_free(s, e, local=True)
