@@ -10,6 +10,7 @@ viewpoints, path costs, collision checks, volumes, save/load) on top of a small 
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
@@ -148,6 +149,37 @@ class VoxelMapParams(BackendParams):
         " where a robot must cross ground it has not mapped to reach a known object); the local map"
         " still checks every step. Off: paths stay in known free space (buildings).",
     )
+
+
+def _smoothed_path(
+    graph: FreeSpaceGraph,
+    start: np.ndarray,
+    goal: np.ndarray,
+    voxel: float,
+    clear: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], bool],
+) -> np.ndarray | None:
+    """The graph's shortest path from ``start`` to ``goal``, shortcut-smoothed, or None.
+
+    A shortcut ``a → b`` is taken when, sampled every half voxel (the two end voxels excepted),
+    it stays on graph nodes — clear of every obstacle the graph knows, carved slab holes too — and,
+    if it climbs or descends, obeys the graph's rule for vertical moves; and when ``clear(a, b,
+    samples, at_end)`` (the map-specific check) agrees.
+    """
+    raw = graph.shortest_path(start, goal)
+    if raw is None:
+        return None
+    raw, goal = _end_on_graph(graph, raw, start, goal)
+    ends = to_index(np.array([start, goal]), voxel)
+
+    def line_of_sight(a: np.ndarray, b: np.ndarray) -> bool:
+        samples = segment_samples(a, b, 0.5 * voxel)
+        idx = to_index(samples, voxel)
+        at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
+        if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
+            return False
+        return bool(np.all(graph.passable_at(samples) | at_end)) and clear(a, b, samples, at_end)
+
+    return smooth_path(raw, line_of_sight)
 
 
 def _end_on_graph(
@@ -398,30 +430,15 @@ class VoxelMapBase(Mapping):
         """Shortest 26-connected path over clear known-free voxels, shortcut-smoothed; or None."""
         self._require()
         start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
-        graph = self._free_graph()
-        raw = graph.shortest_path(start, goal)
-        if raw is None:
-            return None
-        raw, goal = _end_on_graph(graph, raw, start, goal)
         v = self.global_map.voxel
-        ends = to_index(np.array([start, goal]), v)
 
-        def line_of_sight(a: np.ndarray, b: np.ndarray) -> bool:
-            samples = segment_samples(a, b, 0.5 * v)
-            idx = to_index(samples, v)
-            at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
-            # A shortcut that climbs or descends obeys the graph's rule for vertical moves, and
-            # stays on graph nodes (clear of every obstacle the graph knows, carved slab holes too).
-            if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
-                return False
-            if not np.all(graph.passable_at(samples) | at_end):
-                return False
+        def clear(a: np.ndarray, b: np.ndarray, samples: np.ndarray, at_end: np.ndarray) -> bool:
             if self.params.plan_through_unknown:
                 return self.segment_free(a, b)
             known = known_along(samples, v, self.global_map.states_at_index)
             return bool(np.all(known | at_end)) and self.segment_free(a, b)
 
-        return smooth_path(raw, line_of_sight)
+        return _smoothed_path(self._free_graph(), start, goal, v, clear)
 
     def plan_local_path(
         self, start: np.ndarray, goal: np.ndarray, *, margin: float = 1.0
@@ -463,21 +480,7 @@ class VoxelMapBase(Mapping):
                 unseen_reach=p.unseen_surface_reach,
             ),
         )
-        raw = graph.shortest_path(start, goal)
-        if raw is None:
-            return None
-        raw, goal = _end_on_graph(graph, raw, start, goal)
-        ends = to_index(np.array([start, goal]), v)
-
-        def line_of_sight(a: np.ndarray, b: np.ndarray) -> bool:
-            samples = segment_samples(a, b, 0.5 * v)
-            idx = to_index(samples, v)
-            at_end = np.all(idx == ends[0], axis=1) | np.all(idx == ends[1], axis=1)
-            if abs(b[2] - a[2]) > 1e-6 and not np.all(graph.vertical_ok_at(samples) | at_end):
-                return False
-            return bool(np.all(graph.passable_at(samples) | at_end)) and self.segment_free(a, b, local=True)
-
-        return smooth_path(raw, line_of_sight)
+        return _smoothed_path(graph, start, goal, v, lambda a, b, *_: self.segment_free(a, b, local=True))
 
     def segment_free(self, a: np.ndarray, b: np.ndarray, *, local: bool = False) -> bool:
         """No occupied voxel within the robot radius of the segment; unknown counts as free except
