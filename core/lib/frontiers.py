@@ -416,9 +416,13 @@ class FrontierTracker:
         return np.linspace(-np.pi, np.pi, self.cfg.n_yaws, endpoint=False) + np.pi / self.cfg.n_yaws
 
     def _safe(self, index: np.ndarray) -> np.ndarray:
-        """Candidate voxels inside the area whose voxels within the robot radius are all known free."""
+        """Candidate voxels whose voxels within the robot radius are all known free, and where the
+        robot stays inside the area on every face but the floor's (the planner's flyable volume:
+        a viewpoint over an open-topped building's walls could never be reached)."""
         centre = centres(index, self.cfg.voxel)
-        inside = np.all((centre >= self.cfg.area.lo) & (centre <= self.cfg.area.hi), axis=1)
+        r = self.cfg.robot_radius
+        lo, hi = self.cfg.area.lo + np.array([r, r, -np.inf]), self.cfg.area.hi - r
+        inside = np.all((centre >= lo) & (centre <= hi), axis=1)
         out = np.zeros(len(index), dtype=bool)
         if inside.any():
             base = self.block.flat_index(index[inside])

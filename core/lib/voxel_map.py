@@ -401,6 +401,9 @@ class VoxelMapBase(Mapping):
             inside[tuple(slice(int(i), int(j)) for i, j in zip(a - lo, b - lo, strict=True))] = True
             passable &= inside | (states == FREE)
             roomy &= inside | (states == FREE)
+        flyable = self._flyable(lo, shape)
+        passable &= flyable
+        roomy &= flyable
         graph = FreeSpaceGraph(
             passable,
             lo,
@@ -420,6 +423,21 @@ class VoxelMapBase(Mapping):
         )
         self._graph = (self._version, graph)
         return graph
+
+    def _flyable(self, lo: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        """Voxels of the block ``[lo, lo + shape)`` whose centre keeps the robot inside the area.
+
+        The area (the mission's, by default the building's box) bounds the flight, known free
+        space included: an open-topped building is explored inside, not over its walls (issue
+        #19: the small house was flown at z 3.24 m over its 3.0 m walls, a shop without a ceiling
+        up to 4.3 m). The robot's radius stays inside every face but the floor's.
+        """
+        v = self.global_map.voxel
+        centres = [(lo[i] + np.arange(shape[i]) + 0.5) * v for i in range(3)]
+        r = self.robot_radius
+        lo_box, hi_box = self.area.lo + np.array([r, r, -np.inf]), self.area.hi - r
+        ok = [(c >= lo_box[i]) & (c <= hi_box[i]) for i, c in enumerate(centres)]
+        return ok[0][:, None, None] & ok[1][None, :, None] & ok[2][None, None, :]
 
     def path_costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """S×T path lengths (m) through known free space with robot clearance; inf if unreachable."""
