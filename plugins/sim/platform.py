@@ -311,11 +311,15 @@ class SimPlatform(Platform):
             return g[i]
         z_fly = floor + self.robot.altitude
         assert self.params is not None
-        where = (
-            f"the best spot, {np.round(g[i], 2).tolist()}, has {max(clear[i], 0.0):.2f} m"
-            if np.isfinite(clear[i])
-            else f"no point of the world stands on the ground floor under {z_fly:.2f} m"
-        )
+        if not np.isfinite(clear[i]):
+            where = f"no point of the world stands on the ground floor under {z_fly:.2f} m"
+        elif clear[i] >= need:  # clear enough, but refused by the closed-solid test of _rate_spots
+            where = (
+                f"every spot clear enough lies inside a closed solid (the surfaces around it are seen"
+                f" from behind), the best, {np.round(g[i], 2).tolist()}, with {clear[i]:.2f} m"
+            )
+        else:
+            where = f"the best spot, {np.round(g[i], 2).tolist()}, has {max(clear[i], 0.0):.2f} m"
         raise PlatformError(
             f"world {spec.name}: no start spot: a spot must stand on the ground floor (z = {floor:.2f} m)"
             f" with its take-off column clear by {need:.2f} m (robot radius {self.robot.radius} m +"

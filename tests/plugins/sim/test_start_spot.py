@@ -200,3 +200,16 @@ def test_an_explicit_start_is_checked_like_a_chosen_one(open_shop, tmp_path):
         _platform(folder, tmp_path, start=(4.0, 4.0))
     plat = _platform(folder, tmp_path, start=(1.5, 1.5))  # free space: accepted
     np.testing.assert_allclose(plat.ground_truth()[:3, 3], [1.5, 1.5, 0.3], atol=1e-6)
+
+
+def test_a_world_whose_only_clear_spots_are_inside_a_solid_says_so(tmp_path):
+    # a room too narrow to take off in, beside a solid 3 m block: the block's inside is far from
+    # every surface, yet no free space; the refusal must say why, not quote a clearance that passes
+    boxes = [([-0.2, -0.2, -0.2], [10.2, 1.0, 0.0]), ([-0.2, -0.2, 2.5], [6.2, 1.0, 2.7])]
+    boxes += _walls(0.0, 0.0, 6.0, 0.8, 0.0, 2.5) + [([6.2, -0.2, 0.0], [10.2, 1.0, 3.0])]
+    folder = _write_world(tmp_path / "solid", boxes)
+    with pytest.raises(PlatformError) as err:
+        _platform(folder, tmp_path)
+    msg = str(err.value)
+    assert "world solid: no start spot" in msg
+    assert "lies inside a closed solid" in msg, msg
