@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Discriminator, Field, Tag
@@ -86,6 +86,12 @@ class SimPlatform(Platform):
             0.05, ge=0.0, description="gap between the collision sphere and the ground when landed"
         )
         reachable_cell: float = Field(0.25, gt=0.0, description="grid of the reachable-free-space summary")
+        reachable_by: Literal["robot", "air"] = Field(
+            "robot",
+            description="what explored % is a share of: 'robot', the free space the robot's body can"
+            " reach inside the flight bound (the mission area, else the building's box); 'air', all"
+            " free space connected to the start through gaps wider than half a cell (before 0.3)",
+        )
 
     def __init__(self) -> None:
         self.params: SimPlatform.Params | None = None
@@ -561,7 +567,13 @@ class SimPlatform(Platform):
 
     def world_summary(self) -> WorldSummary:
         assert self.params is not None
-        return self.world.summary(self._hover_point(), cell=self.params.reachable_cell)
+        if self.params.reachable_by == "air":
+            return self.world.summary(self._hover_point(), cell=self.params.reachable_cell)
+        spec = self.world.spec
+        bound = self._mission_area() or (np.asarray(spec.bounds_lo, float), np.asarray(spec.bounds_hi, float))
+        return self.world.summary(
+            self._hover_point(), cell=self.params.reachable_cell, robot_radius=self.robot.radius, bound=bound
+        )
 
     def stats(self) -> dict[str, Any]:
         """Counters for profiling and reports."""

@@ -282,31 +282,54 @@ class World:
     # ---------------------------------------------------------------------------------------
     # ground truth summary
     # ---------------------------------------------------------------------------------------
-    def summary(self, start: np.ndarray, cell: float = 0.25, margin: float | None = None) -> WorldSummary:
+    def summary(
+        self,
+        start: np.ndarray,
+        cell: float = 0.25,
+        margin: float | None = None,
+        robot_radius: float | None = None,
+        bound: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> WorldSummary:
         """Ground truth for metrics, computed once and cached.
 
         Reachable free space: centres of grid cells (edge ``cell``) inside the building bounds
         that are farther than ``margin`` (default half a cell) from any geometry, 6-connected to
         the cell holding ``start``. ``scipy.ndimage.label`` does the flood fill.
+
+        With ``robot_radius``, what the robot can reach: the flood fill runs over the cells where
+        the robot's centre fits (farther than its radius from any geometry, its body inside
+        ``bound`` on every face but the floor: the flight bound of the mapping backends, by
+        default the building's box), and the reachable space is the free cells within a radius of
+        them. Without it, air behind a gap narrower than the robot, or outside an open-topped
+        building's walls (reached over them), counts as reachable though no flight may go there
+        (an imported small house: 11 % of its "reachable" volume was a strip outside its walls).
         """
         margin = cell / 2.0 if margin is None else margin
-        key = (tuple(np.round(start, 6)), cell, margin)
+        bound_key = None if bound is None else tuple(np.round(np.concatenate(bound), 6))
+        key = (tuple(np.round(start, 6)), cell, margin, robot_radius, bound_key)
         if self._summary is not None and self._summary_key == key:
             return self._summary
         lo, hi = self.spec.bounds_lo, self.spec.bounds_hi
         shape = np.maximum(np.floor((hi - lo) / cell).astype(int), 1)
         axes = [lo[i] + (np.arange(shape[i]) + 0.5) * cell for i in range(3)]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        free = (self.distance(grid) > margin).reshape(shape)
-        labels, _ = ndimage.label(free)  # default structure = 6-connectivity
+        distance = self.distance(grid).reshape(shape)
+        free = distance > margin
         idx = np.clip(np.floor((np.asarray(start) - lo) / cell).astype(int), 0, shape - 1)
-        start_label = labels[tuple(idx)]
-        if start_label == 0:  # start cell touches geometry: take the nearest free cell
-            free_idx = np.argwhere(free)
-            if len(free_idx):
-                nearest = free_idx[np.argmin(np.linalg.norm(free_idx - idx, axis=1))]
-                start_label = labels[tuple(nearest)]
-        reachable = (labels == start_label) if start_label > 0 else np.zeros(shape, dtype=bool)
+        if robot_radius is None:
+            reachable = _component(free, idx)
+        else:
+            fits = distance > robot_radius
+            if bound is not None:
+                b_lo = np.asarray(bound[0], float) + np.array([robot_radius, robot_radius, -np.inf])
+                b_hi = np.asarray(bound[1], float) - robot_radius
+                inside = np.all((grid >= b_lo) & (grid <= b_hi), axis=1).reshape(shape)
+                fits &= inside
+            flown = _component(fits, idx)
+            # the free cells the robot's body sweeps: within its radius (plus half a cell, the
+            # cell centres' spacing) of a cell its centre can reach
+            near = ndimage.distance_transform_edt(~flown) * cell <= robot_radius + cell / 2
+            reachable = free & near
         points = grid[reachable.reshape(-1)]
         vol = cell**3
         floors = self.floor_index(points[:, 2]) if len(points) else np.zeros(0, dtype=int)
@@ -575,3 +598,15 @@ def box_room(
         start_floor_z=0.0,
         start_yaw=start_yaw,
     )
+
+
+def _component(cells: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The 6-connected component of ``cells`` holding index ``idx`` (or the nearest cell's)."""
+    labels, _ = ndimage.label(cells)  # default structure = 6-connectivity
+    start_label = labels[tuple(idx)]
+    if start_label == 0:  # the start cell is not one of them: take the nearest that is
+        free_idx = np.argwhere(cells)
+        if len(free_idx):
+            nearest = free_idx[np.argmin(np.linalg.norm(free_idx - idx, axis=1))]
+            start_label = labels[tuple(nearest)]
+    return (labels == start_label) if start_label > 0 else np.zeros(cells.shape, dtype=bool)

@@ -213,3 +213,20 @@ def test_a_world_whose_only_clear_spots_are_inside_a_solid_says_so(tmp_path):
     msg = str(err.value)
     assert "world solid: no start spot" in msg
     assert "lies inside a closed solid" in msg, msg
+
+
+def test_reachable_volume_is_what_the_robot_can_reach(tmp_path):
+    # An open-topped 6 × 4 m room; its ground reaches 1 m beyond the south wall, and a 0.5 m slot
+    # through that wall joins the strip outside to the room: air flows through, the robot
+    # (0.5 m across, the slot's width) does not. Explored % is a share of what the robot can reach.
+    boxes = [([-0.2, -1.2, -0.2], [6.2, 4.2, 0.0])]  # floor, and the ground south of the room
+    boxes += _walls(0.0, 0.0, 6.0, 4.0, 0.0, 2.5, gaps=[("south", 2.75, 3.25, 0.0, 2.5)])
+    folder = _write_world(tmp_path / "slot", boxes)
+    air = _platform(folder, tmp_path, reachable_by="air").world_summary()
+    robot = _platform(folder, tmp_path).world_summary()
+    outside_air = np.count_nonzero(air.reachable_points[:, 1] < -0.2)
+    assert outside_air * 0.25**3 > 5.0  # the strip (6 × 1 × 2.5 m) leaks in through the slot
+    assert np.count_nonzero(robot.reachable_points[:, 1] < -0.2) == 0
+    inside = np.count_nonzero(air.reachable_points[:, 1] > 0.0)
+    # inside the room the robot reaches (nearly) all the air: within its radius of the walls too
+    assert robot.reachable_free_volume >= 0.95 * inside * 0.25**3
