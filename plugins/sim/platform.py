@@ -90,7 +90,8 @@ class SimPlatform(Platform):
             "robot",
             description="what explored % is a share of: 'robot', the free space the robot's body can"
             " reach inside the flight bound (the mission area, else the building's box); 'air', all"
-            " free space connected to the start through gaps wider than half a cell (before 0.3)",
+            " free space connected to the start through gaps wider than half a cell (the measure before"
+            " issue #19)",
         )
 
     def __init__(self) -> None:
