@@ -269,6 +269,26 @@ def test_stock_ground_plane_and_sun_need_no_gazebo(tmp_path, monkeypatch):
     assert any("sun" in s.what and "no geometry" in s.reason for s in result.skipped)
 
 
+def test_fuel_urls_of_the_stock_models_need_no_network(tmp_path, monkeypatch):
+    # ROS 2 worlds (turtlebot3_house.world) include the sun and the ground plane from Gazebo Fuel
+    monkeypatch.setenv("HOME", str(tmp_path))
+    fuel = "https://fuel.gazebosim.org/1.0/OpenRobotics/models"
+    world = tmp_path / "w.world"
+    world.write_text(
+        sdf_world(
+            f"<include><uri>{fuel}/Sun</uri></include><include><uri>{fuel}/Ground Plane/1</uri></include>"
+            '<model name="sofa"><pose>0 0 0.4 0 0 0</pose>' + box_link("2 1 0.8") + "</model>"
+        )
+    )
+    result = import_world(world, tmp_path / "out")
+    assert [o.name for o in result.objects] == ["sofa"]
+    assert any("100 × 100 m cut to" in n for n in result.notes)  # the ground plane, cut to size
+    # any other Fuel model still names itself and says it was not fetched
+    world.write_text(sdf_world(f"<include><uri>{fuel}/Cafe table</uri></include>"))
+    with pytest.raises(WorldImportError, match=r"model 'Cafe table' \(https://fuel.*not fetched"):
+        import_world(world, tmp_path / "out2")
+
+
 # -- the class map --------------------------------------------------------------------------------
 
 

@@ -542,8 +542,10 @@ class SdfReader:
                 found = parse_xml(p)
                 break
         if found is None:
-            name = urlparse(uri).netloc or Path(uri).name
-            stock = STOCK_MODELS.get(name)
+            name = _model_name(uri)
+            # Gazebo Fuel names the stock models 'Sun' and 'Ground Plane' (ROS 2 worlds include
+            # them from https://fuel.gazebosim.org/1.0/OpenRobotics/models/...)
+            stock = STOCK_MODELS.get(name) or STOCK_MODELS.get(name.lower().replace(" ", "_"))
             if stock is None:
                 raise MissingFileError(f"{where}: model {name!r} ({uri}) not found; searched {searched}")
             root = ET.fromstring(stock)
@@ -554,6 +556,18 @@ class SdfReader:
             )
         self._model_files[key] = found
         return found
+
+
+def _model_name(uri: str) -> str:
+    """The model a URI names: ``model://NAME/...``'s NAME, a Fuel URL's last path segment (its
+    version number skipped: ``.../models/Ground Plane/2``), or a path's last part."""
+    parsed = urlparse(uri)
+    if parsed.scheme in ("http", "https"):
+        parts = [unquote(p) for p in parsed.path.split("/") if p]
+        if parts and parts[-1].isdigit():
+            parts = parts[:-1]
+        return parts[-1] if parts else parsed.netloc
+    return parsed.netloc or Path(uri).name
 
 
 class _FrameGraph:
