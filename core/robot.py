@@ -56,6 +56,7 @@ class Flight(Protocol):
     def hold(self) -> None: ...
     def takeoff(self) -> None: ...
     def land(self) -> None: ...
+    def landing_spot_world(self) -> np.ndarray | None: ...
 
 
 class Navigation(Protocol):
@@ -198,6 +199,16 @@ class Robot:
 
     def land(self) -> None:
         self.platform.land()
+
+    def landing_spot_world(self) -> np.ndarray | None:
+        """Where to land: the nearest point at this height whose straight-down descent the fresh
+        local map shows clear (:meth:`amslam.setpoints.SetpointFilter.landing_spot`), world frame;
+        here when here is clear, None when nothing within reach is."""
+        here = self.platform.odometry().T_odom_body[:3, 3]
+        spot = self.setpoints.landing_spot(here)
+        if spot is None:
+            return None
+        return transform_points(self.slam.T_world_odom(), spot[None])[0]
 
     # -- navigation ----------------------------------------------------------------------------
 

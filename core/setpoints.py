@@ -3,7 +3,8 @@
 Goals and paths come from the world-frame map; the vehicle flies in the odometry frame, where
 the local map was built moments ago. Before a setpoint goes to the platform it passes two guards
 that look only at that local map: the height guard (floor/ceiling band) and the clearance guard
-(a convex safe flight corridor). Both run on the control thread.
+(a convex safe flight corridor). Both run on the control thread. Landing is checked against the
+same map: the vertical descent of :meth:`SetpointFilter.landing_spot`'s column touches nothing.
 """
 
 from __future__ import annotations
@@ -95,3 +96,67 @@ class SetpointFilter:
                 break
             step = step - slack[worst] * normals[worst]
         return here + step
+
+    #: how far from the vehicle a clear landing column is looked for, m, and the ring spacing
+    LANDING_SEARCH = 1.5
+    LANDING_RING = 0.25
+
+    def descent_clear(self, p_odom: np.ndarray) -> bool:
+        """Whether a vertical descent from ``p_odom`` to the surface below keeps clear of the local map.
+
+        A platform lands straight down (PX4's land mode, the simulator's): anything the fresh local
+        map shows within the robot radius plus ``GUARD_MARGIN`` of that column, between the surface
+        it lands on and the vehicle, would be touched on the way (a table's edge, a window sill).
+        The surface is the first occupied voxel straight below; without one in reach the column is
+        not judged clear. Unknown voxels count as free, as for the clearance guard.
+        """
+        return self._descent(p_odom)[0]
+
+    def _descent(self, p_odom: np.ndarray) -> tuple[bool, float]:
+        """(descent clear, height of the surface landed on; +inf when none is in reach)."""
+        p = np.asarray(p_odom, float)
+        step = self.GUARD_STEP
+        depth = np.arange(step, 3.0 + 1e-9, step)
+        below = self.mapping.states(p - np.outer(depth, [0.0, 0.0, 1.0]), local=True) == VoxelState.OCCUPIED
+        if not below.any():
+            return False, float("inf")
+        surface = float(p[2] - depth[int(np.argmax(below))])
+        reach = self.radius + self.GUARD_MARGIN
+        k = int(np.ceil(reach / step))
+        axis = np.arange(-k, k + 1) * step
+        ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
+        ring = ring[np.linalg.norm(ring, axis=1) <= reach]
+        # from a voxel above the surface (the occupied voxel's top face is the surface) up to the vehicle
+        heights = np.append(np.arange(surface + 1.5 * step, p[2] - 1e-9, step), p[2])
+        column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
+        return not bool(np.any(self.mapping.states(column, local=True) == VoxelState.OCCUPIED)), surface
+
+    def landing_spot(self, here_odom: np.ndarray) -> np.ndarray | None:
+        """The nearest point at the vehicle's height whose descent is clear (:meth:`descent_clear`),
+        onto a surface no higher than the one below the vehicle (the floor beside a table, never the
+        table top), reached in a straight line clear of the local map; ``here_odom`` itself when
+        its own column is clear; None if no such point lies within ``LANDING_SEARCH``."""
+        here = np.asarray(here_odom, float)
+        clear, surface_here = self._descent(here)
+        if clear:
+            return here
+        for r in np.arange(self.LANDING_RING, self.LANDING_SEARCH + 1e-9, self.LANDING_RING):
+            n = max(8, int(np.ceil(2 * np.pi * r / self.LANDING_RING)))
+            for a in np.arange(n) * (2 * np.pi / n):
+                spot = here + np.array([r * np.cos(a), r * np.sin(a), 0.0])
+                clear, surface = self._descent(spot)
+                if (
+                    clear
+                    and surface <= surface_here + 1.5 * self.GUARD_STEP
+                    and self._straight_clear(here, spot)
+                ):
+                    return spot
+        return None
+
+    def _straight_clear(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """No occupied local voxel within the robot radius plus ``GUARD_MARGIN`` of segment a–b."""
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / self.GUARD_STEP)) + 1)
+        line = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+        keep = np.linalg.norm(self._offsets, axis=1) <= self.radius + self.GUARD_MARGIN
+        near = (line[:, None, :] + self._offsets[keep][None, :, :]).reshape(-1, 3)
+        return not bool(np.any(self.mapping.states(near, local=True) == VoxelState.OCCUPIED))

@@ -539,17 +539,55 @@ class SetHome(RobotBehaviour):
 
 
 class Land(RobotBehaviour):
-    """Descend and disarm where the robot is (idempotent)."""
+    """Descend and disarm, first moving to a spot whose descent is clear (idempotent).
 
-    uses = ("flight",)
+    Platforms land straight down. Where the fresh local map shows something near the column
+    below (a table edge, a window sill), the robot first flies to the nearest point at its height
+    whose column is clear (``Flight.landing_spot_world``): a turtlebot3 house flight that could
+    not find its way home landed in place beside a piece of furniture and touched it at 0.72 m.
+    When nothing within reach is clear it lands where it is and says so.
+    """
+
+    uses = ("flight", "events")
+    #: close enough to the landing spot to descend, m
+    ARRIVED = 0.1
+    #: the move to the landing spot gives up (and lands) after this long, s
+    MOVE_TIMEOUT = 20.0
 
     def __init__(self, name: str = "Land"):
         super().__init__(name)
+        self.spot: np.ndarray | None = None
+        self.started = 0.0
 
     def initialise(self) -> None:
+        self.spot = None
+        if not self.flight.airborne():
+            return
+        spot = self.flight.landing_spot_world()
+        here = self.flight.position_world()
+        if spot is None:
+            self.events.emit(
+                "landing_unchecked", why="no clear descent column within reach", behaviour=self.name
+            )
+        elif np.linalg.norm(spot - here) > self.ARRIVED:
+            self.spot, self.started = spot, self.flight.time()
+            self.events.emit(
+                "landing_spot",
+                spot=np.round(spot, 2).tolist(),
+                moved=round(float(np.linalg.norm(spot - here)), 2),
+            )
+            return
         self.flight.land()
 
     def update(self) -> Status:
+        if self.spot is not None:
+            arrived = np.linalg.norm(self.flight.position_world() - self.spot) <= self.ARRIVED
+            if not arrived and self.flight.time() - self.started < self.MOVE_TIMEOUT:
+                self.flight.send_setpoint_world(self.spot, self.flight.yaw_world())
+                self.feedback_message = "moving to a clear landing spot"
+                return Status.RUNNING
+            self.spot = None
+            self.flight.land()
         if self.flight.airborne():
             self.feedback_message = "descending"
             return Status.RUNNING

@@ -123,3 +123,55 @@ def test_a_non_finite_setpoint_holds_and_names_the_culprit():
     robot.slam = SimpleNamespace(T_world_odom=lambda: np.full((4, 4), np.nan))
     with pytest.raises(AmslamError, match="SLAM backend"):
         robot.send_setpoint_world(np.array([1.0, 0.0, 1.2]), 0.0)
+
+
+# -- landing -------------------------------------------------------------------------------------
+
+FLOOR = ((-5, -5, -0.2), (5, 5, 0.0))
+TABLE = ((0.2, -0.5, 0.0), (1.2, 0.5, 0.75))  # its edge 0.2 m beside the column at the origin
+
+
+def test_a_descent_beside_a_table_is_not_clear_and_a_spot_away_from_it_is() -> None:
+    world = BoxMap([FLOOR, TABLE])
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    here = np.array([0.0, 0.0, 1.2])
+    assert not guard.descent_clear(here)  # straight down passes 0.2 m from the table's edge
+    spot = guard.landing_spot(here)
+    assert spot is not None and spot[2] == pytest.approx(1.2)
+    assert guard.descent_clear(spot)
+    # the whole column keeps the robot radius from the table, and the move there is short
+    column = [spot - np.array([0, 0, dz]) for dz in np.arange(0.0, 1.0, 0.05)]
+    assert min(BoxMap([TABLE]).clearance(p) for p in column) > RADIUS
+    assert np.linalg.norm(spot[:2]) <= 1.0
+    # in the open the robot lands where it is
+    open_floor = SetpointFilter(BoxMap([FLOOR]), RADIUS, min_height=0.0, min_headroom=0.0)
+    np.testing.assert_allclose(open_floor.landing_spot(here), here)
+
+
+def test_no_floor_in_reach_or_no_clear_spot_gives_none() -> None:
+    here = np.array([0.0, 0.0, 1.2])
+    no_floor = SetpointFilter(BoxMap([TABLE]), RADIUS, min_height=0.0, min_headroom=0.0)
+    assert not no_floor.descent_clear(here + np.array([3.0, 0.0, 0.0]))
+    # pillars 0.3 m wide, 0.2 m apart, taller than the flight: no column is clear
+    pillars = [
+        ((x, y, 0.0), (x + 0.3, y + 0.3, 2.0))
+        for x in np.arange(-2.5, 2.5, 0.5)
+        for y in np.arange(-2.5, 2.5, 0.5)
+    ]
+    crowded = BoxMap([FLOOR, *pillars])
+    here = np.array([0.4, 0.4, 1.2])
+    guard = SetpointFilter(crowded, RADIUS, min_height=0.0, min_headroom=0.0)
+    assert guard.landing_spot(here) is None
+
+
+def test_robot_lands_at_a_clear_spot_in_the_world_frame() -> None:
+    world = BoxMap([FLOOR, TABLE])
+    robot = make_robot(world, [0.0, 0.0, 1.2])
+    robot.slam = SimpleNamespace(
+        T_world_odom=lambda: np.array([[1, 0, 0, 10.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    )
+    spot = robot.landing_spot_world()
+    assert spot is not None
+    odom = spot - np.array([10.0, 0.0, 0.0])  # back into the odometry frame
+    assert np.linalg.norm(odom[:2]) >= 0.2  # it moved off the column beside the table
+    assert robot.setpoints.descent_clear(odom)
