@@ -1,18 +1,26 @@
-"""Metrics, the map, plots and ``report.md`` of a finished run."""
+"""The run report: metrics, the map, plots and ``report.md`` of a finished run.
+
+An application observer of the kernel, registered through the ``amslam`` entry points like a
+third party's (``report`` in pyproject.toml; ``plugins.disable: [report]`` leaves it out). It
+implements two run-end hooks: ``amslam_run_metrics`` measures the run from its typed
+:class:`amslam.types.RunSummary` (the kernel merges the figures into ``metrics.json`` and
+``RunResult.metrics``), and ``amslam_run_end`` writes the map, the semantic map, the optimised
+SLAM trajectory, the plots and ``report.md`` from the summary and the merged metrics.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import math
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+import amslam
 from amslam.geometry import wrap_angle, yaw_of
+from amslam.rundir import RunFiles
 from amslam.types import RunSummary, VoxelState, WorldSummary
-
-if TYPE_CHECKING:
-    from amslam.rundir import RunDir
 
 
 def _floor_bands(world: WorldSummary) -> list[tuple[float, float]]:
@@ -182,14 +190,9 @@ def object_accuracy(
 
 
 def compute_metrics(summary: RunSummary) -> dict[str, Any]:
-    """Everything ``metrics.json`` holds."""
-    mission = summary.mission
-    metrics: dict[str, Any] = {
-        "verdict": summary.verdict,
-        "mission": mission.name,
-        "seed": mission.model.seed,
-        "plugins": {kind: choice.plugin for kind, choice in mission.backends.items()},
-    }
+    """The report's figures of a run: what it adds to the kernel's verdict, mission, seed and
+    plugins in ``metrics.json``."""
+    metrics: dict[str, Any] = {}
     if summary.duration_s is None:  # the platform never started
         return metrics
     metrics["sim_duration_s"] = round(summary.duration_s, 3)
@@ -297,9 +300,9 @@ def _slam_metrics(summary: RunSummary) -> dict[str, Any]:
     return out
 
 
-def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunDir) -> None:
-    """metrics.json, map.ply, landmarks.json, slam.tum (optimised), plots and report.md."""
-    rundir.write_json("metrics.json", metrics)  # first, so a later failure still leaves it
+def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunFiles) -> None:
+    """map.ply, map.npz, landmarks.json, slam.tum (optimised), plots and report.md (``metrics.json``
+    is the kernel's: it is written before the run-end observers are called)."""
     mapping = summary.mapping
     if mapping is not None:
         rundir.write_ply("map.ply", mapping.occupied_points())
@@ -322,7 +325,7 @@ def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunDir) 
         )
         kps = summary.keyposes
         if kps and summary.slam_optimises:
-            rundir.rewrite_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
+            rundir.write_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
     plots = []
     if mapping is not None:
         plots.append(plot_top_view(summary))
@@ -463,3 +466,13 @@ def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str])
         "",
     ]
     (summary.run_dir / "report.md").write_text("\n".join(lines))
+
+
+@amslam.hookimpl
+def amslam_run_metrics(summary: RunSummary) -> dict[str, Any]:
+    return compute_metrics(summary)
+
+
+@amslam.hookimpl
+def amslam_run_end(run_dir: Path, metrics: dict[str, Any], summary: RunSummary) -> None:
+    write_outputs(summary, metrics, RunFiles(run_dir))
