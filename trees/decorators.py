@@ -61,7 +61,9 @@ class GiveUpGoal(Decorator):
     waypoint. The no-progress check runs before the child's tick, against where the robot is now
     (a goal the guards or the controller cannot reach must not hold the robot forever); the
     blocked check after it, once the child has seen the local map. Giving up is the child's
-    :meth:`FollowsPath.give_up`, then FAILURE, in the same tick.
+    :meth:`FollowsPath.give_up`, then FAILURE, in the same tick. (The path the child planned on
+    the last block is thrown away unflown: the leaf always replans when blocked, since only the
+    decorator knows when to stop. Before the decorator, the leaf counted and skipped that plan.)
     """
 
     uses = ("flight",)
@@ -110,7 +112,10 @@ class GiveUpGoal(Decorator):
         if child.status != Status.RUNNING:
             return child.status
         progress = child.progress(self.flight.position_world())
-        if self.best is None:  # the child's first tick: the robot is where it started from
+        if self.best is None:
+            # The child's first tick. The robot does not move within a tick, so this is the
+            # distance it started at: exact while the stage is still (0, 0), and a stage already
+            # past it counts as progress at the next check anyway.
             self.best = ((0, 0), progress.to_waypoint, self.flight.time())
         if progress.replanned >= self.max_blocked:
             self._give_up(f"the local map showed the way blocked {progress.replanned} times")
