@@ -137,8 +137,6 @@ def object_accuracy(
     and only the cuboid (vehicle) classes for ``fig9_error`` (``fig9_objects``, ``fig9_mapped``):
     Fig. 9 evaluates the target class, vehicles; cylinders (poles, trunks) are not in it.
     """
-    from scipy.optimize import linear_sum_assignment
-
     out: dict[str, Any] = {}
     all_dims: list[float] = []
     all_pos: list[float] = []
@@ -147,35 +145,12 @@ def object_accuracy(
     classes = sorted({world.object_classes.get(i, "") for i in world.object_shapes})
     for cls in classes:
         ids = [i for i, s in world.object_shapes.items() if world.object_classes.get(i) == cls]
-        model = world.object_shapes[ids[0]]["model"]
-        lms = [lm for lm in landmarks if lm.class_name == cls and lm.shape and lm.shape["model"] == model]
-        row: dict[str, Any] = {"model": model, "objects": len(ids), "landmarks": len(lms), "mapped": 0}
-        if model == "cuboid":
+        row, errors = _class_accuracy(landmarks, world, ids, gate, duplicate_radius)
+        if row["model"] == "cuboid":
             fig9_objects += len(ids)
-        if lms:
-            P = np.array([_shape_ref(world.object_shapes[i]) for i in ids])
-            Q = np.array([_shape_ref(lm.shape) for lm in lms])
-            d = np.linalg.norm(Q[:, None, :] - P[None, :, :], axis=2)
-            r, c = linear_sum_assignment(np.where(d <= gate, d, 1e6))
-            ok = d[r, c] <= gate
-            pairs = list(zip(r[ok], c[ok], strict=True))
-            dims = [_dims_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
-            pos = d[r[ok], c[ok]].tolist()
-            paired = set(r[ok].tolist())
-            unpaired = [i for i in range(len(lms)) if i not in paired]
-            row["mapped"] = len(pairs)
-            row["duplicates"] = int(sum(d[i].min() <= duplicate_radius for i in unpaired))
-            row["spurious"] = len(unpaired) - row["duplicates"]
-            if model == "cuboid":
-                fig9 = [_fig9_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
-                row.update(_stats("fig9_error", fig9))
-                all_fig9 += fig9
-            row.update(_stats("dims_error", dims))
-            if pos:
-                row["position_error_mean_m"] = round(float(np.mean(pos)), 4)
-                row["position_error_median_m"] = round(float(np.median(pos)), 4)
-            all_dims += dims
-            all_pos += pos
+        all_dims += errors["dims"]
+        all_pos += errors["position"]
+        all_fig9 += errors["fig9"]
         out[cls] = row
     out["overall"] = {
         "objects": len(world.object_shapes),
@@ -187,6 +162,44 @@ def object_accuracy(
         **({"position_error_mean_m": round(float(np.mean(all_pos)), 4)} if all_pos else {}),
     }
     return out
+
+
+def _class_accuracy(
+    landmarks: list, world: WorldSummary, ids: list, gate: float, duplicate_radius: float
+) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    """One class's row of :func:`object_accuracy` (its objects ``ids``), and the errors of its
+    mapped objects (``dims``, ``position``, ``fig9``) for the overall figures."""
+    from scipy.optimize import linear_sum_assignment
+
+    model = world.object_shapes[ids[0]]["model"]
+    cls = world.object_classes.get(ids[0])
+    lms = [lm for lm in landmarks if lm.class_name == cls and lm.shape and lm.shape["model"] == model]
+    row: dict[str, Any] = {"model": model, "objects": len(ids), "landmarks": len(lms), "mapped": 0}
+    errors: dict[str, list[float]] = {"dims": [], "position": [], "fig9": []}
+    if not lms:
+        return row, errors
+    P = np.array([_shape_ref(world.object_shapes[i]) for i in ids])
+    Q = np.array([_shape_ref(lm.shape) for lm in lms])
+    d = np.linalg.norm(Q[:, None, :] - P[None, :, :], axis=2)
+    r, c = linear_sum_assignment(np.where(d <= gate, d, 1e6))
+    ok = d[r, c] <= gate
+    pairs = list(zip(r[ok], c[ok], strict=True))
+    dims = [_dims_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
+    pos = d[r[ok], c[ok]].tolist()
+    paired = set(r[ok].tolist())
+    unpaired = [i for i in range(len(lms)) if i not in paired]
+    row["mapped"] = len(pairs)
+    row["duplicates"] = int(sum(d[i].min() <= duplicate_radius for i in unpaired))
+    row["spurious"] = len(unpaired) - row["duplicates"]
+    if model == "cuboid":
+        errors["fig9"] = [_fig9_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
+        row.update(_stats("fig9_error", errors["fig9"]))
+    row.update(_stats("dims_error", dims))
+    if pos:
+        row["position_error_mean_m"] = round(float(np.mean(pos)), 4)
+        row["position_error_median_m"] = round(float(np.median(pos)), 4)
+    errors["dims"], errors["position"] = dims, pos
+    return row, errors
 
 
 def compute_metrics(summary: RunSummary) -> dict[str, Any]:
@@ -399,15 +412,41 @@ def plot_uncertainty(summary: RunSummary, metrics: dict[str, Any]) -> str | None
 
 def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str]) -> None:
     """``report.md`` tying the run's files together."""
-    m = metrics
     lines = [
-        f"# Run report: {m.get('mission')}",
+        f"# Run report: {metrics.get('mission')}",
         "",
-        f"**Verdict: {m['verdict']}**",
+        f"**Verdict: {metrics['verdict']}**",
         "",
         "| figure | value |",
         "|---|---|",
+        *_figure_rows(metrics),
     ]
+    lines += ["", "## Plots", ""]
+    lines += [f"![{p}]({p})" for p in plots]
+    lines += FILES_SECTION
+    (summary.run_dir / "report.md").write_text("\n".join(lines))
+
+
+#: the end of every ``report.md``: what each file of the run folder holds
+FILES_SECTION = [
+    "",
+    "## Files",
+    "",
+    "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in",
+    "- [metrics.json](metrics.json) — the figures above, machine-readable",
+    "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order",
+    "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick",
+    "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
+    "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
+    "- [landmarks.json](landmarks.json) — the semantic map",
+    "- [map.ply](map.ply) — occupied voxels of the global map",
+    "",
+]
+
+
+def _figure_rows(m: dict[str, Any]) -> list[str]:
+    """The rows of ``report.md``'s figure table, for the figures ``metrics`` has."""
+    lines: list[str] = []
 
     def row(label: str, value: Any) -> None:
         if value is not None:
@@ -449,23 +488,7 @@ def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str])
         row(
             "semantic loop closures (accepted / attempts)", f"{m['slc']['accepted']} / {m['slc']['attempts']}"
         )
-    lines += ["", "## Plots", ""]
-    lines += [f"![{p}]({p})" for p in plots]
-    lines += [
-        "",
-        "## Files",
-        "",
-        "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in",
-        "- [metrics.json](metrics.json) — the figures above, machine-readable",
-        "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order",
-        "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick",
-        "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
-        "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
-        "- [landmarks.json](landmarks.json) — the semantic map",
-        "- [map.ply](map.ply) — occupied voxels of the global map",
-        "",
-    ]
-    (summary.run_dir / "report.md").write_text("\n".join(lines))
+    return lines
 
 
 @amslam.hookimpl
