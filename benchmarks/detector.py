@@ -14,7 +14,7 @@ Run: ``.venv/bin/python benchmarks/detector.py [--size 640x480] [--repeats 20] [
 ``--compare RUN_DIR...`` instead prints the semantic maps of finished simulator runs next to each
 other (e.g. ``amslam run demo`` and ``amslam run missions/demo_onnx.yaml``): landmark count, and
 for chairs and for all classes the landmarks paired one-to-one with the world's objects within
-1 m (``amslam.report.landmark_accuracy``), their mean distance to the true object centres, the
+1 m (``amslam.apps.report.landmark_accuracy``), their mean distance to the true object centres, the
 matched fraction (paired / landmarks) and the objects mapped (paired / objects in the world). The
 world is rebuilt from the run's ``mission.yaml`` and seed, as the runner built it.
 
@@ -45,13 +45,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from amslam.apps.report import landmark_accuracy
 from amslam.interfaces import BACKEND_KINDS, RunContext
 from amslam.measurements import read_measurements
 from amslam.plugins.onnx_detector import OnnxDetector
 from amslam.plugins.onnx_detector.decoder import decode, letterbox
 from amslam.plugins.sim import SimDetector, SimPlatform
 from amslam.plugins.sim.camera import viewing_pose
-from amslam.report import landmark_accuracy
 from amslam.types import Frame, Landmark, RobotSpec, WorldSummary
 
 

@@ -5,8 +5,9 @@ than the specification, so arguments are only ever added, never renamed.
 
 Backend hooks are called once when the plugin manager is built; their results are merged into
 one registry per kind (a name provided twice is an error naming both plugins). Observer hooks
-are called by the runner; their return values are ignored and an exception in one is logged as
-an event and does not stop the run.
+are called by the runner one implementation at a time, so an exception in one is logged as an
+``observer_failed`` event naming the plugin and stops neither the run nor the other observers;
+their return values are ignored, except ``amslam_run_metrics``'s.
 
 Versioning: the hooks are amslam's stable plugin API. Every specification's docstring ends with
 ``Since: X.Y``, the amslam version that introduced it (``amslam.hookspecs.since(name)`` reads it);
@@ -156,10 +157,28 @@ def amslam_loop_closure(t: float, result: LoopClosureResult) -> None:
 
 
 @hookspec
+def amslam_run_metrics(summary: RunSummary) -> dict[str, Any]:
+    """Figures of the finished run, measured from its typed :class:`amslam.types.RunSummary`.
+
+    The runner merges every answer into what it knows itself (``verdict``, ``mission``, ``seed``,
+    ``plugins``): the result is ``metrics.json``, ``RunResult.metrics`` (what ``amslam run`` and
+    the experiments print) and the ``metrics`` of :func:`amslam_run_end`. A key already given (by
+    the runner or by an observer called earlier) is kept, and the later one is reported as an
+    ``observer_failed`` event. The built-in report (``amslam.apps.report``) measures through this
+    hook; with it disabled, ``metrics.json`` holds only what the runner knows. Called once, after
+    the flight and before :func:`amslam_run_end`; the backends are still open.
+
+    Since: 0.2
+    """
+
+
+@hookspec
 def amslam_run_end(
     run_dir: Path, verdict: str, metrics: dict[str, Any], trajectory: np.ndarray, summary: RunSummary
 ) -> None:
-    """The run ended with ``verdict``; ``metrics`` is what ``metrics.json`` holds.
+    """The run ended with ``verdict``; ``metrics`` is what ``metrics.json`` holds (already written,
+    see :func:`amslam_run_metrics`). The backends are still open and the trajectory streams closed,
+    so an observer may write the map or replace a trajectory (``amslam.rundir.RunFiles``).
 
     ``trajectory`` holds the true positions (N×3, simulation only). ``summary`` (since 0.2) is the
     typed :class:`amslam.types.RunSummary` of the run: trajectories, samples, loop closures, the

@@ -84,13 +84,45 @@ def _new_folder(root: Path, name: str) -> Path:
     raise AmslamError(f"cannot create a run folder in {root}: 10000 run folders named {name}-* already")
 
 
-class RunDir:
-    """One run's folder, ``<root>/<mission>-<timestamp>/``."""
+class RunFiles:
+    """The summary files of a run folder, each written atomically: what the runner and the
+    run-end observers (an application such as the report, given only the folder) write."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+
+    def write_text(self, name: str, text: str) -> Path:
+        """A summary file of the run, written atomically (:func:`write_atomically`)."""
+        return write_atomically(self.path / name, text)
+
+    def write_yaml(self, name: str, data: Any) -> Path:
+        return self.write_text(name, yaml.safe_dump(jsonable(data), sort_keys=False))
+
+    def write_json(self, name: str, data: Any) -> Path:
+        return self.write_text(name, json.dumps(jsonable(data), indent=2) + "\n")
+
+    def write_ply(self, name: str, points: np.ndarray) -> Path:
+        """Points as an ASCII PLY (readable by Open3D, MeshLab, CloudCompare)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        properties = "".join(f"property float {axis}\n" for axis in "xyz")
+        header = f"ply\nformat ascii 1.0\nelement vertex {len(points)}\n{properties}end_header\n"
+        body = "".join(f"{x:.3f} {y:.3f} {z:.3f}\n" for x, y, z in points)
+        return self.write_text(name, header + body)
+
+    def write_trajectory(self, which: str, stamps: list[float], poses: list[np.ndarray]) -> Path:
+        """``<which>.tum`` as a whole (SLAM key poses change when the graph is optimised)."""
+        return self.write_text(
+            f"{which}.tum", "".join(tum_line(t, T) for t, T in zip(stamps, poses, strict=True))
+        )
+
+
+class RunDir(RunFiles):
+    """One run's folder, ``<root>/<mission>-<timestamp>/``: its streams, and its files (:class:`RunFiles`)."""
 
     def __init__(self, root: Path, mission_name: str):
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        path = _new_folder(Path(root), f"{mission_name}-{stamp}")
-        self.path = path
+        super().__init__(_new_folder(Path(root), f"{mission_name}-{stamp}"))
+        path = self.path
         self._events = open(path / "events.jsonl", "w")  # noqa: SIM115 — lives as long as the run
         self._tree = open(path / "tree.jsonl", "w")  # noqa: SIM115
         self._tum: dict[str, IO[str]] = {}
@@ -116,34 +148,12 @@ class RunDir:
         f.write(tum_line(stamp, T))
         f.flush()
 
-    def rewrite_trajectory(self, which: str, stamps: list[float], poses: list[np.ndarray]) -> None:
-        """Replace ``<which>.tum`` as a whole (SLAM key poses change when the graph is optimised)."""
-        old = self._tum.pop(which, None)
-        if old:
-            old.close()
-        write_atomically(
-            self.path / f"{which}.tum", "".join(tum_line(t, T) for t, T in zip(stamps, poses, strict=True))
-        )
-
-    # -- files ---------------------------------------------------------------------------------
-
-    def write_text(self, name: str, text: str) -> Path:
-        """A summary file of the run, written atomically (:func:`write_atomically`)."""
-        return write_atomically(self.path / name, text)
-
-    def write_yaml(self, name: str, data: Any) -> Path:
-        return self.write_text(name, yaml.safe_dump(jsonable(data), sort_keys=False))
-
-    def write_json(self, name: str, data: Any) -> Path:
-        return self.write_text(name, json.dumps(jsonable(data), indent=2) + "\n")
-
-    def write_ply(self, name: str, points: np.ndarray) -> Path:
-        """Points as an ASCII PLY (readable by Open3D, MeshLab, CloudCompare)."""
-        points = np.asarray(points, dtype=float).reshape(-1, 3)
-        properties = "".join(f"property float {axis}\n" for axis in "xyz")
-        header = f"ply\nformat ascii 1.0\nelement vertex {len(points)}\n{properties}end_header\n"
-        body = "".join(f"{x:.3f} {y:.3f} {z:.3f}\n" for x, y, z in points)
-        return self.write_text(name, header + body)
+    def close_trajectories(self) -> None:
+        """End the trajectory streams: the flight is over, and a run-end observer may replace a
+        trajectory as a whole (:meth:`RunFiles.write_trajectory`) without a stream still open on it."""
+        for f in self._tum.values():
+            f.close()
+        self._tum.clear()
 
     def close(self) -> None:
         for f in (self._events, self._tree, *self._tum.values()):

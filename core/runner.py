@@ -10,14 +10,14 @@ schedule runs against wall-clock time, with the planner and the detector on thei
 under the thread rule (:mod:`amslam.sharing`).
 
 Every exit path — completion, a crash, a failing backend, Ctrl-C — goes through
-:meth:`Runner._finish`, which builds the :class:`amslam.types.RunSummary` and writes metrics,
-map, plots and report with the verdict.
+:meth:`Runner._finish`, which writes the verdict to ``metrics.json``, builds the
+:class:`amslam.types.RunSummary` and hands it to the run-end observers (the report among them, an
+application: ``amslam.apps.report``), then closes the backends.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,7 +39,6 @@ from amslam.perception import Perception, Snapshot
 from amslam.planning import PlanningService
 from amslam.recording import TreeRecorder
 from amslam.registry import Registry
-from amslam.report import compute_metrics, write_outputs
 from amslam.robot import EventSink, Robot
 from amslam.rundir import RunDir
 from amslam.setpoints import SetpointFilter
@@ -106,11 +105,28 @@ class Runner:
 
     # -- observer hooks ------------------------------------------------------------------------
 
-    def _hook(self, name: str, **kwargs: Any) -> None:
-        try:
-            getattr(self.registry.pm.hook, name)(**kwargs)
-        except Exception as exc:  # an observer must never stop the flight
-            self.rundir.event(self._now(), "observer_error", hook=name, error=f"{type(exc).__name__}: {exc}")
+    def _hook(self, name: str, **kwargs: Any) -> list[tuple[str, Any]]:
+        """Call each implementation of observer hook ``name`` on its own, in pluggy's order; the
+        (plugin, answer) of each that returned.
+
+        Not ``pm.hook.<name>(**kwargs)``: pluggy stops at the first exception, so one broken
+        observer would silence every later one (the report among them) and could not be named.
+        """
+        answers: list[tuple[str, Any]] = []
+        for impl in reversed(getattr(self.registry.pm.hook, name).get_hookimpls()):
+            if impl.wrapper or impl.hookwrapper:  # a wrapper needs pluggy's call loop, which we left
+                self._observer_failed(name, impl.plugin_name, "a wrapper cannot observe a run")
+                continue
+            try:
+                answer = impl.function(*(kwargs[arg] for arg in impl.argnames))
+            except Exception as exc:  # an observer must never stop the flight
+                self._observer_failed(name, impl.plugin_name, f"{type(exc).__name__}: {exc}")
+                continue
+            answers.append((impl.plugin_name, answer))
+        return answers
+
+    def _observer_failed(self, hook: str, plugin: str, error: str) -> None:
+        self.rundir.event(self._now(), "observer_failed", hook=hook, plugin=plugin, error=error)
 
     def _now(self) -> float:
         platform = self.backends.get("platform")
@@ -312,18 +328,20 @@ class Runner:
     # -- outputs -------------------------------------------------------------------------------
 
     def _finish(self, verdict: str) -> RunResult:
-        metrics: dict[str, Any] = {"verdict": verdict}
+        """The verdict in ``metrics.json``, the run-end observers, the backends closed."""
+        metrics = self._write_metrics(self._identity(verdict))  # first: whatever fails below, it is there
         summary = RunSummary(self.mission, self.rundir.path, verdict)
         try:
             summary = self._summary(verdict)
-            metrics = compute_metrics(summary)
-            write_outputs(summary, metrics, self.rundir)
-        except Exception as exc:  # a broken summary must still leave the streams and the verdict
-            metrics["outputs_error"] = f"{type(exc).__name__}: {exc}"
+        except Exception as exc:  # a backend that cannot say what it holds: the observers get less
             self.rundir.event(
-                self._now(), "outputs_error", error=metrics["outputs_error"], traceback=traceback.format_exc()
+                self._now(),
+                "summary_failed",
+                error=f"{type(exc).__name__}: {exc}",
+                traceback=traceback.format_exc(),
             )
-            (self.rundir.path / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str))
+        self.rundir.close_trajectories()
+        metrics = self._write_metrics(self._measured(metrics, summary))
         self.rundir.event(self._now(), "run_end", verdict=verdict)
         self._hook(
             "amslam_run_end",
@@ -341,8 +359,56 @@ class Runner:
         self.rundir.close()
         return RunResult(self.rundir.path, verdict, metrics)
 
+    def _identity(self, verdict: str) -> dict[str, Any]:
+        """What the runner itself knows of every run, flown or not: the rest is measured by observers."""
+        return {
+            "verdict": verdict,
+            "mission": self.mission.name,
+            "seed": self.mission.model.seed,
+            "plugins": {kind: choice.plugin for kind, choice in self.mission.backends.items()},
+        }
+
+    def _measured(self, metrics: dict[str, Any], summary: RunSummary) -> dict[str, Any]:
+        """``metrics`` with every ``amslam_run_metrics`` answer merged in; the first to give a key keeps it.
+
+        The figures come back as the hooks' return values rather than the runner reading the files
+        its observers wrote: the kernel then depends on no application's file layout, a disabled or
+        failing report leaves exactly the runner's own metrics, and several observers (the report,
+        a third party's figures) each add theirs without one silencing the others, which a
+        ``firstresult`` hook would do. Nobody overrides the verdict: the runner's keys come first.
+        """
+        merged = dict(metrics)
+        for plugin, answer in self._hook("amslam_run_metrics", summary=summary):
+            if not isinstance(answer, dict):
+                if answer is not None:
+                    self._observer_failed(
+                        "amslam_run_metrics", plugin, f"returned {type(answer).__name__}, not a dict"
+                    )
+                continue
+            taken = sorted(str(key) for key in answer if key in merged)
+            if taken:
+                self._observer_failed(
+                    "amslam_run_metrics",
+                    plugin,
+                    f"metrics {', '.join(taken)} already given; the earlier kept",
+                )
+            merged.update({key: value for key, value in answer.items() if key not in merged})
+        return merged
+
+    def _write_metrics(self, metrics: dict[str, Any]) -> dict[str, Any]:
+        """``metrics.json``, atomically (a full disk leaves the previous one); ``metrics`` back."""
+        try:
+            self.rundir.write_json("metrics.json", metrics)
+        except (
+            OSError,
+            TypeError,
+            ValueError,
+        ) as exc:  # the run still ends: backends closed, verdict returned
+            self.rundir.event(self._now(), "metrics_not_written", error=f"{type(exc).__name__}: {exc}")
+        return metrics
+
     def _summary(self, verdict: str) -> RunSummary:
-        """The run as the report and the observers see it (the threads have stopped)."""
+        """The run as the run-end observers see it (the threads have stopped)."""
         summary = RunSummary(self.mission, self.rundir.path, verdict)
         platform, slam, mapping = (self.backends.get(k) for k in ("platform", "slam", "mapping"))
         if platform is None:

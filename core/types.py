@@ -365,7 +365,8 @@ class Failsafe:
 
 @dataclass(frozen=True)
 class RunSummary:
-    """What a finished run hands to its report and to ``amslam_run_end`` observers.
+    """What a finished run hands to its run-end observers (``amslam_run_metrics``, ``amslam_run_end``;
+    the report is one).
 
     Built once, on every exit path, after the threads have stopped. Figures of the vehicle
     (``status``, the final poses) are None when the run failed before the platform started.

@@ -3,10 +3,12 @@
 Each leaf is thin: its constructor takes configuration only; ``setup(**services)`` hands it the
 runtime services it names in ``uses`` (narrow protocols, see :mod:`amslam.robot`: ``flight``,
 ``navigation``, ``planning``, ``events``); ``initialise`` starts work, ``update`` polls and
-returns quickly, ``terminate`` cancels. Retries and limits are py_trees decorators around the
-leaves (``Retry`` around :class:`Replan`, the :class:`WithinLimits` eternal guard around the
-exploration loop), not counters inside them. Blackboard keys are registered with their access
-so each leaf's inputs and outputs are explicit:
+returns quickly, ``terminate`` cancels. Retries, stalls and limits are decorators around the
+leaves, not counters inside them: ``Retry`` around :class:`Replan`, the :class:`WithinLimits`
+eternal guard around the exploration loop, :class:`amslam.trees.decorators.GiveUpGoal` (no
+progress, the way blocked) around :class:`GoTo`, :class:`amslam.trees.decorators.SkipUnreachable`
+around the next stop. Blackboard keys are registered with their access so each leaf's inputs and
+outputs are explicit:
 
 ==================  ========================================================================
 key                 meaning
@@ -16,7 +18,6 @@ key                 meaning
 ``/tour_time``      float — when ``/tour`` was planned
 ``/cruise_z``       float — world height the take-off settled at; the return-home height
 ``/exploration``    str — "exploring", or why exploration ended
-``/unreachable``    int — consecutive unreachable goals
 ``/slc``            dict — the latest loop-closure attempt
 ==================  ========================================================================
 """
@@ -34,22 +35,12 @@ import amslam
 from amslam.geometry import wrap_angle
 from amslam.mission import ExplorationSection
 from amslam.robot import Events, Exploring, Flight, Navigation, PlanHandle
+from amslam.trees.decorators import GiveUpGoal, PathProgress, SkipUnreachable
+from amslam.trees.services import require_services
 from amslam.types import TourItem, TourItemKind
 
 #: the exploration section's defaults, for leaves built without a mission (tests, other trees)
 DEFAULTS = ExplorationSection()
-
-
-def _require(behaviour: py_trees.behaviour.Behaviour, uses: tuple[str, ...], services: dict) -> None:
-    """Give ``behaviour`` the services it uses, or refuse naming the missing ones."""
-    missing = [key for key in uses if services.get(key) is None]
-    if missing:
-        wanted = ", ".join(f"{key}=..." for key in missing)
-        raise KeyError(
-            f"behaviour {behaviour.name!r} needs setup({wanted}): the runtime's services (see amslam.robot)"
-        )
-    for key in uses:
-        setattr(behaviour, key, services[key])
 
 
 class RobotBehaviour(py_trees.behaviour.Behaviour):
@@ -67,7 +58,7 @@ class RobotBehaviour(py_trees.behaviour.Behaviour):
         self.bb = self.attach_blackboard_client(name=name)
 
     def setup(self, **kwargs) -> None:
-        _require(self, self.uses, kwargs)
+        require_services(self, self.uses, kwargs)
 
 
 def cruise_height(bb: py_trees.blackboard.Client, flight: Flight) -> float:
@@ -121,7 +112,7 @@ class WithinLimits(EternalGuard):
         self.blackboard.register_key("/exploration", access=Access.WRITE)
 
     def setup(self, **kwargs) -> None:
-        _require(self, self.uses, kwargs)
+        require_services(self, self.uses, kwargs)
 
     def _within_limits(self) -> bool:
         reason = self.flight.limit_reached()
@@ -275,9 +266,11 @@ class GoTo(RobotBehaviour):
 
     SUCCESS on arrival (heading turned to the goal's yaw), or, with ``early_exit``, early when an
     exploration goal's frontier was seen on the way or the tour is older than ``replan_period``;
-    FAILURE when no path exists, the local map shows the way blocked three times, or no progress
-    was made for ``NO_PROGRESS`` seconds (the goal is marked unreachable). The no-progress give-up
-    stays inside the leaf: progress is measured along its own path, which no decorator sees.
+    FAILURE when no path exists (the goal is marked unreachable). When the local map shows the way
+    blocked it plans a new path and flies on. When to give the goal up (no progress, blocked too
+    often) is the :class:`amslam.trees.decorators.GiveUpGoal` decorator's decision: the leaf
+    reports its :meth:`progress` and gives up on request (:meth:`give_up`). Trees build it with
+    :func:`go_to`, which puts it under that decorator.
     """
 
     uses = ("flight", "navigation", "planning", "events")
@@ -299,34 +292,44 @@ class GoTo(RobotBehaviour):
         self.replan_period = replan_period
         self.bb.register_key(goal_key, access=Access.READ)
         self.bb.register_key("/tour_time", access=Access.READ)
-        self.bb.register_key("/unreachable", access=Access.WRITE)
         self.path: np.ndarray | None = None
         self.index = 0
-        self.blocked = 0
-
-    def setup(self, **kwargs) -> None:
-        super().setup(**kwargs)
-        self.bb.set("/unreachable", 0)
 
     def initialise(self) -> None:
         self.goal: TourItem = self.bb.get(self.goal_key)
-        self.path = self.navigation.plan_path(self.goal.position)
-        self.index = 1 if self.path is not None and len(self.path) > 1 else 0
-        self.blocked = 0
+        self.replanned = 0
+        self._plan()
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
-        self.progress = (self.index, np.inf, self.flight.time())  # (waypoint, distance, since)
+
+    def _plan(self) -> None:
+        self.path = self.navigation.plan_path(self.goal.position)
+        self.index = self.first_index = 1 if self.path is not None and len(self.path) > 1 else 0
+
+    def progress(self, here: np.ndarray) -> PathProgress:
+        """How far it got (for :class:`GiveUpGoal`): paths replanned, waypoints passed, distance left
+        to the current waypoint from ``here``."""
+        if self.path is None:
+            return PathProgress(self.replanned, 0, np.inf)
+        distance = float(np.linalg.norm(self.path[self.index] - here))
+        return PathProgress(self.replanned, self.index - self.first_index, distance)
+
+    def give_up(self, why: str) -> None:
+        """The goal is unreachable: tell the planning service and the run, hold position."""
+        self.planning.mark_unreachable(self.goal.position)
+        self.events.emit(
+            "unreachable", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
+        )
+        self.flight.hold()
+        self.feedback_message = why
 
     #: how far ahead along the path the fresh local map is checked, m
     LOOKAHEAD = 1.5
     WAYPOINT_TOLERANCE = 0.15
-    #: seconds without progress after which the goal is given up as unreachable
-    NO_PROGRESS = 20.0
     SKIP_NEAR = 0.3
     #: a viewpoint this close to the goal (m) means the goal's frontier is still there
     SAME_GOAL = 1.0
 
     def _done(self, why: str) -> Status:
-        self.bb.set("/unreachable", 0)
         self.feedback_message = why
         self.events.emit(
             "goal_done", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
@@ -334,14 +337,7 @@ class GoTo(RobotBehaviour):
         return Status.SUCCESS
 
     def _fail(self, why: str) -> Status:
-        self.planning.mark_unreachable(self.goal.position)
-        count = self.bb.get("/unreachable") + 1
-        self.bb.set("/unreachable", count)
-        self.events.emit(
-            "unreachable", goal=np.round(self.goal.position, 2).tolist(), why=why, behaviour=self.name
-        )
-        self.flight.hold()
-        self.feedback_message = why
+        self.give_up(why)
         return Status.FAILURE
 
     #: how far the guards may hold the robot off a waypoint for it still to count as reached, m
@@ -362,14 +358,6 @@ class GoTo(RobotBehaviour):
             float(np.linalg.norm(sent - here)) < self.WAYPOINT_TOLERANCE
         )
 
-    def _stalled(self, here: np.ndarray) -> bool:
-        """No waypoint passed and no 0.1 m gained on the current one for NO_PROGRESS seconds."""
-        now = self.flight.time()
-        dist = float(np.linalg.norm(self.path[self.index] - here))
-        if self.index > self.progress[0] or dist < self.progress[1] - 0.1:
-            self.progress = (self.index, dist, now)
-        return now - self.progress[2] > self.NO_PROGRESS
-
     def _frontier_gone_or_stale(self) -> str | None:
         """Why an exploration goal is not worth finishing (early exit), or None."""
         if not (self.early_exit and self.goal.kind == TourItemKind.EXPLORE and self.planning.plans_frontiers):
@@ -387,9 +375,6 @@ class GoTo(RobotBehaviour):
         if self.path is None:
             return self._fail("no path through known free space")
         here = self.flight.position_world()
-        if self._stalled(here):
-            # A goal the guards or the controller cannot reach must not hold the robot forever.
-            return self._fail(f"no progress for {self.NO_PROGRESS:.0f} s")
         if why := self._frontier_gone_or_stale():
             return self._done(why)
         # Intermediate waypoints are passed tightly: cutting a corner near a door frame is how
@@ -425,13 +410,9 @@ class GoTo(RobotBehaviour):
         # robot hovering near furniture must still be able to fly away from it.
         near = here + to_target * min(1.0, self.SKIP_NEAR / length)
         if length > self.SKIP_NEAR and not self.navigation.segment_clear_local(near, ahead):
-            self.blocked += 1
-            if self.blocked > 2:
-                return self._fail(f"the local map shows the way blocked near {np.round(ahead, 2).tolist()}")
-            self.path = self.navigation.plan_path(self.goal.position)
-            self.index = 1 if self.path is not None and len(self.path) > 1 else 0
-            self.progress = (self.index, np.inf, self.flight.time())
-            self.feedback_message = "blocked: new path"
+            self.replanned += 1
+            self._plan()
+            self.feedback_message = f"blocked near {np.round(ahead, 2).tolist()}: new path"
             return Status.RUNNING if self.path is not None else self._fail("blocked, no other path")
         horizontal = np.linalg.norm(to_target[:2])
         heading = float(np.arctan2(to_target[1], to_target[0])) if horizontal > 0.3 else self.goal.yaw
@@ -448,6 +429,12 @@ class GoTo(RobotBehaviour):
     def terminate(self, new_status: Status) -> None:
         if new_status == Status.INVALID and getattr(self, "flight", None) is not None:
             self.flight.hold()
+
+
+def go_to(behaviours: dict, name: str, **options) -> py_trees.behaviour.Behaviour:
+    """The registered ``GoTo`` leaf named ``name`` (``options`` to its constructor) under the
+    registered ``GiveUpGoal`` decorator: how every stock tree flies to a goal."""
+    return behaviours["GiveUpGoal"](f"{name}OrGiveUp", behaviours["GoTo"](name, **options))
 
 
 class Panorama(RobotBehaviour):
@@ -493,32 +480,6 @@ class AttemptLoopClosure(RobotBehaviour):
         self.events.emit("loop_closure", **dataclasses.asdict(result), distance=self.flight.distance())
         self.events.plugin_hook("amslam_loop_closure", t=self.flight.time(), result=result)
         self.feedback_message = ("accepted: " if result.accepted else "rejected: ") + result.reason
-        return Status.SUCCESS
-
-
-class ForgetGoal(RobotBehaviour):
-    """Recovery after an unreachable goal: SUCCESS (so the loop replans) until ``max_unreachable``
-    goals in a row were unreachable, then FAILURE (exploration gives up).
-
-    The count spans loop iterations (GoTo raises it, an arrival resets it), which no py_trees
-    decorator around one leaf can see, so it lives on the blackboard as ``/unreachable``.
-    """
-
-    uses = ()
-
-    def __init__(self, name: str = "SkipUnreachable", max_unreachable: int = DEFAULTS.max_unreachable):
-        super().__init__(name)
-        self.max_unreachable = max_unreachable
-        self.bb.register_key("/unreachable", access=Access.READ)
-        self.bb.register_key("/exploration", access=Access.WRITE)
-
-    def update(self) -> Status:
-        count = self.bb.get("/unreachable")
-        if count >= self.max_unreachable:
-            self.bb.set("/exploration", f"stopped: {count} goals in a row unreachable")
-            self.feedback_message = "too many unreachable goals"
-            return Status.FAILURE
-        self.feedback_message = f"skipped ({count} in a row)"
         return Status.SUCCESS
 
 
@@ -604,7 +565,8 @@ def amslam_behaviours():
         "GoTo": GoTo,
         "Panorama": Panorama,
         "AttemptSLC": AttemptLoopClosure,
-        "SkipUnreachable": ForgetGoal,
+        "GiveUpGoal": GiveUpGoal,
+        "SkipUnreachable": SkipUnreachable,
         "SetHomeGoal": SetHome,
         "Land": Land,
         "HasGoal": HasGoal,

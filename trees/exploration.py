@@ -15,13 +15,16 @@ behaviours the plugins provide (``amslam_behaviours``), so a plugin can replace 
     │               ├── RetryPlanning (retry: max_replan_failures planner failures in a row)
     │               │   └── Replan
     │               ├── HasGoal (FAILURE once nothing reachable is left)
-    │               └── NextStop (selector)
-    │                   ├── InsertSLC (sequence, when SLC is on): IsSLC → GoToSLC → Panorama → AttemptSLC
-    │                   ├── Explore (sequence): IsExplore → GoToViewpoint
-    │                   └── SkipUnreachable (FAILURE after max_unreachable in a row)
+    │               └── SkipUnreachable (skips an unreachable goal; FAILURE at max_unreachable in a row)
+    │                   └── NextStop (selector)
+    │                       ├── InsertSLC (sequence, when SLC is on): IsSLC → GoToSLC → Panorama → AttemptSLC
+    │                       └── Explore (sequence): IsExplore → GoToViewpoint
     ├── ReturnHome (failure is success): SetHomeGoal → GoHome
     │   [→ HomePanorama → HomeSLC, when SLC is on]
     └── Land
+
+Every GoTo* sits under a ``GiveUpGoal`` decorator (``…OrGiveUp``): no progress for 20 s, or the
+way blocked three times, and the goal is given up as unreachable.
 
 With SLC on, the robot closes one last loop where it started: home is where the oldest landmarks
 are, so a panorama there ties the end of the trajectory to its beginning before landing. The tree
@@ -38,7 +41,7 @@ from py_trees.decorators import FailureIsSuccess, Repeat, Retry
 
 import amslam
 from amslam.mission import MissionModel
-from amslam.trees.behaviours import IsGoalKind
+from amslam.trees.behaviours import IsGoalKind, go_to
 from amslam.trees.flight import with_failsafe_guard
 from amslam.types import TourItemKind
 
@@ -59,7 +62,7 @@ def _next_stop(model: MissionModel, b: Behaviours) -> py_trees.behaviour.Behavio
                 memory=True,
                 children=[
                     IsGoalKind("IsSLC", TourItemKind.SLC),
-                    b["GoTo"]("GoToSLC", early_exit=False, **goto),
+                    go_to(b, "GoToSLC", early_exit=False, **goto),
                     b["Panorama"]("Panorama", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance),
                     b["AttemptSLC"]("AttemptSLC"),
                 ],
@@ -69,11 +72,12 @@ def _next_stop(model: MissionModel, b: Behaviours) -> py_trees.behaviour.Behavio
         Sequence(
             "Explore",
             memory=True,
-            children=[IsGoalKind("IsExplore", TourItemKind.EXPLORE), b["GoTo"]("GoToViewpoint", **goto)],
+            children=[IsGoalKind("IsExplore", TourItemKind.EXPLORE), go_to(b, "GoToViewpoint", **goto)],
         )
     )
-    stops.append(b["SkipUnreachable"]("SkipUnreachable", max_unreachable=ex.max_unreachable))
-    return Selector("NextStop", False, stops)
+    return b["SkipUnreachable"](
+        "SkipUnreachable", Selector("NextStop", False, stops), max_unreachable=ex.max_unreachable
+    )
 
 
 def build_exploration_tree(model: MissionModel, behaviours: Behaviours) -> py_trees.behaviour.Behaviour:
@@ -99,7 +103,8 @@ def build_exploration_tree(model: MissionModel, behaviours: Behaviours) -> py_tr
     children: list[py_trees.behaviour.Behaviour] = [b["TakeOff"]("TakeOff")]
     if ex.look_around:
         children.append(b["Panorama"]("LookAround", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance))
-    home = b["GoTo"](
+    home = go_to(
+        b,
         "GoHome",
         goal_key="/home",
         early_exit=False,

@@ -72,7 +72,8 @@ def cmd_run(args, registry) -> int:
         share, distance = m["explored_percent"], m.get("distance_m")
         print(f"explored: {share} % of the reachable free volume, distance {distance} m")
     print(f"run folder: {result.run_dir}")
-    print(f"report: {result.report}")
+    if result.report.exists():  # not when the report application is disabled
+        print(f"report: {result.report}")
     return 0 if result.verdict == "completed" else 1
 
 

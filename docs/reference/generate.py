@@ -238,9 +238,12 @@ def module_page(module: ModuleType, title: str, intro: str) -> list[str]:
         hooks = [n for n in names if hasattr(getattr(module, n), "amslam_spec")]
         out += ["| hook | since | kind |", "|---|---|---|"]
         for name in _source_order(module, hooks):
-            kind = (
-                "backend discovery" if name.endswith(("_backends", "_behaviours")) else "run event observer"
-            )
+            if name.endswith(("_backends", "_behaviours", "_mission_trees")):
+                kind = "backend discovery"
+            elif name in ("amslam_cli_commands", "amslam_experiments"):
+                kind = "application discovery"
+            else:
+                kind = "run event observer"
             out += [f"| [`{name}`](#{name}) | {module.since(name)} | {kind} |"]
         out += [""]
     for name in _source_order(module, names):

@@ -34,6 +34,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -652,12 +653,47 @@ def solve_scalable(
     A = np.asarray(A, float).reshape(-1, 3)
     B = np.asarray(B, float).reshape(-1, 3)
     ca, cb = _encode_classes(_labels(labels_a, len(A)), _labels(labels_b, len(B)))
-    n, m = len(A), len(B)
-    if min(n, m) < max(p.min_matches, 2):
+    if min(len(A), len(B)) < max(p.min_matches, 2):
         return _decide(None, None, p, prior)
     rng = rng or np.random.default_rng(0)
+    pairs_a, pairs_b = _pairs_of_a(A, p), _pairs_of_b(B, p)
+    if len(pairs_b.first) == 0 or len(pairs_a.first) == 0:
+        return _decide(None, None, p, prior)
+    hypotheses = _hypotheses(A, ca, B, cb, pairs_a, pairs_b, p, prior, rng)
+    if hypotheses is None:
+        return _decide(None, None, p, prior)
+    cands = _refined_candidates(A, ca, B, cb, *hypotheses, p, prior)
+    if not cands:
+        return _decide(None, None, p, prior)
+    cands.sort(key=lambda c: (-c.k, c.residual))
+    best = _polish(A, ca, B, cb, cands[0], p, prior)
+    runner = next((c for c in cands[1:] if best.rival(c, p, prior is not None)), None)
+    return _decide(best, runner, p, prior)
 
-    # Ordered pairs of A with their invariants, sorted by horizontal distance.
+
+class _PairsA(NamedTuple):
+    """Ordered pairs of A (``first`` → ``second``) at least ``min_pair_distance`` apart
+    horizontally, sorted by that distance (``horizontal``) for the binary search in
+    :func:`_hypotheses_of`; ``vector`` = A[second] − A[first], ``angle`` its heading."""
+
+    first: np.ndarray
+    second: np.ndarray
+    vector: np.ndarray
+    horizontal: np.ndarray
+    angle: np.ndarray
+
+
+class _PairsB(NamedTuple):
+    """Unordered pairs of B (``first`` < ``second``) at least ``min_pair_distance`` apart horizontally."""
+
+    first: np.ndarray
+    second: np.ndarray
+    vector: np.ndarray
+    horizontal: np.ndarray
+
+
+def _pairs_of_a(A: np.ndarray, p: SlcParams) -> _PairsA:
+    n = len(A)
     ia, ka = np.nonzero(~np.eye(n, dtype=bool))
     va = A[ka] - A[ia]
     ha = np.hypot(va[:, 0], va[:, 1])
@@ -665,24 +701,39 @@ def solve_scalable(
     ia, ka, va, ha = ia[keep], ka[keep], va[keep], ha[keep]
     order = np.argsort(ha)
     ia, ka, va, ha = ia[order], ka[order], va[order], ha[order]
-    ang_a = np.arctan2(va[:, 1], va[:, 0])
+    return _PairsA(ia, ka, va, ha, np.arctan2(va[:, 1], va[:, 0]))
 
-    # Unordered pairs of B.
-    jb, lb = np.triu_indices(m, 1)
+
+def _pairs_of_b(B: np.ndarray, p: SlcParams) -> _PairsB:
+    jb, lb = np.triu_indices(len(B), 1)
     vb = B[lb] - B[jb]
     hb = np.hypot(vb[:, 0], vb[:, 1])
     keep = hb >= p.min_pair_distance
-    jb, lb, vb, hb = jb[keep], lb[keep], vb[keep], hb[keep]
-    if len(jb) == 0 or len(ia) == 0:
-        return _decide(None, None, p, prior)
-    sample_order = rng.permutation(len(jb)) if len(jb) > p.max_samples else np.arange(len(jb))
-    sample_order = sample_order[: p.max_samples]
+    return _PairsB(jb[keep], lb[keep], vb[keep], hb[keep])
 
+
+def _hypotheses(
+    A: np.ndarray,
+    ca: np.ndarray,
+    B: np.ndarray,
+    cb: np.ndarray,
+    pairs_a: _PairsA,
+    pairs_b: _PairsB,
+    p: SlcParams,
+    prior: SlcPrior | None,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """2-point hypotheses (yaw, translation, inlier count) of at least ``min_matches`` inliers,
+    from B pairs in batches until the adaptive rule says enough; None when there are none."""
+    m = len(B)
+    n_pairs_b = len(pairs_b.first)
+    sample_order = rng.permutation(n_pairs_b) if n_pairs_b > p.max_samples else np.arange(n_pairs_b)
+    sample_order = sample_order[: p.max_samples]
     scorer = _Scorer(A, ca)
     # Small problems use the exact necessary condition (two points within the gate each give
     # invariants within twice the gate), so no consistent pair is missed; large ones the tighter
     # tolerance, relying on some of the many inlier pairs passing it.
-    exact = len(jb) <= p.exact_pairs
+    exact = n_pairs_b <= p.exact_pairs
     eps = 2.0 * p.inlier_gate if exact else p.pair_tolerance
     score_gate = 2.0 * p.inlier_gate if exact else p.inlier_gate
     preview = rng.permutation(m)[: max(p.preview, p.min_matches)] if m > p.preview else np.arange(m)
@@ -703,33 +754,9 @@ def solve_scalable(
     while done < min(needed, len(sample_order)):
         sel = sample_order[done : done + batch]
         done += len(sel)
-        lo = np.searchsorted(ha, hb[sel] - eps, side="left")
-        hi = np.searchsorted(ha, hb[sel] + eps, side="right")
-        cnt = hi - lo
-        if cnt.sum() == 0:
+        psi, t = _hypotheses_of(sel, A, ca, B, cb, pairs_a, pairs_b, eps, p, prior)
+        if len(psi) == 0:
             continue
-        which = np.repeat(np.arange(len(sel)), cnt)
-        idx_a = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)
-        bsel = sel[which]
-        ok = (
-            (np.abs(va[idx_a, 2] - vb[bsel, 2]) <= eps)
-            & (ca[ia[idx_a]] == cb[jb[bsel]])
-            & (ca[ka[idx_a]] == cb[lb[bsel]])
-        )
-        idx_a, bsel = idx_a[ok], bsel[ok]
-        if len(idx_a) == 0:
-            continue
-        psi = ang_a[idx_a] - np.arctan2(vb[bsel, 1], vb[bsel, 0])
-        c, s = np.cos(psi), np.sin(psi)
-        mb = 0.5 * (B[jb[bsel]] + B[lb[bsel]])
-        ma = 0.5 * (A[ia[idx_a]] + A[ka[idx_a]])
-        t = ma - np.stack([c * mb[:, 0] - s * mb[:, 1], s * mb[:, 0] + c * mb[:, 1], mb[:, 2]], axis=1)
-        if prior is not None:
-            pair_a = np.stack([ia[idx_a], ka[idx_a]], axis=1)
-            keep = _may_reach_prior(prior, psi, t, ha[idx_a], hb[bsel], mb, pair_a, p.inlier_gate)
-            psi, t = psi[keep], t[keep]
-            if len(psi) == 0:
-                continue
         if len(psi) > 4 * len(preview):
             # Preemptive scoring: a cheap look at a few B points, then all of B for the best.
             pre = scorer.count(B[preview], cb[preview], psi, t, score_gate)
@@ -750,15 +777,72 @@ def solve_scalable(
             else:
                 needed = min(needed, math.ceil(math.log(1.0 - p.confidence) / math.log(1.0 - w2)))
     if not hyps_psi:
-        return _decide(None, None, p, prior)
+        return None
     psi_all = np.concatenate(hyps_psi)
-    t_all = np.concatenate(hyps_t)
-    n_all = np.concatenate(hyps_n)
     if len(psi_all) == 0:
-        return _decide(None, None, p, prior)
+        return None
+    return psi_all, np.concatenate(hyps_t), np.concatenate(hyps_n)
 
-    # Refine the strongest hypotheses, one per distinct transform, best first. Hypotheses close
-    # to a solution already found, or very close to one whose refinement failed, are masked out.
+
+def _hypotheses_of(
+    sel: np.ndarray,
+    A: np.ndarray,
+    ca: np.ndarray,
+    B: np.ndarray,
+    cb: np.ndarray,
+    pairs_a: _PairsA,
+    pairs_b: _PairsB,
+    eps: float,
+    p: SlcParams,
+    prior: SlcPrior | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The transforms (yaw, translation) mapping the B pairs ``sel`` onto every A pair of the same
+    classes whose invariants (horizontal distance, height difference) agree within ``eps``;
+    under a prior, only those that may reach its bound (:func:`_may_reach_prior`)."""
+    ia, ka, va, ha, ang_a = pairs_a
+    jb, lb, vb, hb = pairs_b
+    none = (np.zeros(0), np.zeros((0, 3)))
+    lo = np.searchsorted(ha, hb[sel] - eps, side="left")
+    hi = np.searchsorted(ha, hb[sel] + eps, side="right")
+    cnt = hi - lo
+    if cnt.sum() == 0:
+        return none
+    which = np.repeat(np.arange(len(sel)), cnt)
+    idx_a = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)
+    bsel = sel[which]
+    ok = (
+        (np.abs(va[idx_a, 2] - vb[bsel, 2]) <= eps)
+        & (ca[ia[idx_a]] == cb[jb[bsel]])
+        & (ca[ka[idx_a]] == cb[lb[bsel]])
+    )
+    idx_a, bsel = idx_a[ok], bsel[ok]
+    if len(idx_a) == 0:
+        return none
+    psi = ang_a[idx_a] - np.arctan2(vb[bsel, 1], vb[bsel, 0])
+    c, s = np.cos(psi), np.sin(psi)
+    mb = 0.5 * (B[jb[bsel]] + B[lb[bsel]])
+    ma = 0.5 * (A[ia[idx_a]] + A[ka[idx_a]])
+    t = ma - np.stack([c * mb[:, 0] - s * mb[:, 1], s * mb[:, 0] + c * mb[:, 1], mb[:, 2]], axis=1)
+    if prior is not None:
+        pair_a = np.stack([ia[idx_a], ka[idx_a]], axis=1)
+        keep = _may_reach_prior(prior, psi, t, ha[idx_a], hb[bsel], mb, pair_a, p.inlier_gate)
+        psi, t = psi[keep], t[keep]
+    return psi, t
+
+
+def _refined_candidates(
+    A: np.ndarray,
+    ca: np.ndarray,
+    B: np.ndarray,
+    cb: np.ndarray,
+    psi_all: np.ndarray,
+    t_all: np.ndarray,
+    n_all: np.ndarray,
+    p: SlcParams,
+    prior: SlcPrior | None,
+) -> list[_Candidate]:
+    """Refine the strongest hypotheses, one per distinct transform, best first. Hypotheses close
+    to a solution already found, or very close to one whose refinement failed, are masked out."""
     cands: list[_Candidate] = []
     alive = np.ones(len(psi_all), dtype=bool)
 
@@ -789,9 +873,4 @@ def solve_scalable(
             cands.append(cand)
         elif (cand.k, -cand.residual) > (cands[twin].k, -cands[twin].residual):
             cands[twin] = cand
-    if not cands:
-        return _decide(None, None, p, prior)
-    cands.sort(key=lambda c: (-c.k, c.residual))
-    best = _polish(A, ca, B, cb, cands[0], p, prior)
-    runner = next((c for c in cands[1:] if best.rival(c, p, prior is not None)), None)
-    return _decide(best, runner, p, prior)
+    return cands

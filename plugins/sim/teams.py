@@ -180,31 +180,16 @@ def team_overrides(
             overhead_altitude if overhead_altitude is not None else round(min(2 * low_alt, top - 1.0), 2)
         )
         boxes = split_area(lo, hi, n_low) if split and n_low > 0 else [(lo, hi)] * n_low
-        bases: list[np.ndarray] = []
-        for k in range(n_low):
-            spots = open_spots(platform, boxes[k][0], boxes[k][1], low_alt, radius)
-            far = [s for s in spots if all(np.linalg.norm(s - b) >= base_spacing for b in bases)]
-            if not far:
-                raise ValueError(
-                    f"no free base for robot {k + 1} of {n} in {boxes[k][0][:2]}–{boxes[k][1][:2]}"
-                )
-            bases.append(np.asarray(far[0], float))
+        bases = _low_bases(platform, boxes, low_alt, radius, base_spacing, n)
         overhead_flags: list[str] = []
         if mode == "heterogeneous":
-            spots = open_spots(platform, lo, hi, high_alt, radius)
-            # the lawnmower starts at the area's low corner: take off from the open spot nearest it
-            spots = spots[np.argsort(np.linalg.norm(spots - (lo[:2] + 1.5), axis=1), kind="stable")]
-            far = [s for s in spots if all(np.linalg.norm(s - b) >= base_spacing for b in bases)]
-            if not far:
-                raise ValueError(f"no free base for the overhead robot in {lo[:2]}–{hi[:2]}")
-            bases.append(np.asarray(far[0], float))
-            overhead_flags = [
-                f"robot.altitude={high_alt}",
-                f"platform.camera.pitch_deg={overhead_pitch}",
-            ]
-            world_params = mission.backends["platform"].params.world
-            if getattr(world_params, "kind", None) == "outdoor":
-                wps = lawnmower(platform.world, lo, hi, bases[-1], high_alt, overhead_spacing, radius + 0.75)
+            overhead_base = _overhead_base(platform, lo, hi, high_alt, radius, bases, base_spacing)
+            bases.append(overhead_base)
+            overhead_flags = [f"robot.altitude={high_alt}", f"platform.camera.pitch_deg={overhead_pitch}"]
+            if getattr(mission.backends["platform"].params.world, "kind", None) == "outdoor":
+                wps = lawnmower(
+                    platform.world, lo, hi, overhead_base, high_alt, overhead_spacing, radius + 0.75
+                )
                 overhead_flags += [
                     "tree=waypoints",
                     f"waypoints.points={wps}",
@@ -213,16 +198,10 @@ def team_overrides(
                 ]
     finally:
         platform.close()
-    pin = sim_world_seed(seed)
     teams = []
     for k in range(n):
         overhead = mode == "heterogeneous" and k == n - 1
-        s = overhead_seed(seed) if overhead else robot_seed(seed, k)
-        flags = [*base, f"seed={s}", f"name={mission.name}-{'overhead' if overhead else f'r{k + 1}'}"]
-        world_params = mission.backends["platform"].params.world
-        if hasattr(world_params, "seed_offset"):  # a generated world: pin it to robot 1's
-            flags.append(f"platform.world.seed_offset={pin - sim_world_seed(s) + world_params.seed_offset}")
-        flags.append(f"platform.start=[{bases[k][0]:.2f}, {bases[k][1]:.2f}]")
+        flags = _robot_flags(mission, base, seed, k, overhead, bases[k])
         if overhead:
             flags += overhead_flags
         elif split:
@@ -230,3 +209,59 @@ def team_overrides(
             flags.append(f"area={{lo: {np.round(blo, 2).tolist()}, hi: {np.round(bhi, 2).tolist()}}}")
         teams.append(flags)
     return teams
+
+
+def _far_enough(spots: np.ndarray, bases: list[np.ndarray], spacing: float) -> list[np.ndarray]:
+    """The spots at least ``spacing`` from every base already taken, in their order."""
+    return [s for s in spots if all(np.linalg.norm(s - b) >= spacing for b in bases)]
+
+
+def _low_bases(
+    platform: Any,
+    boxes: list[tuple[np.ndarray, np.ndarray]],
+    altitude: float,
+    radius: float,
+    spacing: float,
+    n: int,
+) -> list[np.ndarray]:
+    """One take-off spot per low robot, the most open of its box not too close to the others'."""
+    bases: list[np.ndarray] = []
+    for k, (lo, hi) in enumerate(boxes):
+        far = _far_enough(open_spots(platform, lo, hi, altitude, radius), bases, spacing)
+        if not far:
+            raise ValueError(f"no free base for robot {k + 1} of {n} in {lo[:2]}–{hi[:2]}")
+        bases.append(np.asarray(far[0], float))
+    return bases
+
+
+def _overhead_base(
+    platform: Any,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    altitude: float,
+    radius: float,
+    bases: list[np.ndarray],
+    spacing: float,
+) -> np.ndarray:
+    """The overhead robot's take-off spot: the lawnmower starts at the area's low corner, so the
+    open spot nearest it (not too close to the low robots' bases)."""
+    spots = open_spots(platform, lo, hi, altitude, radius)
+    spots = spots[np.argsort(np.linalg.norm(spots - (lo[:2] + 1.5), axis=1), kind="stable")]
+    far = _far_enough(spots, bases, spacing)
+    if not far:
+        raise ValueError(f"no free base for the overhead robot in {lo[:2]}–{hi[:2]}")
+    return np.asarray(far[0], float)
+
+
+def _robot_flags(
+    mission: Any, base: list[str], seed: int, k: int, overhead: bool, start: np.ndarray
+) -> list[str]:
+    """Robot ``k``'s seed, name, world pin and start (what every robot of a team gets)."""
+    s = overhead_seed(seed) if overhead else robot_seed(seed, k)
+    flags = [*base, f"seed={s}", f"name={mission.name}-{'overhead' if overhead else f'r{k + 1}'}"]
+    world_params = mission.backends["platform"].params.world
+    if hasattr(world_params, "seed_offset"):  # a generated world: pin it to robot 1's
+        pin = sim_world_seed(seed)
+        flags.append(f"platform.world.seed_offset={pin - sim_world_seed(s) + world_params.seed_offset}")
+    flags.append(f"platform.start=[{start[0]:.2f}, {start[1]:.2f}]")
+    return flags

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from amslam import rundir as rundir_module
-from amslam.rundir import RunDir, write_atomically
+from amslam.rundir import RunDir, RunFiles, write_atomically
 
 
 def test_a_failed_write_leaves_the_previous_file_and_no_temporary(tmp_path: Path, monkeypatch):
@@ -46,7 +46,10 @@ def test_summaries_round_trip(tmp_path: Path):
     run.write_ply("map.ply", np.array([[0.0, 1.0, 2.0], [3.25, 4.5, 5.0]]))
     lines = (run.path / "map.ply").read_text().splitlines()
     assert lines[2] == "element vertex 2" and lines[-2:] == ["0.000 1.000 2.000", "3.250 4.500 5.000"]
-    run.rewrite_trajectory("slam", [0.0, 1.0], [np.eye(4), np.eye(4)])
+    run.pose("slam", 0.0, np.eye(4))  # streamed during the flight
+    run.close_trajectories()
+    # a run-end observer, given only the folder, replaces the trajectory as a whole
+    RunFiles(run.path).write_trajectory("slam", [0.0, 1.0], [np.eye(4), np.eye(4)])
     assert len((run.path / "slam.tum").read_text().splitlines()) == 2
     run.close()
 

@@ -1,4 +1,4 @@
-"""The exploration tree's shape and the recovery guards of its leaves."""
+"""The exploration tree's shape, its leaves, and the decorators that give goals up."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import pytest
 from py_trees.common import Status
 
 from amslam.mission import ExplorationSection, MissionModel
-from amslam.trees.behaviours import ForgetGoal, Replan, WithinLimits
+from amslam.trees.behaviours import Replan, WithinLimits, go_to
 from amslam.trees.behaviours import amslam_behaviours as stock_behaviours
+from amslam.trees.decorators import SkipUnreachable
 from amslam.trees.exploration import build_exploration_tree
 from amslam.types import TourItem, TourItemKind
 
@@ -165,14 +166,25 @@ def test_within_limits_cuts_its_child_short_once_a_limit_is_reached():
     assert py_trees.blackboard.Blackboard.storage["/exploration"] == "stopped: time limit 300 s"
 
 
-def test_skip_unreachable_gives_up_after_the_limit():
-    robot = FakeRobot([])
-    skip = ForgetGoal(max_unreachable=2)
-    skip.setup(**robot.services())
-    py_trees.blackboard.Blackboard.set("/unreachable", 1)
-    assert tick(skip) == Status.SUCCESS
-    py_trees.blackboard.Blackboard.set("/unreachable", 2)
-    assert tick(skip) == Status.FAILURE
+class Scripted(py_trees.behaviour.Behaviour):
+    """Returns the given statuses, one per tick."""
+
+    def __init__(self, statuses):
+        super().__init__("Scripted")
+        self.statuses = list(statuses)
+
+    def update(self):
+        return self.statuses.pop(0)
+
+
+def test_skip_unreachable_counts_goals_in_a_row_across_its_runs():
+    F, S, R = Status.FAILURE, Status.SUCCESS, Status.RUNNING
+    skip = SkipUnreachable("SkipUnreachable", Scripted([F, R, F, S, F, F, F]), max_unreachable=3)
+    # each run is one iteration of the exploration loop: a new goal, a new run of the decorator
+    assert [tick(skip) for _ in range(6)] == [S, R, S, S, S, S]  # 2 in a row, reached, 2 in a row
+    assert skip.feedback_message == "skipped (2 in a row)"
+    assert tick(skip) == F
+    assert py_trees.blackboard.Blackboard.storage["/exploration"] == "stopped: 3 goals in a row unreachable"
 
 
 def test_replan_follows_the_tour_until_half_is_done():
@@ -247,23 +259,74 @@ class StuckRobot(FakeRobot):
         self.unreachable_marked.append(position)
 
 
-def test_goto_gives_up_a_goal_it_makes_no_progress_towards():
-    from amslam.trees.behaviours import GoTo
-
-    robot = StuckRobot()
-    goal = TourItem(TourItemKind.SLC, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
-    py_trees.blackboard.Blackboard.set("/goal", goal)
-    go = GoTo("GoToSLC", early_exit=False)
-    go.setup(**robot.services())
+def fly(robot, go, ticks: int, dt: float = 0.1) -> list[Status]:
     statuses = []
-    for _ in range(250):  # 25 s of 0.1 s ticks
+    for _ in range(ticks):
         statuses.append(tick(go))
-        robot.t += 0.1
+        robot.t += dt
         if statuses[-1] != Status.RUNNING:
             break
-    assert statuses[-1] == Status.FAILURE and "no progress for 20 s" in go.feedback_message
-    assert 19.5 < robot.t < 21.0 and robot.unreachable_marked
-    assert robot.paths == 1
+    return statuses
+
+
+def goal_to(robot, name="GoToSLC"):
+    """A GoTo to an SLC goal 5 m ahead under its give-up decorator, as the stock trees build it."""
+    py_trees.blackboard.Blackboard.set(
+        "/goal", TourItem(TourItemKind.SLC, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
+    )
+    go = go_to(STOCK, name, early_exit=False)
+    for node in go.iterate():
+        node.setup(**robot.services())
+    return go
+
+
+def test_goto_gives_up_a_goal_it_makes_no_progress_towards():
+    robot = StuckRobot()
+    go = goal_to(robot)
+    statuses = fly(robot, go, 250)  # 25 s of 0.1 s ticks
+    assert statuses[-1] == Status.FAILURE and go.feedback_message == "no progress for 20 s"
+    # the clock starts at the first tick (t = 0): the first tick with more than 20 s gone gives up
+    assert len(statuses) == 201 and robot.unreachable_marked and robot.paths == 1
+    assert robot.holds == 1 and go.decorated.status == Status.FAILURE
+
+
+class CrawlingRobot(StuckRobot):
+    """Gets 0.05 m closer per tick: 0.1 m every other tick, progress each time."""
+
+    def __init__(self):
+        super().__init__()
+        self.here = np.array([0.0, 0.0, 1.0])
+
+    def position_world(self):
+        return self.here.copy()
+
+    def send_setpoint_world(self, position, yaw):
+        self.here = self.here + [0.05, 0.0, 0.0] if self.t < 5.0 else self.here  # then it stalls
+
+
+def test_goto_progress_resets_the_no_progress_clock():
+    robot = CrawlingRobot()
+    go = goal_to(robot)
+    statuses = fly(robot, go, 400)
+    assert statuses[-1] == Status.FAILURE and go.feedback_message == "no progress for 20 s"
+    assert 24.9 < robot.t < 25.5  # the last 0.1 m gained just before 5 s, then 20 s
+
+
+class BlockedRobot(StuckRobot):
+    """The local map shows every way blocked."""
+
+    def segment_clear_local(self, a, b):
+        return False
+
+
+def test_goto_gives_up_when_the_way_is_blocked_three_times():
+    robot = BlockedRobot()
+    go = goal_to(robot)
+    statuses = fly(robot, go, 10)
+    # blocked twice: new paths, flying on; the third time the goal is given up, in that tick
+    assert statuses == [Status.RUNNING, Status.RUNNING, Status.FAILURE]
+    assert go.feedback_message == "the local map showed the way blocked 3 times"
+    assert len(robot.unreachable_marked) == 1 and robot.holds == 1
 
 
 class CeilingRobot(StuckRobot):
@@ -290,11 +353,6 @@ def test_goto_counts_a_goal_the_guards_hold_it_off_as_reached():
     )
     go = GoTo("GoToSLC", early_exit=False)
     go.setup(**robot.services())
-    statuses = []
-    for _ in range(100):
-        statuses.append(tick(go))
-        robot.t += 0.1
-        if statuses[-1] != Status.RUNNING:
-            break
+    statuses = fly(robot, go, 100)
     assert statuses[-1] == Status.SUCCESS and go.feedback_message == "arrived"
     assert robot.t < 1.0 and not robot.unreachable_marked

@@ -19,8 +19,9 @@
     replan: "plan", planner_tour: "plan", planner_error: "problem",
     loop_closure: "slc", slam_loop_closure: "slc",
     goal_done: "goal", unreachable: "goal",
-    crash: "problem", sim_crash: "problem", error: "problem", outputs_error: "problem",
-    observer_error: "problem", land_failed: "problem", close_failed: "problem", aborted: "problem",
+    crash: "problem", sim_crash: "problem", error: "problem", summary_failed: "problem",
+    observer_failed: "problem", metrics_not_written: "problem", land_failed: "problem",
+    close_failed: "problem", aborted: "problem",
   };
   const COMPOSITE_GLYPH = { Sequence: "→", Selector: "?", Parallel: "⇉" };
 

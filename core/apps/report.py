@@ -1,18 +1,26 @@
-"""Metrics, the map, plots and ``report.md`` of a finished run."""
+"""The run report: metrics, the map, plots and ``report.md`` of a finished run.
+
+An application observer of the kernel, registered through the ``amslam`` entry points like a
+third party's (``report`` in pyproject.toml; ``plugins.disable: [report]`` leaves it out). It
+implements two run-end hooks: ``amslam_run_metrics`` measures the run from its typed
+:class:`amslam.types.RunSummary` (the kernel merges the figures into ``metrics.json`` and
+``RunResult.metrics``), and ``amslam_run_end`` writes the map, the semantic map, the optimised
+SLAM trajectory, the plots and ``report.md`` from the summary and the merged metrics.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import math
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+import amslam
 from amslam.geometry import wrap_angle, yaw_of
+from amslam.rundir import RunFiles
 from amslam.types import RunSummary, VoxelState, WorldSummary
-
-if TYPE_CHECKING:
-    from amslam.rundir import RunDir
 
 
 def _floor_bands(world: WorldSummary) -> list[tuple[float, float]]:
@@ -129,8 +137,6 @@ def object_accuracy(
     and only the cuboid (vehicle) classes for ``fig9_error`` (``fig9_objects``, ``fig9_mapped``):
     Fig. 9 evaluates the target class, vehicles; cylinders (poles, trunks) are not in it.
     """
-    from scipy.optimize import linear_sum_assignment
-
     out: dict[str, Any] = {}
     all_dims: list[float] = []
     all_pos: list[float] = []
@@ -139,35 +145,12 @@ def object_accuracy(
     classes = sorted({world.object_classes.get(i, "") for i in world.object_shapes})
     for cls in classes:
         ids = [i for i, s in world.object_shapes.items() if world.object_classes.get(i) == cls]
-        model = world.object_shapes[ids[0]]["model"]
-        lms = [lm for lm in landmarks if lm.class_name == cls and lm.shape and lm.shape["model"] == model]
-        row: dict[str, Any] = {"model": model, "objects": len(ids), "landmarks": len(lms), "mapped": 0}
-        if model == "cuboid":
+        row, errors = _class_accuracy(landmarks, world, ids, gate, duplicate_radius)
+        if row["model"] == "cuboid":
             fig9_objects += len(ids)
-        if lms:
-            P = np.array([_shape_ref(world.object_shapes[i]) for i in ids])
-            Q = np.array([_shape_ref(lm.shape) for lm in lms])
-            d = np.linalg.norm(Q[:, None, :] - P[None, :, :], axis=2)
-            r, c = linear_sum_assignment(np.where(d <= gate, d, 1e6))
-            ok = d[r, c] <= gate
-            pairs = list(zip(r[ok], c[ok], strict=True))
-            dims = [_dims_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
-            pos = d[r[ok], c[ok]].tolist()
-            paired = set(r[ok].tolist())
-            unpaired = [i for i in range(len(lms)) if i not in paired]
-            row["mapped"] = len(pairs)
-            row["duplicates"] = int(sum(d[i].min() <= duplicate_radius for i in unpaired))
-            row["spurious"] = len(unpaired) - row["duplicates"]
-            if model == "cuboid":
-                fig9 = [_fig9_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
-                row.update(_stats("fig9_error", fig9))
-                all_fig9 += fig9
-            row.update(_stats("dims_error", dims))
-            if pos:
-                row["position_error_mean_m"] = round(float(np.mean(pos)), 4)
-                row["position_error_median_m"] = round(float(np.median(pos)), 4)
-            all_dims += dims
-            all_pos += pos
+        all_dims += errors["dims"]
+        all_pos += errors["position"]
+        all_fig9 += errors["fig9"]
         out[cls] = row
     out["overall"] = {
         "objects": len(world.object_shapes),
@@ -181,15 +164,48 @@ def object_accuracy(
     return out
 
 
+def _class_accuracy(
+    landmarks: list, world: WorldSummary, ids: list, gate: float, duplicate_radius: float
+) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    """One class's row of :func:`object_accuracy` (its objects ``ids``), and the errors of its
+    mapped objects (``dims``, ``position``, ``fig9``) for the overall figures."""
+    from scipy.optimize import linear_sum_assignment
+
+    model = world.object_shapes[ids[0]]["model"]
+    cls = world.object_classes.get(ids[0])
+    lms = [lm for lm in landmarks if lm.class_name == cls and lm.shape and lm.shape["model"] == model]
+    row: dict[str, Any] = {"model": model, "objects": len(ids), "landmarks": len(lms), "mapped": 0}
+    errors: dict[str, list[float]] = {"dims": [], "position": [], "fig9": []}
+    if not lms:
+        return row, errors
+    P = np.array([_shape_ref(world.object_shapes[i]) for i in ids])
+    Q = np.array([_shape_ref(lm.shape) for lm in lms])
+    d = np.linalg.norm(Q[:, None, :] - P[None, :, :], axis=2)
+    r, c = linear_sum_assignment(np.where(d <= gate, d, 1e6))
+    ok = d[r, c] <= gate
+    pairs = list(zip(r[ok], c[ok], strict=True))
+    dims = [_dims_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
+    pos = d[r[ok], c[ok]].tolist()
+    paired = set(r[ok].tolist())
+    unpaired = [i for i in range(len(lms)) if i not in paired]
+    row["mapped"] = len(pairs)
+    row["duplicates"] = int(sum(d[i].min() <= duplicate_radius for i in unpaired))
+    row["spurious"] = len(unpaired) - row["duplicates"]
+    if model == "cuboid":
+        errors["fig9"] = [_fig9_error(lms[a].shape, world.object_shapes[ids[b]]) for a, b in pairs]
+        row.update(_stats("fig9_error", errors["fig9"]))
+    row.update(_stats("dims_error", dims))
+    if pos:
+        row["position_error_mean_m"] = round(float(np.mean(pos)), 4)
+        row["position_error_median_m"] = round(float(np.median(pos)), 4)
+    errors["dims"], errors["position"] = dims, pos
+    return row, errors
+
+
 def compute_metrics(summary: RunSummary) -> dict[str, Any]:
-    """Everything ``metrics.json`` holds."""
-    mission = summary.mission
-    metrics: dict[str, Any] = {
-        "verdict": summary.verdict,
-        "mission": mission.name,
-        "seed": mission.model.seed,
-        "plugins": {kind: choice.plugin for kind, choice in mission.backends.items()},
-    }
+    """The report's figures of a run: what it adds to the kernel's verdict, mission, seed and
+    plugins in ``metrics.json``."""
+    metrics: dict[str, Any] = {}
     if summary.duration_s is None:  # the platform never started
         return metrics
     metrics["sim_duration_s"] = round(summary.duration_s, 3)
@@ -297,9 +313,9 @@ def _slam_metrics(summary: RunSummary) -> dict[str, Any]:
     return out
 
 
-def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunDir) -> None:
-    """metrics.json, map.ply, landmarks.json, slam.tum (optimised), plots and report.md."""
-    rundir.write_json("metrics.json", metrics)  # first, so a later failure still leaves it
+def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunFiles) -> None:
+    """map.ply, map.npz, landmarks.json, slam.tum (optimised), plots and report.md (``metrics.json``
+    is the kernel's: it is written before the run-end observers are called)."""
     mapping = summary.mapping
     if mapping is not None:
         rundir.write_ply("map.ply", mapping.occupied_points())
@@ -322,7 +338,7 @@ def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunDir) 
         )
         kps = summary.keyposes
         if kps and summary.slam_optimises:
-            rundir.rewrite_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
+            rundir.write_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
     plots = []
     if mapping is not None:
         plots.append(plot_top_view(summary))
@@ -396,15 +412,41 @@ def plot_uncertainty(summary: RunSummary, metrics: dict[str, Any]) -> str | None
 
 def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str]) -> None:
     """``report.md`` tying the run's files together."""
-    m = metrics
     lines = [
-        f"# Run report: {m.get('mission')}",
+        f"# Run report: {metrics.get('mission')}",
         "",
-        f"**Verdict: {m['verdict']}**",
+        f"**Verdict: {metrics['verdict']}**",
         "",
         "| figure | value |",
         "|---|---|",
+        *_figure_rows(metrics),
     ]
+    lines += ["", "## Plots", ""]
+    lines += [f"![{p}]({p})" for p in plots]
+    lines += FILES_SECTION
+    (summary.run_dir / "report.md").write_text("\n".join(lines))
+
+
+#: the end of every ``report.md``: what each file of the run folder holds
+FILES_SECTION = [
+    "",
+    "## Files",
+    "",
+    "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in",
+    "- [metrics.json](metrics.json) — the figures above, machine-readable",
+    "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order",
+    "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick",
+    "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
+    "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
+    "- [landmarks.json](landmarks.json) — the semantic map",
+    "- [map.ply](map.ply) — occupied voxels of the global map",
+    "",
+]
+
+
+def _figure_rows(m: dict[str, Any]) -> list[str]:
+    """The rows of ``report.md``'s figure table, for the figures ``metrics`` has."""
+    lines: list[str] = []
 
     def row(label: str, value: Any) -> None:
         if value is not None:
@@ -446,20 +488,14 @@ def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str])
         row(
             "semantic loop closures (accepted / attempts)", f"{m['slc']['accepted']} / {m['slc']['attempts']}"
         )
-    lines += ["", "## Plots", ""]
-    lines += [f"![{p}]({p})" for p in plots]
-    lines += [
-        "",
-        "## Files",
-        "",
-        "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in",
-        "- [metrics.json](metrics.json) — the figures above, machine-readable",
-        "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order",
-        "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick",
-        "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
-        "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
-        "- [landmarks.json](landmarks.json) — the semantic map",
-        "- [map.ply](map.ply) — occupied voxels of the global map",
-        "",
-    ]
-    (summary.run_dir / "report.md").write_text("\n".join(lines))
+    return lines
+
+
+@amslam.hookimpl
+def amslam_run_metrics(summary: RunSummary) -> dict[str, Any]:
+    return compute_metrics(summary)
+
+
+@amslam.hookimpl
+def amslam_run_end(run_dir: Path, metrics: dict[str, Any], summary: RunSummary) -> None:
+    write_outputs(summary, metrics, RunFiles(run_dir))

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from amslam.apps.report import landmark_accuracy, object_accuracy
 from amslam.lib import shapes
-from amslam.report import landmark_accuracy, object_accuracy
 from amslam.types import Landmark, WorldSummary
 
 
