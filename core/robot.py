@@ -64,6 +64,7 @@ class Navigation(Protocol):
 
     def plan_path(self, goal_world: np.ndarray) -> np.ndarray | None: ...
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool: ...
+    def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None: ...
 
 
 class PlanHandle(Protocol):
@@ -215,6 +216,26 @@ class Robot:
     def plan_path(self, goal_world: np.ndarray) -> np.ndarray | None:
         """Waypoints from here to the goal through known free space, or None."""
         return self.mapping.plan_path(self.position_world(), np.asarray(goal_world, float))
+
+    def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None:
+        """``goal_world`` if the global map has a path to it from here, else the nearest point
+        within ``within`` metres of it that has one, else None.
+
+        A goal whose own voxel the map holds occupied is off the planning graph, and the flight
+        map collects such voxels where nothing stands (a demo flight, seed 14, found its take-off
+        point's voxel occupied at the end and could not return home).
+        """
+        here = self.position_world()
+        goal = np.asarray(goal_world, float)
+        step = 0.25
+        axis = np.arange(-within, within + 1e-9, step)
+        grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+        grid = grid[np.linalg.norm(grid, axis=1) <= within]
+        grid = grid[np.argsort(np.linalg.norm(grid, axis=1), kind="stable")]  # the goal itself first
+        candidates = goal + grid
+        costs = self.mapping.path_costs(here[None], candidates)[0]
+        ok = np.flatnonzero(np.isfinite(costs))
+        return candidates[ok[0]] if len(ok) else None
 
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool:
         """Check a world-frame segment against the fresh local (odometry-frame) map."""

@@ -484,9 +484,11 @@ class AttemptLoopClosure(RobotBehaviour):
 
 
 class SetHome(RobotBehaviour):
-    """Write the return-home goal: the take-off point at the height the take-off settled at."""
+    """Write the return-home goal: the take-off point at the height the take-off settled at, or
+    the nearest point to it the map has a path to (``Navigation.reachable_near``: the map may
+    hold the take-off point's own voxel occupied by the end of a flight)."""
 
-    uses = ("flight",)
+    uses = ("flight", "navigation", "events")
 
     def __init__(self, name: str = "SetHomeGoal"):
         super().__init__(name)
@@ -495,6 +497,15 @@ class SetHome(RobotBehaviour):
 
     def update(self) -> Status:
         home = np.array([*self.flight.home_world[:2], cruise_height(self.bb, self.flight)])
+        near = self.navigation.reachable_near(home)
+        if near is not None and np.linalg.norm(near - home) > 1e-6:
+            self.events.emit(
+                "home_moved",
+                home=np.round(home, 2).tolist(),
+                to=np.round(near, 2).tolist(),
+                behaviour=self.name,
+            )
+            home = near
         self.bb.set("/home", TourItem(TourItemKind.EXPLORE, home, self.flight.yaw_world(), 0.0, -1))
         return Status.SUCCESS
 

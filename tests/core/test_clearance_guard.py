@@ -175,3 +175,27 @@ def test_robot_lands_at_a_clear_spot_in_the_world_frame() -> None:
     odom = spot - np.array([10.0, 0.0, 0.0])  # back into the odometry frame
     assert np.linalg.norm(odom[:2]) >= 0.2  # it moved off the column beside the table
     assert robot.setpoints.descent_clear(odom)
+
+
+class HomeMap(BoxMap):
+    """The global map's path costs: every point is reachable but those within 0.2 m of ``blocked``
+    (a take-off point whose voxel the map holds occupied)."""
+
+    def __init__(self, blocked):
+        super().__init__([FLOOR])
+        self.blocked = np.asarray(blocked, float)
+
+    def path_costs(self, sources, targets):
+        d = np.linalg.norm(np.asarray(targets) - self.blocked, axis=1)
+        return np.where(d < 0.2, np.inf, d)[None, :]
+
+
+def test_home_on_an_occupied_voxel_moves_to_the_nearest_reachable_point() -> None:
+    home = np.array([1.2, 5.0, 1.2])
+    robot = make_robot(HomeMap(blocked=home), [5.0, 5.0, 1.2])
+    near = robot.reachable_near(home)
+    assert near is not None and 0.2 <= np.linalg.norm(near - home) <= 0.26
+    free = np.array([3.0, 5.0, 1.2])
+    np.testing.assert_allclose(robot.reachable_near(free), free)  # a reachable goal stays put
+    robot.mapping = SimpleNamespace(path_costs=lambda s, t: np.full((1, len(t)), np.inf))
+    assert robot.reachable_near(home) is None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 from py_trees.common import Status
 
@@ -79,3 +81,24 @@ def test_lands_in_place_when_here_is_clear_or_nothing_is():
     status, seen = run(nothing)
     assert status == Status.SUCCESS and "landing_unchecked" in seen
     np.testing.assert_allclose(nothing.landed_at, [0.0, 0.0, 1.2])
+
+
+def test_home_goal_moves_off_an_occupied_take_off_point():
+    from amslam.trees.behaviours import SetHome
+
+    class Flight:
+        home_world = np.array([1.2, 5.0, 0.3])
+        spec = SimpleNamespace(altitude=0.9)
+
+        def yaw_world(self):
+            return 0.0
+
+    moved = np.array([1.45, 5.0, 1.2])
+    for near, expected in ((moved, moved), (None, np.array([1.2, 5.0, 1.2]))):
+        leaf, events = SetHome(), Events()
+        leaf.setup(
+            flight=Flight(), navigation=SimpleNamespace(reachable_near=lambda goal, n=near: n), events=events
+        )
+        leaf.tick_once()
+        np.testing.assert_allclose(leaf.bb.get("/home").position, expected)
+        assert ("home_moved" in events.seen) == (near is not None)
