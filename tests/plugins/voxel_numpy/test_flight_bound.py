@@ -14,8 +14,9 @@ import pytest
 from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, logit
 from amslam.plugins.voxel_numpy import NumpyVoxelMap
 from amslam.plugins.voxel_open3d import Open3dVoxelMap
-from amslam.testing.mapping import make_context
 from amslam.types import BoundingBox
+
+from .global_maps import load_states
 
 V = 0.25
 N = (24, 24, 16)  # 6 × 6 × 4 m
@@ -38,24 +39,9 @@ def open_topped() -> np.ndarray:
 
 
 def load(cls, tmp_path, states: np.ndarray, top: float):
-    m = cls()
-    area = BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([6.0, 6.0, top]))
-    m.configure(cls.Params(), make_context(tmp_path, area=area))
-    idx = np.argwhere(states != UNKNOWN)
-    logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
-    path = tmp_path / "map.npz"
-    np.savez_compressed(
-        path,
-        format=np.array("amslam-voxels-1"),
-        global_index=idx,
-        global_logodds=logodds,
-        global_voxel=np.array(V),
-        local_index=np.zeros((0, 3), np.int64),
-        local_logodds=np.zeros(0, np.float32),
-        local_voxel=np.array(m.params.local_voxel),
+    return load_states(
+        cls, tmp_path, states, BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([6.0, 6.0, top])), V
     )
-    m.load(path)
-    return m
 
 
 @pytest.mark.parametrize("cls", [NumpyVoxelMap, Open3dVoxelMap])

@@ -19,6 +19,8 @@ from amslam.plugins.voxel_open3d import Open3dVoxelMap
 from amslam.testing.mapping import make_context
 from amslam.types import BoundingBox
 
+from .global_maps import load_states
+
 V = 0.25
 N = (24, 24, 24)  # 6 × 6 × 6 m
 SLAB = 11  # z layer 2.75–3.0 m
@@ -36,24 +38,7 @@ def building() -> np.ndarray:
 
 
 def load(mapping_cls, tmp_path, states: np.ndarray, **params):
-    m = mapping_cls()
-    m.configure(mapping_cls.Params(**params), make_context(tmp_path, area=AREA))
-    idx = np.argwhere(states != UNKNOWN)
-    logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
-    empty = np.zeros((0, 3), np.int64)
-    path = tmp_path / "map.npz"
-    np.savez_compressed(
-        path,
-        format=np.array("amslam-voxels-1"),
-        global_index=idx,
-        global_logodds=logodds,
-        global_voxel=np.array(V),
-        local_index=empty,
-        local_logodds=np.zeros(0, np.float32),
-        local_voxel=np.array(m.params.local_voxel),
-    )
-    m.load(path)
-    return m
+    return load_states(mapping_cls, tmp_path, states, AREA, V, **params)
 
 
 def carved_hole(states: np.ndarray) -> np.ndarray:

@@ -1,0 +1,33 @@
+"""Voxel maps loaded from a dense grid of states, through the backends' public ``load``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, logit
+from amslam.testing.mapping import make_context
+from amslam.types import BoundingBox
+
+FREE_L, OCC_L = logit(0.2), logit(0.95)
+
+
+def load_states(mapping_cls, tmp_path, states: np.ndarray, area: BoundingBox, voxel: float = 0.25, **params):
+    """A ``mapping_cls`` configured over ``area`` whose global map holds ``states`` (int8 grid of
+    FREE / OCCUPIED / UNKNOWN, index 0 at the origin) with an empty local map."""
+    m = mapping_cls()
+    m.configure(mapping_cls.Params(**params), make_context(tmp_path, area=area))
+    idx = np.argwhere(states != UNKNOWN)
+    logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
+    path = tmp_path / "map.npz"
+    np.savez_compressed(
+        path,
+        format=np.array("amslam-voxels-1"),
+        global_index=idx,
+        global_logodds=logodds,
+        global_voxel=np.array(voxel),
+        local_index=np.zeros((0, 3), np.int64),
+        local_logodds=np.zeros(0, np.float32),
+        local_voxel=np.array(m.params.local_voxel),
+    )
+    m.load(path)
+    return m
