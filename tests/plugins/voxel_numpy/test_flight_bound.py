@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, logit
+from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN
 from amslam.plugins.voxel_numpy import NumpyVoxelMap
 from amslam.plugins.voxel_open3d import Open3dVoxelMap
 from amslam.types import BoundingBox
@@ -22,7 +22,6 @@ V = 0.25
 N = (24, 24, 16)  # 6 × 6 × 4 m
 WALL_TOP = 8  # the walls end at z 2.0 m
 A, B = np.array([1.5, 1.0, 1.2]), np.array([4.5, 1.0, 1.2])  # either side of the middle wall
-FREE_L, OCC_L = logit(0.2), logit(0.95)
 
 
 def open_topped() -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from amslam.lib.free_space import samples_clear
-from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, logit, to_index
+from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, to_index
 from amslam.plugins.voxel_numpy import NumpyVoxelMap
 from amslam.plugins.voxel_open3d import Open3dVoxelMap
 from amslam.testing.mapping import make_context
@@ -26,7 +26,6 @@ N = (24, 24, 24)  # 6 × 6 × 6 m
 SLAB = 11  # z layer 2.75–3.0 m
 AREA = BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([6.0, 6.0, 5.5]))
 BELOW, ABOVE = np.array([1.0, 1.0, 1.5]), np.array([1.0, 1.0, 4.2])
-FREE_L, OCC_L = logit(0.2), logit(0.95)
 
 
 def building() -> np.ndarray:
