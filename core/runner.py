@@ -29,6 +29,7 @@ import py_trees
 from py_trees.common import Status
 
 from amslam import __version__
+from amslam.boundary import BackendError, Boundary
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import pose_from
 from amslam.interfaces import BACKEND_KINDS, Backend, Platform, RunContext
@@ -103,6 +104,10 @@ class Runner:
         self.backends: dict[str, Backend] = {}
         self.context: RunContext | None = None  # once the backends are configured
         self.runtime: Runtime | None = None  # once the services are built
+        # each backend's outputs are checked where they enter the runtime, and named in verdicts
+        self.boundary = Boundary(
+            {kind: registry.origin(kind, choice.plugin) for kind, choice in mission.backends.items()}
+        )
 
     # -- observer hooks ------------------------------------------------------------------------
 
@@ -132,9 +137,10 @@ class Runner:
         )
         for kind in BACKEND_KINDS:
             choice = self.mission.backends[kind]
-            backend = self.registry.factory(kind, choice.plugin)()
             context = dataclasses.replace(context, rng=backend_rng(model.seed, kind))
-            backend.configure(choice.params, context)
+            with self.boundary.calling(kind, "configure()"):
+                backend = self.registry.factory(kind, choice.plugin)()
+                backend.configure(choice.params, context)
             self.backends[kind] = backend
             if kind == "mapping" and model.prior_map:
                 prior = (self.mission.directory / model.prior_map).resolve()
@@ -143,8 +149,9 @@ class Runner:
                 backend.load(prior)
                 self.rundir.event(0.0, "prior_map_loaded", path=str(prior))
             if kind == "platform":
-                backend.start()
-                world = backend.world_summary()
+                with self.boundary.calling(kind, "start()"):
+                    backend.start()
+                    world = backend.world_summary()
                 area = model.area.box() if model.area else None
                 if area is None and world is not None:
                     area = BoundingBox(np.asarray(world.bounds_lo, float), np.asarray(world.bounds_hi, float))
@@ -168,6 +175,9 @@ class Runner:
             by = str(exc) if str(exc).startswith("SIG") else "SIGINT"
             self.rundir.event(self._now(), "aborted", reason=f"stopped by {by}: landing where it is")
             self._safe_land()
+        except BackendError as exc:  # a backend raised or handed over garbage: the verdict names it
+            verdict = f"failed: {exc}"
+            self.rundir.event(self._now(), "error", error=str(exc), traceback=traceback.format_exc())
         except AmslamError as exc:
             verdict = f"failed: {exc}"
             self.rundir.event(self._now(), "error", error=str(exc))
@@ -194,6 +204,9 @@ class Runner:
                     self.rundir.event(snapshot.t, "crash", where=status.crash_reason)
                     return f"crashed: {status.crash_reason}"
                 runtime.tree.tick()
+                if runtime.planning.fault is not None:  # the planner handed back what it was not asked for
+                    self._safe_land()
+                    return f"failed: {runtime.planning.fault}"
                 runtime.recorder.record(snapshot.t)
                 self._hook("amslam_tick", t=snapshot.t, tree=runtime.tree)
                 self._show_progress(bar, snapshot)
@@ -235,6 +248,7 @@ class Runner:
             self.rundir,
             measurements,
             self._hook,
+            boundary=self.boundary,
         )
         planning = PlanningService(
             planner=shared["planner"],
@@ -245,6 +259,7 @@ class Runner:
             threaded=not platform.simulated,
             refresh_viewpoints=perception.refresh_viewpoints,
             snapshot=perception.snapshot,
+            boundary=self.boundary,
         )
         robot = Robot(
             platform=platform,
@@ -274,6 +289,11 @@ class Runner:
             outcome = root.children[-1].feedback_message
             exploration = py_trees.blackboard.Blackboard.storage.get("/exploration", "")
             self.rundir.event(t, "mission_end", exploration=exploration, landing=outcome)
+            planning = self.runtime.planning
+            if planning.failures >= self.mission.model.exploration.max_replan_failures:
+                # the vehicle came home and landed, but exploration stopped because the planner
+                # kept failing: that is a failed run, not a completed one
+                return f"failed: {planning.last_error} ({planning.failures} plans in a row failed)"
             return "completed"
         if root.status == Status.FAILURE:
             failed = [n for n in root.iterate() if n.status == Status.FAILURE and not n.children]
