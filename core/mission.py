@@ -425,6 +425,20 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
                 f"the {plugin!r} platform is simulated: its odometry frame is the world frame already; "
                 "robot.base is for real vehicles (platform.start chooses where a simulated robot takes off)",
             )
+    fence = getattr(backends["platform"].params, "geofence", None) if "platform" in backends else None
+    if model is not None and fence is not None and model.waypoints.points:
+        # waypoints are relative to the take-off spot, the fence is in the odometry frame: wherever
+        # the vehicle takes off, the pattern (take-off spot included) must fit inside the fence
+        pts = [(0.0, 0.0, 0.0), *model.waypoints.points]
+        for axis, name in enumerate("xyz"):
+            span = max(p[axis] for p in pts) - min(p[axis] for p in pts)
+            room = fence.hi[axis] - fence.lo[axis]
+            if span > room:
+                report(
+                    ("waypoints", "points"),
+                    f"the pattern spans {span:g} m in {name}, more than the geofence's {room:g} m "
+                    f"(platform.geofence): it cannot lie inside the fence",
+                )
     if problems:
         raise MissionError(problems)
     assert model is not None
@@ -480,17 +494,27 @@ def _describe(err: dict, model: type[BaseModel], loc: tuple) -> str:
     return f"{err['msg'].lower()} (got {got!r})"
 
 
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models an annotation holds (through Optional, unions and Annotated)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in getattr(annotation, "__args__", ()) for m in _models_in(arg)]
+
+
 def _fields_at(model: type[BaseModel], loc: tuple) -> list[str]:
-    for part in loc:
+    parts = list(loc)
+    while parts:
+        part = parts.pop(0)
         info = model.model_fields.get(str(part)) if isinstance(part, str) else None
         if info is None:
             return []
-        ann = info.annotation
-        candidates = [ann, *getattr(ann, "__args__", ())]
-        sub = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
-        if sub is None:
+        models = _models_in(info.annotation)
+        if len(models) > 1 and parts:  # a tagged union: pydantic's loc names the member next
+            tag = parts.pop(0)
+            models = [m for m in models if getattr(m.model_fields.get("kind"), "default", None) == tag]
+        if len(models) != 1:
             return []
-        model = sub
+        model = models[0]
     return sorted(model.model_fields)
 
 
