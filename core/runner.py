@@ -42,7 +42,7 @@ from amslam.recording import TreeRecorder
 from amslam.registry import Registry
 from amslam.report import compute_metrics, write_outputs
 from amslam.robot import EventSink, Robot
-from amslam.rundir import RunDir
+from amslam.rundir import RunDir, jsonable, write_atomically
 from amslam.setpoints import SetpointFilter
 from amslam.sharing import share
 from amslam.types import BoundingBox, RunSummary
@@ -343,7 +343,7 @@ class Runner:
             self.rundir.event(
                 self._now(), "outputs_error", error=metrics["outputs_error"], traceback=traceback.format_exc()
             )
-            (self.rundir.path / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str))
+            self._keep_what_can_be_kept(verdict, metrics)
         self.rundir.event(self._now(), "run_end", verdict=verdict)
         self._hook(
             "amslam_run_end",
@@ -360,6 +360,25 @@ class Runner:
                 self.rundir.event(self._now(), "close_failed", backend=type(backend).__name__, error=str(exc))
         self.rundir.close()
         return RunResult(self.rundir.path, verdict, metrics)
+
+    def _keep_what_can_be_kept(self, verdict: str, metrics: dict[str, Any]) -> None:
+        """After the outputs failed (a full disk, a broken summary): metrics.json with the verdict
+        and the error, and a report saying so — each written atomically, or not at all."""
+        report = (
+            f"# {self.mission.name}\n\n**Verdict:** {verdict}\n\n"
+            f"The run's outputs could not all be written: {metrics['outputs_error']}. "
+            "The streams (events.jsonl, trajectories) hold what was recorded.\n"
+        )
+        for name, text in (
+            ("metrics.json", json.dumps(jsonable(metrics), indent=2, default=str) + "\n"),
+            ("report.md", report),
+        ):
+            if name == "report.md" and (self.rundir.path / name).exists():
+                continue  # the full report was written: keep it
+            try:
+                write_atomically(self.rundir.path / name, text)
+            except OSError as exc:
+                self.rundir.event(self._now(), "write_failed", file=name, error=f"{exc.strerror or exc}")
 
     def _summary(self, verdict: str) -> RunSummary:
         """The run as the report and the observers see it (the threads have stopped)."""
@@ -379,24 +398,42 @@ class Runner:
                 slc_log=tuple(runtime.planning.slc_log),
                 home_world=runtime.robot.home_world,
             )
+        ask = self._ask
+        check = self.boundary
         if slam is not None:
             flown.update(
-                landmarks=tuple(slam.landmarks()),
-                keyposes=tuple(slam.keyposes()),
+                landmarks=ask("slam", "landmarks()", lambda: tuple(slam.landmarks())),
+                keyposes=ask("slam", "keyposes()", lambda: tuple(slam.keyposes())),
                 slam_optimises=type(slam).__name__ != "OdometrySlam",
-                final_T_world_odom=slam.T_world_odom(),
+                final_T_world_odom=ask(
+                    "slam",
+                    "T_world_odom()",
+                    lambda: check.pose("slam", "T_world_odom()", slam.T_world_odom()),
+                ),
             )
+        vio = flown.get("vio") or ()
+        final_vio = ask("platform", "odometry()", lambda: check.odometry(platform.odometry()).T_odom_body)
         return dataclasses.replace(
             summary,
-            duration_s=platform.time(),
-            world=platform.world_summary(),
-            status=platform.status(),
-            final_truth=platform.ground_truth(),
-            final_vio=platform.odometry().T_odom_body,
+            duration_s=ask("platform", "time()", platform.time),
+            world=ask("platform", "world_summary()", platform.world_summary),
+            status=ask("platform", "status()", platform.status),
+            final_truth=ask("platform", "ground_truth()", platform.ground_truth),
+            final_vio=final_vio if final_vio is not None else (vio[-1][1] if vio else None),
             robot_radius=self.context.robot.radius if self.context is not None else None,
             mapping=mapping,
             **flown,
         )
+
+    def _ask(self, kind: str, call: str, fn: Callable[[], Any]) -> Any:
+        """What a backend says for the summary; None (and an event) when it fails to say it: a
+        backend that broke the run must not cost the run's report."""
+        try:
+            with self.boundary.calling(kind, call):
+                return fn()
+        except Exception as exc:  # noqa: BLE001 — the summary goes on without this value
+            self.rundir.event(self._now(), "summary_incomplete", backend=kind, error=str(exc))
+            return None
 
 
 @dataclass
