@@ -48,7 +48,14 @@ from pydantic import Field, ValidationInfo, field_validator
 from scipy import ndimage
 
 from amslam.errors import PlanningError
-from amslam.interfaces import BackendParams, MissionFile, Planner, RunContext, check_mission_file
+from amslam.interfaces import (
+    BackendParams,
+    MissionFile,
+    Planner,
+    RunContext,
+    check_mission_file,
+    mission_file_path,
+)
 from amslam.lib.tours import exact_open_tour, nearest_neighbour_tour, two_opt
 from amslam.plugins.pams.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
 from amslam.types import BoundingBox, PlanRequest, TourItem, TourItemKind
@@ -201,6 +208,20 @@ def _prior_objects_file(value: str | None, info: ValidationInfo) -> str | None:
 
 class PamsParams(BackendParams):
     """Parameters of the ``pams`` planner."""
+
+    @field_validator("models")
+    @classmethod
+    def _models_load(cls, value: str | None, info: ValidationInfo) -> str | None:
+        # present and readable (MissionFile) is not enough: a truncated file is named here, not mid-run
+        path = mission_file_path(value, info) if value is not None else None
+        if path is not None and path.is_absolute():
+            try:
+                UncertaintyModels.load(path)
+            except Exception as exc:  # noqa: BLE001 — any reason it cannot be read, in one line
+                raise ValueError(
+                    f"not readable uncertainty models ({type(exc).__name__}: {exc}): {path}"
+                ) from None
+        return value
 
     models: MissionFile | None = Field(
         None, description="uncertainty models (.npz from `amslam characterise`); None = the packaged ones"
@@ -509,8 +530,10 @@ class PamsPlanner(_TargetPlanner):
                 path = (context.mission_dir / path).resolve()
         try:
             self.models = UncertaintyModels.load(path)
-        except (OSError, ValueError, KeyError) as exc:
-            raise PlanningError(f"pams: cannot load uncertainty models {path or 'default'}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 — a truncated or foreign file: one line naming it
+            raise PlanningError(
+                f"pams: cannot load uncertainty models {path or 'default'}: {type(exc).__name__}: {exc}"
+            ) from None
         self.rng = context.rng
         self.states = {}
         self._emit = context.emit

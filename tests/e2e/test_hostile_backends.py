@@ -21,7 +21,7 @@ from amslam.plugins.sim.platform import SimPlatform
 from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
-from amslam.types import Detection, Frame, Odometry, TourItem, TourItemKind
+from amslam.types import Detection, Frame, Odometry, TourItem, TourItemKind, Viewpoint
 from tests.e2e.missions import small_mission
 
 IN_PROCESS = "(registered in-process, from no distribution)"
@@ -146,30 +146,91 @@ class RaisingConfigure(GreedyPlanner):
         raise KeyError("weights")
 
 
+class RaisingAdvance(SimPlatform):
+    def advance(self, dt):
+        if self.time() > 2.0:
+            raise ZeroDivisionError("float division by zero")
+        super().advance(dt)
+
+
+class NanStamp(SimPlatform):
+    def odometry(self) -> Odometry:
+        odom = super().odometry()
+        return Odometry(float("nan"), odom.T_odom_body) if self.time() > 2.0 else odom
+
+
+class WideK(SimPlatform):
+    def capture(self) -> Frame | None:
+        frame = super().capture()
+        return None if frame is None else dataclasses.replace(frame, K=np.eye(4))
+
+
+class RaggedPoints(SimDetector):
+    def detect(self, frame):
+        return [Detection("chair", 0.5, np.zeros(3), points_cam=np.zeros((5, 2)))]
+
+
+class NamelessDetector(SimDetector):
+    def detect(self, frame):
+        return [Detection(None, 0.5, np.zeros(3))]
+
+
+class RaisingOdometrySlam(OdometrySlam):
+    def add_odometry(self, odom):
+        raise AttributeError("'NoneType' object has no attribute 'pose'")
+
+
+class RaisingLocalMap(Open3dVoxelMap):
+    def integrate_local(self, depth, K, T_odom_cam):
+        raise MemoryError("voxel hash table full")
+
+
+class NanYawViewpoints(Open3dVoxelMap):
+    def viewpoints(self):
+        return [Viewpoint(0, np.zeros(3), float("nan"), 1.0, np.zeros(3), 1)]
+
+
+class FlatTourPlanner(GreedyPlanner):
+    def plan(self, request):
+        return [dataclasses.replace(item, position=np.zeros(2)) for item in super().plan(request)] or [
+            TourItem(TourItemKind.EXPLORE, np.zeros(2), 0.0, 1.0, 0)
+        ]
+
+
+class TextRefPlanner(GreedyPlanner):
+    def plan(self, request):
+        return [dataclasses.replace(item, ref="first") for item in super().plan(request)] or [
+            TourItem(TourItemKind.EXPLORE, np.zeros(3), 0.0, 1.0, "first")
+        ]
+
+
 class Broken:
     @amslam.hookimpl
     def amslam_platform_backends(self):
         return {"nan_odom": NanOdometry, "skewed": SkewedOdometry, "tuple_odom": TupleOdometry,
-                "flat_depth": FlatDepth}  # fmt: skip
+                "flat_depth": FlatDepth, "raising_advance": RaisingAdvance, "nan_stamp": NanStamp,
+                "wide_k": WideK}  # fmt: skip
 
     @amslam.hookimpl
     def amslam_detector_backends(self):
         return {"nan_det": NanDetector, "dict_det": DictDetector, "str_det": StringDetector,
-                "sure_det": OverconfidentDetector, "raising_det": RaisingDetector}  # fmt: skip
+                "sure_det": OverconfidentDetector, "raising_det": RaisingDetector, "ragged": RaggedPoints,
+                "nameless": NamelessDetector}  # fmt: skip
 
     @amslam.hookimpl
     def amslam_slam_backends(self):
-        return {"nan_slam": NanSlam}
+        return {"nan_slam": NanSlam, "raising_slam": RaisingOdometrySlam}
 
     @amslam.hookimpl
     def amslam_mapping_backends(self):
-        return {"bad_vps": BadViewpoints}
+        return {"bad_vps": BadViewpoints, "raising_local": RaisingLocalMap, "nan_yaw": NanYawViewpoints}
 
     @amslam.hookimpl
     def amslam_planner_backends(self):
         return {"raising": RaisingPlanner, "stranger": StrangerPlanner, "slc_stranger": SlcStrangerPlanner,
                 "nan_tour": NanTourPlanner, "string": StringPlanner, "none": NonePlanner,
-                "dict_item": DictItemPlanner, "raising_configure": RaisingConfigure}  # fmt: skip
+                "dict_item": DictItemPlanner, "raising_configure": RaisingConfigure,
+                "flat_tour": FlatTourPlanner, "text_ref": TextRefPlanner}  # fmt: skip
 
 
 def fly(tmp_path, kind: str, plugin: str):
@@ -231,6 +292,17 @@ CASES = [
     ("planner", "none", "plan() returned NoneType, expected a list of TourItem"),
     ("planner", "dict_item", "plan(): stop 0: is a dict, expected TourItem"),
     ("planner", "raising_configure", "configure() raised KeyError: 'weights'"),
+    ("platform", "raising_advance", "advance() raised ZeroDivisionError: float division by zero"),
+    ("platform", "nan_stamp", "odometry(): stamp nan is not a finite number"),
+    ("platform", "wide_k", "capture(): K has shape (4, 4), expected (3, 3)"),
+    ("detector", "ragged", "detect(): detection 0: points_cam has shape (5, 2), expected (N, 3)"),
+    ("detector", "nameless", "detect(): detection 0: class_name None is not a name"),
+    ("slam", "raising_slam",
+     "add_odometry() raised AttributeError: 'NoneType' object has no attribute 'pose'"),
+    ("mapping", "raising_local", "integrate_local() raised MemoryError: voxel hash table full"),
+    ("mapping", "nan_yaw", "viewpoints(): viewpoint 0: yaw nan or gain 1.0 is not a finite number"),
+    ("planner", "flat_tour", "plan(): stop 0: position has shape (2,), expected (3,)"),
+    ("planner", "text_ref", "plan(): stop 0: ref 'first' is not an integer id"),
 ]  # fmt: skip
 
 

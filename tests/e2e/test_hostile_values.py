@@ -294,3 +294,41 @@ def test_an_inverted_geofence_is_refused(capsys):
 def test_the_shipped_missions_stay_valid(capsys, name):
     status, lines = validate(capsys, name)
     assert status == 0 and lines == [], lines
+
+
+@pytest.fixture
+def broken_models(tmp_path):
+    from amslam.plugins.pams.uncertainty import DEFAULT_MODELS_PATH
+
+    files = {
+        "empty.npz": b"",
+        "truncated.npz": DEFAULT_MODELS_PATH.read_bytes()[:3000],
+        "text.npz": b"models\n",
+        "empty.onnx": b"",
+        "garbage.onnx": b"\x08\x07garbage",
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    return tmp_path
+
+
+MODEL_CASES = [
+    ("pams_lot_a", "planner.models", "empty.npz",
+     "not readable uncertainty models (EOFError: No data left in file)"),
+    ("pams_lot_a", "planner.models", "truncated.npz",
+     "not readable uncertainty models (BadZipFile: File is not a zip file)"),
+    ("pams_lot_a", "planner.models", "text.npz",
+     "not readable uncertainty models (ValueError: This file contains pickled (object) data."),
+    ("pams_lot_a", "planner.models", "gone.npz", "no such file"),
+    ("pams_lot_a", "planner.prior_objects", "gone.json", "no such file"),
+    ("demo_onnx", "detector.model", "empty.onnx", "not a readable ONNX model"),
+    ("demo_onnx", "detector.model", "garbage.onnx", "not a readable ONNX model"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("mission", "key", "name", "expected"), MODEL_CASES, ids=[c[2] for c in MODEL_CASES])
+def test_a_broken_model_file_is_named_before_the_run(broken_models, capsys, mission, key, name, expected):
+    path = broken_models / name
+    status, lines = validate(capsys, mission, "--set", f"{key}={path}")
+    assert status == 2 and len(lines) == 1, lines
+    assert f": {key}: {expected}" in lines[0] and str(path) in lines[0], lines[0]
