@@ -235,6 +235,15 @@ FILE_CASES = [  # (YAML appended to the mission file, the line it lands on, the 
      "every axis; it is not on x"),
     ("prior_map: nope.npz", "prior_map: no such file: D/nope.npz"),
     ("waypoints: {points: [[0, .nan, 1]]}", f"waypoints.points.0.1: {FINITE} (got nan)"),
+    ("exploration: {control_rate_hz: 1e-9}",
+     "exploration.control_rate_hz: input should be greater than or equal to 1 (got '1e-9')"),
+    ("exploration: {max_unreachable: -1}",
+     "exploration.max_unreachable: input should be greater than or equal to 1 (got -1)"),
+    ("exploration: {panorama_steps: 1000000}",
+     "exploration.panorama_steps: input should be less than or equal to 360 (got 1000000)"),
+    ("area: {lo: [0, 0, .nan], hi: [1, 1, 1]}", f"area.lo.2: {FINITE} (got nan)"),
+    ("prior_map: /etc", "prior_map: not a regular file: /etc"),
+    ("waypoints: {points: [[0, 0, 1]], tolerance: .inf}", f"waypoints.tolerance: {FINITE} (got inf)"),
 ]  # fmt: skip
 
 
