@@ -98,7 +98,7 @@ class OutdoorWorldParams(BackendParams):
     )
     ground_class: str | None = Field("ground", description="class of the ground tiles; null = structure")
     seed_offset: int = Field(
-        0, ge=0, le=2**31, description="added to the run seed: a different scene, same run"
+        0, ge=-(2**63), le=2**63 - 1, description="added to the run seed: a different scene, same run"
     )
 
     @model_validator(mode="after")

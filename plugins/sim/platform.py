@@ -125,7 +125,9 @@ class SimPlatform(Platform):
         # Separate streams: the world, the VIO, the camera and the detector noise must not
         # shift one another when one of them is reconfigured.
         seeds = context.rng.integers(0, 2**63 - 1, size=3)
-        self._world_seed = int(seeds[0]) + getattr(params.world, "seed_offset", 0)
+        world_seed = int(seeds[0]) + getattr(params.world, "seed_offset", 0)
+        # a negative sum is no seed numpy takes: wrap it (every seed that worked before is unchanged)
+        self._world_seed = world_seed if world_seed >= 0 else world_seed % 2**63
         self._vio_rng = np.random.default_rng(int(seeds[1]))
         self._cam_rng = np.random.default_rng(int(seeds[2]))
 

@@ -69,7 +69,7 @@ class ProceduralWorldParams(BackendParams):
     )
     extra_doors: float = Field(0.35, ge=0.0, le=1.0, description="probability of a door to a neighbour")
     seed_offset: int = Field(
-        0, ge=0, le=2**31, description="added to the run seed: a different building, same run"
+        0, ge=-(2**63), le=2**63 - 1, description="added to the run seed: a different building, same run"
     )
 
     @model_validator(mode="after")

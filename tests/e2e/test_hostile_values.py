@@ -57,8 +57,9 @@ CASES = [
         "M:7: platform.world.shaft_size: 5 m: the shaft must be smaller than lobby_width (4.5 m)",
     ),
     (
-        "platform.world.seed_offset=-3",
-        "M:7: platform.world.seed_offset: input should be greater than or equal to 0 (got -3)",
+        "platform.world.seed_offset=1e30",
+        "M:7: platform.world.seed_offset: input should be a valid integer, unable to parse string as an "
+        "integer (got '1e30')",
     ),
     (
         "platform.world.furniture=1e6",
