@@ -16,13 +16,14 @@ defaults and descriptions. The mission's section for the backend is validated ag
 from __future__ import annotations
 
 import abc
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo
 
 from amslam.types import (
     BoundingBox,
@@ -45,9 +46,66 @@ from amslam.types import (
 
 
 class BackendParams(BaseModel):
-    """Base of every backend's parameter model: unknown keys are errors."""
+    """Base of every backend's parameter model: unknown keys are errors, and so is a number that
+    is not finite (NaN, inf) anywhere in it (pydantic's ``allow_inf_nan=False``). Every number
+    also has a stated range (``Field(ge=, le=)``), so a value that validates is one a run can use."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+#: a coordinate in metres: finite and within 10 km of the origin (a building, a site; not a country)
+Coordinate = Annotated[float, Field(ge=-10_000, le=10_000)]
+Point = tuple[Coordinate, Coordinate, Coordinate]
+
+
+class FieldError(ValueError):
+    """A cross-field rule broken, raised in a ``model_validator``: ``field`` (a dotted path inside
+    the model) is where ``amslam validate`` points, rather than at the whole section."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+def lo_below_hi(lo: tuple[float, ...], hi: tuple[float, ...], axes: str = "xyz") -> None:
+    """Raise ValueError unless ``lo`` is below ``hi`` on every axis (a box, a geofence, a range)."""
+    bad = [axis for axis, a, b in zip(axes, lo, hi, strict=False) if not a < b]
+    if bad:
+        raise FieldError(
+            "hi", f"{list(hi)} must be above lo {list(lo)} on every axis; it is not on {', '.join(bad)}"
+        )
+
+
+def mission_file_path(value: str, info: ValidationInfo | None = None) -> Path:
+    """Where a file a mission names is: absolute, or relative to the mission's folder (the
+    ``mission_dir`` of the validation context, else the working directory)."""
+    path = Path(value).expanduser()
+    if not path.is_absolute():
+        base = ((info.context or {}) if info is not None else {}).get("mission_dir")
+        path = Path(base) / path if base is not None else path
+    return path
+
+
+def check_mission_file(value: str | None, info: ValidationInfo) -> str | None:
+    """A file a mission names, checked: present and readable (see :data:`MissionFile`)."""
+    if value is None:
+        return value
+    context = info.context or {}
+    path = mission_file_path(value, info)
+    if not path.is_absolute() and "mission_dir" not in context:
+        return value  # no mission folder to resolve against: checked when the backend configures
+    if not path.exists():
+        raise ValueError(f"no such file: {path}")
+    if not path.is_file():
+        raise ValueError(f"not a regular file: {path}")
+    if not os.access(path, os.R_OK):
+        raise ValueError(f"cannot read {path}: permission denied")
+    return value
+
+
+#: a file a mission names (a mesh, an objects file, a model, a prior map): relative to the mission
+#: file, and present and readable when the mission is validated (``amslam validate`` names it)
+MissionFile = Annotated[str, AfterValidator(check_mission_file)]
 
 
 @dataclass

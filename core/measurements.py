@@ -94,7 +94,8 @@ class MeasurementLog:
     def _write(self, record: dict[str, Any]) -> None:
         if self._file.closed:
             return
-        self._file.write(json.dumps(record, separators=(",", ":")) + "\n")
+        # a non-finite number becomes null: a line of measurements.jsonl is always JSON
+        self._file.write(json.dumps(jsonable(record), separators=(",", ":"), allow_nan=False) + "\n")
         self._file.flush()
 
     def keypose(self, odom: Odometry, truth: np.ndarray | None = None) -> int:

@@ -18,13 +18,21 @@ import copy
 import importlib.resources
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from amslam.errors import MissionError, PluginError
-from amslam.interfaces import BACKEND_KINDS, BackendParams
+from amslam.interfaces import (
+    BACKEND_KINDS,
+    BackendParams,
+    Coordinate,
+    FieldError,
+    MissionFile,
+    Point,
+    lo_below_hi,
+)
 from amslam.registry import Registry
 from amslam.types import BoundingBox, RobotSpec
 
@@ -39,21 +47,21 @@ DEFAULT_PLUGINS = {
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RobotSection(_Strict):
     """Size and motion limits of the vehicle."""
 
-    radius: float = Field(0.25, gt=0, description="radius of the sphere enclosing the vehicle, m")
-    max_speed: float = Field(1.0, gt=0, description="horizontal and vertical speed limit, m/s")
-    max_acceleration: float = Field(1.5, gt=0, description="acceleration limit, m/s²")
-    max_yaw_rate: float = Field(1.0, gt=0, description="yaw rate limit, rad/s")
-    altitude: float = Field(1.2, gt=0, description="take-off height above the start, m")
+    radius: float = Field(0.25, gt=0, le=5, description="radius of the sphere enclosing the vehicle, m")
+    max_speed: float = Field(1.0, gt=0, le=30, description="horizontal and vertical speed limit, m/s")
+    max_acceleration: float = Field(1.5, gt=0, le=50, description="acceleration limit, m/s²")
+    max_yaw_rate: float = Field(1.0, gt=0, le=10, description="yaw rate limit, rad/s")
+    altitude: float = Field(1.2, gt=0, le=100, description="take-off height above the start, m")
     clearance: float = Field(
-        0.15, ge=0, description="extra distance planned paths keep from obstacles (tracking error), m"
+        0.15, ge=0, le=5, description="extra distance planned paths keep from obstacles (tracking error), m"
     )
-    base: tuple[float, float, float, float] | None = Field(
+    base: tuple[Coordinate, Coordinate, Coordinate, Annotated[float, Field(ge=-360, le=360)]] | None = Field(
         None,
         description="real vehicles in a team: the take-off spot in the team's shared world frame, "
         "[x, y, z, yaw_deg], written to the measurement log for merging at the base (paper 2 §IV-B4); "
@@ -67,15 +75,22 @@ class RobotSection(_Strict):
 class LimitsSection(_Strict):
     """When the mission stops exploring and returns home."""
 
-    max_time: float = Field(1200.0, gt=0, description="mission time budget, s (simulated or wall clock)")
-    max_distance: float = Field(1000.0, gt=0, description="distance budget, m")
+    max_time: float = Field(
+        1200.0, gt=0, le=1e6, description="mission time budget, s (simulated or wall clock)"
+    )
+    max_distance: float = Field(1000.0, gt=0, le=1e6, description="distance budget, m")
 
 
 class AreaSection(_Strict):
     """The region to explore, world frame; defaults to the simulated world's bounds."""
 
-    lo: tuple[float, float, float]
-    hi: tuple[float, float, float]
+    lo: Point
+    hi: Point
+
+    @model_validator(mode="after")
+    def _lo_below_hi(self) -> AreaSection:
+        lo_below_hi(self.lo, self.hi)
+        return self
 
     def box(self) -> BoundingBox:
         import numpy as np
@@ -86,50 +101,70 @@ class AreaSection(_Strict):
 class ExplorationSection(_Strict):
     """Parameters of the behaviour tree and the runner's scheduling."""
 
-    control_rate_hz: float = Field(10.0, gt=0, description="tick rate of the behaviour tree and setpoints")
-    replan_period: float = Field(6.0, gt=0, description="replan at least this often while flying, s")
+    control_rate_hz: float = Field(
+        10.0, ge=1, le=1000, description="tick rate of the behaviour tree and setpoints"
+    )
+    replan_period: float = Field(6.0, gt=0, le=1e6, description="replan at least this often while flying, s")
     replan_fraction: float = Field(
         0.5, gt=0, le=1, description="replan once this share of the tour's stops is done (receding horizon)"
     )
     frontier_change: float = Field(
         0.3, gt=0, le=1, description="replan when this share of the viewpoints changed since the last plan"
     )
-    goal_tolerance: float = Field(0.3, gt=0, description="distance at which a waypoint counts as reached, m")
-    yaw_tolerance: float = Field(0.15, gt=0, description="heading error counted as reached, rad")
+    goal_tolerance: float = Field(
+        0.3, gt=0, le=100, description="distance at which a waypoint counts as reached, m"
+    )
+    yaw_tolerance: float = Field(0.15, gt=0, le=3.15, description="heading error counted as reached, rad")
     look_around: bool = Field(
         True, description="turn a full circle after take-off to see around the start before planning"
     )
     max_replan_failures: int = Field(
-        5, ge=1, description="consecutive planner failures before exploration gives up and returns home"
+        5,
+        ge=1,
+        le=10_000,
+        description="consecutive planner failures before exploration gives up and returns home",
     )
     max_unreachable: int = Field(
-        8, ge=1, description="consecutive unreachable goals before exploration gives up and returns home"
+        8,
+        ge=1,
+        le=10_000,
+        description="consecutive unreachable goals before exploration gives up and returns home",
     )
-    min_height: float = Field(0.7, ge=0, description="fly at least this high above the floor below, m")
-    min_headroom: float = Field(0.6, ge=0, description="and at least this far below the ceiling above, m")
+    min_height: float = Field(
+        0.7, ge=0, le=100, description="fly at least this high above the floor below, m"
+    )
+    min_headroom: float = Field(
+        0.6, ge=0, le=100, description="and at least this far below the ceiling above, m"
+    )
     min_viewpoint_gain: float = Field(
-        0.5, ge=0, description="viewpoints promising less unknown volume than this (m³) are ignored"
+        0.5, ge=0, le=1e6, description="viewpoints promising less unknown volume than this (m³) are ignored"
     )
     slc: bool = Field(False, description="actively seek semantic loop closures (paper 1 §VI-C, D)")
-    slc_sensing_range: float = Field(4.0, gt=0, description="range within which a landmark counts as seen, m")
+    slc_sensing_range: float = Field(
+        4.0, gt=0, le=1000, description="range within which a landmark counts as seen, m"
+    )
     slc_min_travel: float = Field(
         30.0,
         gt=0,
+        le=1e6,
         description="distance to travel after take-off or the last SLC attempt before another is "
         "offered (and before the same landmarks are offered again), m",
     )
-    panorama_steps: int = Field(8, ge=3, description="headings of the panorama at an SLC viewpoint")
+    panorama_steps: int = Field(8, ge=3, le=360, description="headings of the panorama at an SLC viewpoint")
     viewpoint_period: float = Field(
-        1.0, gt=0, description="refresh frontier viewpoints at most this often, s (they feed replanning)"
+        1.0,
+        gt=0,
+        le=1e6,
+        description="refresh frontier viewpoints at most this often, s (they feed replanning)",
     )
-    trajectory_rate_hz: float = Field(10.0, gt=0, description="rate of the trajectory files")
-    uncertainty_period: float = Field(5.0, gt=0, description="period of covariance-trace samples, s")
+    trajectory_rate_hz: float = Field(10.0, gt=0, le=1000, description="rate of the trajectory files")
+    uncertainty_period: float = Field(5.0, gt=0, le=1e6, description="period of covariance-trace samples, s")
 
 
 class WaypointsSection(_Strict):
     """A fixed flight pattern for ``tree: waypoints`` (see docs/flight.md)."""
 
-    points: list[tuple[float, float, float]] = Field(
+    points: list[Point] = Field(
         default_factory=list,
         description="waypoints (x east, y north, z up) in metres relative to the take-off point on the "
         "ground, flown in straight lines: the operator vouches the way is clear",
@@ -137,9 +172,11 @@ class WaypointsSection(_Strict):
     heading: Literal["keep", "travel"] = Field(
         "keep", description="keep the take-off heading, or face the direction of travel"
     )
-    tolerance: float = Field(0.2, gt=0, description="distance at which a waypoint counts as reached, m")
+    tolerance: float = Field(
+        0.2, gt=0, le=100, description="distance at which a waypoint counts as reached, m"
+    )
     land_timeout: float = Field(
-        60.0, gt=0, description="how long a failsafe waits to see the vehicle touch down, s"
+        60.0, gt=0, le=3600, description="how long a failsafe waits to see the vehicle touch down, s"
     )
 
 
@@ -158,12 +195,12 @@ class MissionModel(_Strict):
 
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", description="used in the run folder name")
     description: str = ""
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="seeds every random stream of the run")
     plugins: PluginsSection = PluginsSection()
     robot: RobotSection = RobotSection()
     limits: LimitsSection = LimitsSection()
     area: AreaSection | None = None
-    prior_map: str | None = Field(
+    prior_map: MissionFile | None = Field(
         None,
         description="a map saved by an earlier run (its map.npz) to start from; relative to the mission file",
     )
@@ -183,7 +220,7 @@ class MissionModel(_Strict):
     @model_validator(mode="after")
     def _waypoints_given(self) -> MissionModel:
         if self.tree == "waypoints" and not self.waypoints.points:
-            raise ValueError("tree: waypoints needs at least one point in waypoints.points")
+            raise FieldError("waypoints.points", "tree: waypoints needs at least one point here")
         return self
 
 
@@ -340,10 +377,10 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
         problems.append(f"{path}:{line}: {dotted}: {message}" if line else f"{path}: {dotted}: {message}")
 
     try:
-        model = MissionModel.model_validate(raw)
+        model = MissionModel.model_validate(raw, context={"mission_dir": path.resolve().parent})
     except ValidationError as exc:
         for err in exc.errors():
-            report(err["loc"], _describe(err, MissionModel, err["loc"]))
+            report(_data_loc(raw, err), _describe(err, MissionModel, err["loc"]))
         model = None
 
     if model is not None:
@@ -379,7 +416,7 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
             params = cls.Params.model_validate(section, context={"mission_dir": path.resolve().parent})
         except ValidationError as exc:
             for err in exc.errors():
-                report((kind, *err["loc"]), _describe(err, cls.Params, err["loc"]))
+                report((kind, *_data_loc(section, err)), _describe(err, cls.Params, err["loc"]))
             continue
         backends[kind] = BackendChoice(kind, plugin, params)
         if kind == "platform" and model is not None and model.robot.base is not None and cls.simulated:
@@ -388,10 +425,58 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
                 f"the {plugin!r} platform is simulated: its odometry frame is the world frame already; "
                 "robot.base is for real vehicles (platform.start chooses where a simulated robot takes off)",
             )
+    fence = getattr(backends["platform"].params, "geofence", None) if "platform" in backends else None
+    if model is not None and fence is not None and model.waypoints.points:
+        # waypoints are relative to the take-off spot, the fence is in the odometry frame: wherever
+        # the vehicle takes off, the pattern (take-off spot included) must fit inside the fence
+        pts = [(0.0, 0.0, 0.0), *model.waypoints.points]
+        for axis, name in enumerate("xyz"):
+            span = max(p[axis] for p in pts) - min(p[axis] for p in pts)
+            room = fence.hi[axis] - fence.lo[axis]
+            if span > room:
+                report(
+                    ("waypoints", "points"),
+                    f"the pattern spans {span:g} m in {name}, more than the geofence's {room:g} m "
+                    f"(platform.geofence): it cannot lie inside the fence",
+                )
     if problems:
         raise MissionError(problems)
     assert model is not None
     return Mission(model=model, backends=backends, source=path.resolve(), raw=raw)
+
+
+def _data_loc(data: Any, err: dict) -> tuple:
+    """Where in the mission's data a pydantic error is: its ``loc`` without the tags pydantic adds
+    for a union's members (``world.procedural.size`` → ``world.size``), plus the field a
+    :class:`FieldError` names (a cross-field rule points at the field, not the whole section)."""
+    loc = tuple(err["loc"])
+    error = (err.get("ctx") or {}).get("error")
+    if isinstance(error, FieldError):
+        loc = (*loc, *error.field.split("."))
+
+    def resolve(node: Any, parts: tuple, strict: bool = False) -> tuple | None:
+        """``parts`` as found in ``node``, skipping tags; None if they are not there."""
+        if not parts:
+            return ()
+        head, rest = parts[0], parts[1:]
+        present = (isinstance(node, dict) and head in node) or (
+            isinstance(node, list) and isinstance(head, int) and 0 <= head < len(node)
+        )
+        if present:
+            found = resolve(node[head], rest, strict)
+            if found is not None:
+                return (head, *found)
+        if not rest and not strict and isinstance(node, dict):
+            return (head,)  # a missing or unknown key, at the end of the path
+        if isinstance(head, str) and isinstance(node, dict) and rest:
+            # a union member's tag (``kind``), not in the data
+            return resolve(node, rest, strict=strict or node.get("kind") != head)
+        return None
+
+    return resolve(data, loc) or loc
+
+
+_MISSING = object()
 
 
 def _describe(err: dict, model: type[BaseModel], loc: tuple) -> str:
@@ -404,20 +489,32 @@ def _describe(err: dict, model: type[BaseModel], loc: tuple) -> str:
         return f"unknown key {loc[-1]!r}{hint}"
     if kind == "missing":
         return "required, but missing"
+    if kind == "value_error":  # a rule of ours: its message says what it got
+        return str((err.get("ctx") or {}).get("error") or err["msg"])
     return f"{err['msg'].lower()} (got {got!r})"
 
 
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models an annotation holds (through Optional, unions and Annotated)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in getattr(annotation, "__args__", ()) for m in _models_in(arg)]
+
+
 def _fields_at(model: type[BaseModel], loc: tuple) -> list[str]:
-    for part in loc:
+    parts = list(loc)
+    while parts:
+        part = parts.pop(0)
         info = model.model_fields.get(str(part)) if isinstance(part, str) else None
         if info is None:
             return []
-        ann = info.annotation
-        candidates = [ann, *getattr(ann, "__args__", ())]
-        sub = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
-        if sub is None:
+        models = _models_in(info.annotation)
+        if len(models) > 1 and parts:  # a tagged union: pydantic's loc names the member next
+            tag = parts.pop(0)
+            models = [m for m in models if getattr(m.model_fields.get("kind"), "default", None) == tag]
+        if len(models) != 1:
             return []
-        model = sub
+        model = models[0]
     return sorted(model.model_fields)
 
 

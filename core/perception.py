@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from amslam.boundary import Boundary
 from amslam.geometry import invert, yaw_of
 from amslam.interfaces import Detector, Mapping, Platform, Slam
 from amslam.measurements import MeasurementLog
@@ -90,8 +91,10 @@ class Perception:
         rundir: RunDir,
         measurements: MeasurementLog,
         hook: Callable[..., None],
+        boundary: Boundary | None = None,
     ):
         self.platform, self.slam, self.mapping, self.detector = platform, slam, mapping, detector
+        self.boundary = check = boundary or Boundary()
         self.exploration = exploration
         self.rundir, self.measurements, self.hook = rundir, measurements, hook
         self.T_body_cam = platform.camera.T_body_cam
@@ -103,7 +106,9 @@ class Perception:
         self.samples: dict[str, list] = {"uncertainty": [], "explored": []}
         self._viewpoints: tuple[Viewpoint, ...] = ()
         self._refresh = False
-        self._last_position = platform.odometry().T_odom_body[:3, 3].copy()
+        with check.calling("platform", "odometry()"):
+            odom = check.odometry(platform.odometry())
+        self._last_position = odom.T_odom_body[:3, 3].copy()
         # On a real vehicle the network runs beside the control loop; in the simulator inline.
         self._pool = (
             None if platform.simulated else ThreadPoolExecutor(1, thread_name_prefix="amslam-detector")
@@ -117,24 +122,35 @@ class Perception:
 
     def step(self, dt: float) -> Snapshot:
         """Advance the platform by ``dt`` and run every module that is due; the new snapshot."""
-        self.platform.advance(dt)
-        t = self.platform.time()
-        odom = self.platform.odometry()
-        truth = self.platform.ground_truth()
+        check = self.boundary
+        with check.calling("platform", "advance()"):
+            self.platform.advance(dt)
+            t = self.platform.time()
+        with check.calling("platform", "odometry()"):
+            odom = check.odometry(self.platform.odometry())
+        with check.calling("platform", "ground_truth()"):
+            truth = self.platform.ground_truth()
+            if truth is not None:
+                truth = check.pose("platform", "ground_truth()", truth)
         here = odom.T_odom_body[:3, 3]
         self.distance += float(np.linalg.norm(here - self._last_position))
         self._last_position = here.copy()
-        if self.slam.add_odometry(odom):
+        with check.calling("slam", "add_odometry()"):
+            keyposed = self.slam.add_odometry(odom)
+        if keyposed:
             self.measurements.keypose(odom, truth)
             keyposes = self.slam.keyposes()
             if keyposes:
                 self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
-        frame = self.platform.capture()
+        with check.calling("platform", "capture()"):
+            frame = check.frame(self.platform.capture())
         if frame is not None:
             self._integrate(frame)
         if self._detecting is not None and self._detecting[0].done():
             (done, seen), self._detecting = self._detecting, None
-            self._feed(seen, done.result())
+            with check.calling("detector", "detect()"):
+                detections = check.detections(done.result())
+            self._feed(seen, detections)
         self._record(t, odom, truth)
         self.snapshot = self._publish(t, odom)
         return self.snapshot
@@ -146,23 +162,34 @@ class Perception:
     # -- the modules ---------------------------------------------------------------------------
 
     def _integrate(self, frame: Frame) -> None:
-        self.mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
-        self.mapping.integrate_global(frame.depth, frame.K, self.slam.T_world_odom() @ frame.T_odom_cam)
+        check = self.boundary
+        with check.calling("slam", "T_world_odom()"):
+            T_world_odom = check.pose("slam", "T_world_odom()", self.slam.T_world_odom())
+        with check.calling("mapping", "integrate_local()"):
+            self.mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
+        with check.calling("mapping", "integrate_global()"):
+            self.mapping.integrate_global(frame.depth, frame.K, T_world_odom @ frame.T_odom_cam)
         if frame.stamp >= self.rates.viewpoints or self._refresh:
             self._refresh = False
             self.rates.viewpoints = frame.stamp + self.exploration.viewpoint_period
-            self._viewpoints = tuple(self._within_band(vp) for vp in self.mapping.viewpoints())
+            with check.calling("mapping", "viewpoints()"):
+                self._viewpoints = tuple(
+                    self._within_band(vp) for vp in check.viewpoints(self.mapping.viewpoints())
+                )
         if frame.stamp >= self.rates.detect and self._detecting is None:
             self.rates.detect = frame.stamp + self.detect_period
             if self._pool is None:
-                self._feed(frame, self.detector.detect(frame))
+                with check.calling("detector", "detect()"):
+                    detections = check.detections(self.detector.detect(frame))
+                self._feed(frame, detections)
             else:
                 self._detecting = (self._pool.submit(self.detector.detect, frame), frame)
 
     def _feed(self, frame: Frame, detections: list[Detection]) -> None:
         """Detections to SLAM at the pose of the frame they were made in, and to the base's log."""
         frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(self.T_body_cam))
-        self.slam.add_detections(frame_odom, self.T_body_cam, detections)
+        with self.boundary.calling("slam", "add_detections()"):
+            self.slam.add_detections(frame_odom, self.T_body_cam, detections)
         T_truth = frame.T_world_cam_truth
         body_truth = None if T_truth is None else T_truth @ invert(self.T_body_cam)
         self.measurements.detections(frame_odom, detections, body_truth)
@@ -188,7 +215,7 @@ class Perception:
         return Snapshot(
             t=t,
             odometry=Odometry(odom.stamp, _frozen(odom.T_odom_body)),
-            T_world_odom=_frozen(self.slam.T_world_odom()),
+            T_world_odom=_frozen(self.boundary.pose("slam", "T_world_odom()", self.slam.T_world_odom())),
             distance=self.distance,
             viewpoints=self._viewpoints,
             explored_volume=explored[-1][2] if explored else 0.0,

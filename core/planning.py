@@ -21,6 +21,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from amslam.boundary import BackendError, BackendOutputError, Boundary
+from amslam.errors import AmslamError
 from amslam.interfaces import Mapping as MappingBackend
 from amslam.interfaces import Planner, Slam
 from amslam.mission import ExplorationSection
@@ -91,9 +93,29 @@ class PlanJob:
         return self._future.cancel()
 
     def result(self) -> list[TourItem]:
-        """The tour (or the planner's exception); call on the control thread."""
-        plan: Plan = self._future.result()
-        self._service._adopt(plan)
+        """The tour (or the planner's exception); call on the control thread.
+
+        The service counts failures in a row (:attr:`PlanningService.failures`) and keeps a
+        broken contract (:attr:`PlanningService.fault`): the runner ends the run on either.
+        """
+        service = self._service
+        try:
+            plan: Plan = self._future.result()
+        except BackendOutputError as exc:
+            service.fault = exc
+            raise
+        except Exception as exc:
+            service.failures += 1
+            label = service.boundary.label("planner")
+            if isinstance(exc, BackendError):
+                service.last_error = str(exc)
+            elif isinstance(exc, AmslamError):
+                service.last_error = f"{label}: {exc}"
+            else:
+                service.last_error = f"{label}: {type(exc).__name__}: {exc}"
+            raise
+        service.failures = 0
+        service._adopt(plan)
         return plan.tour
 
 
@@ -117,6 +139,10 @@ class PlanningService:
     slc_log: list[tuple[float, float, LoopClosureResult]] = field(
         default_factory=list
     )  # (t, distance, result)
+    boundary: Boundary = field(default_factory=Boundary)  # checks the planner's tours, names it
+    failures: int = 0  # plans that failed in a row
+    last_error: str = ""  # why the last one failed
+    fault: BackendOutputError | None = None  # the planner broke its contract: the run ends
     _executor: ThreadPoolExecutor | None = None
 
     def observe(self, snapshot: Snapshot) -> None:
@@ -226,7 +252,8 @@ class PlanningService:
             slc_costs=slc_costs,
             landmarks=tuple(self.slam.landmarks()),
         )
-        tour = self.planner.plan(request)
+        with self.boundary.calling("planner", "plan()"):
+            tour = self.boundary.tour(self.planner.plan(request), request, self.plans_frontiers)
         return Plan(tour, planned, MappingProxyType({c.keypose_id: c for c in offered}))
 
     def _slc_candidates(self, inputs: PlanInputs) -> tuple[SlcCandidate, ...]:

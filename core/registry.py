@@ -53,6 +53,14 @@ class Registry:
             raise PluginError(f"no {kind} backend named {name!r}; installed: {installed}{broken}")
         return found[name]
 
+    def origin(self, kind: str, name: str) -> str:
+        """``planner 'x' from dist y 1.0``: a backend as a verdict names it (kind, name, distribution)."""
+        plugin = self.providers.get(kind, {}).get(name)
+        dist = self.distributions.get(plugin) if plugin is not None else None
+        if dist is not None:
+            return f"{kind} {name!r} from dist {dist}"
+        return f"{kind} {name!r} (registered in-process, from no distribution)"
+
     def tree(self, name: str) -> Callable:
         """The builder of mission tree ``name``, or a PluginError listing the installed ones."""
         if name not in self.trees:

@@ -18,6 +18,7 @@ application: ``amslam.apps.report``), then closes the backends.
 from __future__ import annotations
 
 import dataclasses
+import json
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ import py_trees
 from py_trees.common import Status
 
 from amslam import __version__
+from amslam.boundary import BackendError, Boundary
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import pose_from
 from amslam.interfaces import BACKEND_KINDS, Backend, Platform, RunContext
@@ -40,7 +42,7 @@ from amslam.planning import PlanningService
 from amslam.recording import TreeRecorder
 from amslam.registry import Registry
 from amslam.robot import EventSink, Robot
-from amslam.rundir import RunDir
+from amslam.rundir import RunDir, jsonable, write_atomically
 from amslam.setpoints import SetpointFilter
 from amslam.sharing import share
 from amslam.types import BoundingBox, RunSummary
@@ -102,6 +104,11 @@ class Runner:
         self.backends: dict[str, Backend] = {}
         self.context: RunContext | None = None  # once the backends are configured
         self.runtime: Runtime | None = None  # once the services are built
+        self._write_errors: list[str] = []  # outputs that could not be written (a full disk)
+        # each backend's outputs are checked where they enter the runtime, and named in verdicts
+        self.boundary = Boundary(
+            {kind: registry.origin(kind, choice.plugin) for kind, choice in mission.backends.items()}
+        )
 
     # -- observer hooks ------------------------------------------------------------------------
 
@@ -121,6 +128,8 @@ class Runner:
                 answer = impl.function(*(kwargs[arg] for arg in impl.argnames))
             except Exception as exc:  # an observer must never stop the flight
                 self._observer_failed(name, impl.plugin_name, f"{type(exc).__name__}: {exc}")
+                if isinstance(exc, OSError):  # it could not write its files: the run's outputs are short
+                    self._write_errors.append(f"{impl.plugin_name}: {type(exc).__name__}: {exc}")
                 continue
             answers.append((impl.plugin_name, answer))
         return answers
@@ -148,9 +157,10 @@ class Runner:
         )
         for kind in BACKEND_KINDS:
             choice = self.mission.backends[kind]
-            backend = self.registry.factory(kind, choice.plugin)()
             context = dataclasses.replace(context, rng=backend_rng(model.seed, kind))
-            backend.configure(choice.params, context)
+            with self.boundary.calling(kind, "configure()"):
+                backend = self.registry.factory(kind, choice.plugin)()
+                backend.configure(choice.params, context)
             self.backends[kind] = backend
             if kind == "mapping" and model.prior_map:
                 prior = (self.mission.directory / model.prior_map).resolve()
@@ -159,8 +169,9 @@ class Runner:
                 backend.load(prior)
                 self.rundir.event(0.0, "prior_map_loaded", path=str(prior))
             if kind == "platform":
-                backend.start()
-                world = backend.world_summary()
+                with self.boundary.calling(kind, "start()"):
+                    backend.start()
+                    world = backend.world_summary()
                 area = model.area.box() if model.area else None
                 if area is None and world is not None:
                     area = BoundingBox(np.asarray(world.bounds_lo, float), np.asarray(world.bounds_hi, float))
@@ -184,6 +195,9 @@ class Runner:
             by = str(exc) if str(exc).startswith("SIG") else "SIGINT"
             self.rundir.event(self._now(), "aborted", reason=f"stopped by {by}: landing where it is")
             self._safe_land()
+        except BackendError as exc:  # a backend raised or handed over garbage: the verdict names it
+            verdict = f"failed: {exc}"
+            self.rundir.event(self._now(), "error", error=str(exc), traceback=traceback.format_exc())
         except AmslamError as exc:
             verdict = f"failed: {exc}"
             self.rundir.event(self._now(), "error", error=str(exc))
@@ -210,6 +224,9 @@ class Runner:
                     self.rundir.event(snapshot.t, "crash", where=status.crash_reason)
                     return f"crashed: {status.crash_reason}"
                 runtime.tree.tick()
+                if runtime.planning.fault is not None:  # the planner handed back what it was not asked for
+                    self._safe_land()
+                    return f"failed: {runtime.planning.fault}"
                 runtime.recorder.record(snapshot.t)
                 self._hook("amslam_tick", t=snapshot.t, tree=runtime.tree)
                 self._show_progress(bar, snapshot)
@@ -251,6 +268,7 @@ class Runner:
             self.rundir,
             measurements,
             self._hook,
+            boundary=self.boundary,
         )
         planning = PlanningService(
             planner=shared["planner"],
@@ -261,6 +279,7 @@ class Runner:
             threaded=not platform.simulated,
             refresh_viewpoints=perception.refresh_viewpoints,
             snapshot=perception.snapshot,
+            boundary=self.boundary,
         )
         robot = Robot(
             platform=platform,
@@ -290,6 +309,11 @@ class Runner:
             outcome = root.children[-1].feedback_message
             exploration = py_trees.blackboard.Blackboard.storage.get("/exploration", "")
             self.rundir.event(t, "mission_end", exploration=exploration, landing=outcome)
+            planning = self.runtime.planning
+            if planning.failures >= self.mission.model.exploration.max_replan_failures:
+                # the vehicle came home and landed, but exploration stopped because the planner
+                # kept failing: that is a failed run, not a completed one
+                return f"failed: {planning.last_error} ({planning.failures} plans in a row failed)"
             return "completed"
         if root.status == Status.FAILURE:
             failed = [n for n in root.iterate() if n.status == Status.FAILURE and not n.children]
@@ -342,7 +366,6 @@ class Runner:
             )
         self.rundir.close_trajectories()
         metrics = self._write_metrics(self._measured(metrics, summary))
-        self.rundir.event(self._now(), "run_end", verdict=verdict)
         self._hook(
             "amslam_run_end",
             run_dir=self.rundir.path,
@@ -351,6 +374,11 @@ class Runner:
             trajectory=summary.trajectory,
             summary=summary,
         )
+        if self._write_errors:  # a full disk, say: say so where it can still be said
+            metrics["outputs_error"] = "; ".join(dict.fromkeys(self._write_errors))  # each once
+            self.rundir.event(self._now(), "outputs_error", error=metrics["outputs_error"])
+            self._keep_what_can_be_kept(verdict, metrics)
+        self.rundir.event(self._now(), "run_end", verdict=verdict)  # the last event of every run
         for backend in reversed(list(self.backends.values())):
             try:
                 backend.close()
@@ -405,7 +433,27 @@ class Runner:
             ValueError,
         ) as exc:  # the run still ends: backends closed, verdict returned
             self.rundir.event(self._now(), "metrics_not_written", error=f"{type(exc).__name__}: {exc}")
+            self._write_errors.append(f"metrics.json: {type(exc).__name__}: {exc}")
         return metrics
+
+    def _keep_what_can_be_kept(self, verdict: str, metrics: dict[str, Any]) -> None:
+        """After the outputs failed (a full disk, a broken summary): metrics.json with the verdict
+        and the error, and a report saying so — each written atomically, or not at all."""
+        report = (
+            f"# {self.mission.name}\n\n**Verdict:** {verdict}\n\n"
+            f"The run's outputs could not all be written: {metrics['outputs_error']}. "
+            "The streams (events.jsonl, trajectories) hold what was recorded.\n"
+        )
+        for name, text in (
+            ("metrics.json", json.dumps(jsonable(metrics), indent=2, default=str) + "\n"),
+            ("report.md", report),
+        ):
+            if name == "report.md" and (self.rundir.path / name).exists():
+                continue  # the full report was written: keep it
+            try:
+                write_atomically(self.rundir.path / name, text)
+            except OSError as exc:
+                self.rundir.event(self._now(), "write_failed", file=name, error=f"{exc.strerror or exc}")
 
     def _summary(self, verdict: str) -> RunSummary:
         """The run as the run-end observers see it (the threads have stopped)."""
@@ -425,24 +473,42 @@ class Runner:
                 slc_log=tuple(runtime.planning.slc_log),
                 home_world=runtime.robot.home_world,
             )
+        ask = self._ask
+        check = self.boundary
         if slam is not None:
             flown.update(
-                landmarks=tuple(slam.landmarks()),
-                keyposes=tuple(slam.keyposes()),
+                landmarks=ask("slam", "landmarks()", lambda: tuple(slam.landmarks())),
+                keyposes=ask("slam", "keyposes()", lambda: tuple(slam.keyposes())),
                 slam_optimises=type(slam).__name__ != "OdometrySlam",
-                final_T_world_odom=slam.T_world_odom(),
+                final_T_world_odom=ask(
+                    "slam",
+                    "T_world_odom()",
+                    lambda: check.pose("slam", "T_world_odom()", slam.T_world_odom()),
+                ),
             )
+        vio = flown.get("vio") or ()
+        final_vio = ask("platform", "odometry()", lambda: check.odometry(platform.odometry()).T_odom_body)
         return dataclasses.replace(
             summary,
-            duration_s=platform.time(),
-            world=platform.world_summary(),
-            status=platform.status(),
-            final_truth=platform.ground_truth(),
-            final_vio=platform.odometry().T_odom_body,
+            duration_s=ask("platform", "time()", platform.time),
+            world=ask("platform", "world_summary()", platform.world_summary),
+            status=ask("platform", "status()", platform.status),
+            final_truth=ask("platform", "ground_truth()", platform.ground_truth),
+            final_vio=final_vio if final_vio is not None else (vio[-1][1] if vio else None),
             robot_radius=self.context.robot.radius if self.context is not None else None,
             mapping=mapping,
             **flown,
         )
+
+    def _ask(self, kind: str, call: str, fn: Callable[[], Any]) -> Any:
+        """What a backend says for the summary; None (and an event) when it fails to say it: a
+        backend that broke the run must not cost the run's report."""
+        try:
+            with self.boundary.calling(kind, call):
+                return fn()
+        except Exception as exc:  # noqa: BLE001 — the summary goes on without this value
+            self.rundir.event(self._now(), "summary_incomplete", backend=kind, error=str(exc))
+            return None
 
 
 @dataclass

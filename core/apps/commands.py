@@ -74,6 +74,13 @@ def cmd_run(args, registry) -> int:
     print(f"run folder: {result.run_dir}")
     if result.report.exists():  # not when the report application is disabled
         print(f"report: {result.report}")
+    if "outputs_error" in m:  # a full disk, say: the streams and the verdict were kept
+        print(
+            f"warning: not every output of the run could be written ({m['outputs_error']}); "
+            "events.jsonl says which",
+            file=sys.stderr,
+        )
+        return 1
     return 0 if result.verdict == "completed" else 1
 
 

@@ -47,8 +47,12 @@ Vec3 = tuple[float, float, float]
 class VoxelMapParams(BackendParams):
     """Parameters of the voxel mapping backends (paper 1 §V-A, §VI-A defaults)."""
 
-    global_voxel: float = Field(0.25, gt=0, description="Edge of a global (world-frame) voxel, metres.")
-    local_voxel: float = Field(0.1, gt=0, description="Edge of a local (odometry-frame) voxel, metres.")
+    global_voxel: float = Field(
+        0.25, ge=0.02, le=5.0, description="Edge of a global (world-frame) voxel, metres (0.02 to 5)."
+    )
+    local_voxel: float = Field(
+        0.1, ge=0.02, le=5.0, description="Edge of a local (odometry-frame) voxel, metres (0.02 to 5)."
+    )
     local_size: Vec3 = Field(
         (10.0, 10.0, 5.0), description="Size (x, y, z) in metres of the ego-centric local window."
     )
@@ -93,13 +97,21 @@ class VoxelMapParams(BackendParams):
     viewpoint_radii: tuple[float, ...] = Field(
         (1.0, 1.75, 2.5), description="Distances (m) of candidate viewpoints from a cluster centroid."
     )
-    viewpoint_angles: int = Field(12, ge=1, description="Candidate directions around a cluster centroid.")
+    viewpoint_angles: int = Field(
+        12, ge=1, le=360, description="Candidate directions around a cluster centroid."
+    )
     viewpoint_heights: tuple[float, ...] = Field(
         (-0.5, 0.0, 0.5), description="Candidate heights (m) relative to the cluster centroid."
     )
-    viewpoint_yaws: int = Field(24, ge=1, description="Candidate yaws evaluated at each candidate position.")
-    gain_rays_azimuth: int = Field(72, ge=4, description="Azimuths of the ray fan counting information gain.")
-    gain_rays_elevation: int = Field(8, ge=1, description="Elevations (over the vertical fov) of that fan.")
+    viewpoint_yaws: int = Field(
+        24, ge=1, le=360, description="Candidate yaws evaluated at each candidate position."
+    )
+    gain_rays_azimuth: int = Field(
+        72, ge=4, le=3600, description="Azimuths of the ray fan counting information gain."
+    )
+    gain_rays_elevation: int = Field(
+        8, ge=1, le=1000, description="Elevations (over the vertical fov) of that fan."
+    )
     sensing_range: float | None = Field(
         None, gt=0, description="Range (m) of the gain rays; default min(camera max range, max_range) - 0.5."
     )

@@ -26,7 +26,7 @@ __all__ = ["ActiveParams", "ActiveSlam"]
 class ActiveParams(BaseModel):
     """Active loop-closure candidates and eq. (10) (``slam.active``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     dbscan_eps: float = Field(2.5, gt=0, description="DBSCAN neighbourhood of landmark clusters, m")
     cluster_min_landmarks: int = Field(3, ge=1, description="fewest landmarks of an SLC cluster")

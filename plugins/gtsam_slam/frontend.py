@@ -37,7 +37,7 @@ __all__ = ["AssociationParams", "FrontEnd", "KeyPoseParams", "KeyPoseRec"]
 class KeyPoseParams(BaseModel):
     """When key poses are made (``slam.keyposes``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     distance: float = Field(0.5, gt=0, description="a key pose every this many metres")
     yaw: float = Field(0.35, gt=0, description="or every this much yaw change, rad")
@@ -52,7 +52,7 @@ class KeyPoseParams(BaseModel):
 class AssociationParams(BaseModel):
     """Data association and the tentative buffer (``slam.association``; the merge's ``association``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     gate: float = Field(0.6, gt=0, description="largest association distance, m")
     chi2: float = Field(

@@ -39,7 +39,7 @@ __all__ = ["GraphParams", "LandmarkRec", "NoiseModels", "Observation", "PoseKeys
 class GraphParams(BaseModel):
     """Noise models and solver of the factor graph (``slam.graph``; the merge's ``graph``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     # VIO drifts as a random walk in the distance travelled (variance ∝ distance), so the std of
     # a relative pose grows with the square root of its length; these match the simulator's VIO.

@@ -26,7 +26,7 @@ __all__ = ["LoopCloser", "LoopClosureParams"]
 class LoopClosureParams(BaseModel):
     """Semantic loop closure (``slam.loop_closure``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     solver: Literal["scalable", "exhaustive"] = Field("scalable", description="SLC registration")
     tolerance: float = Field(0.3, gt=0, description="accepted RMS residual per landmark, m")

@@ -109,7 +109,7 @@ def robot_key(robot: int, keypose: int) -> int:
 class MergeParams(BaseModel):
     """Noise models and gates of the merged graph (defaults: the onboard ``gtsam`` backend's)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     base_sigma_translation: float = Field(0.01, gt=0, description="std of a known base position, m")
     base_sigma_rotation: float = Field(0.005, gt=0, description="std of a known base attitude, rad")

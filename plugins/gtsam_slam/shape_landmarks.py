@@ -38,7 +38,7 @@ MODELS = ("centroid", "cuboid", "cylinder", "plane")
 class SizePrior(BaseModel):
     """A class's typical box (for completing partial views) and its spread."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     dims: tuple[float, float, float] = Field(description="typical length, width, height (length ≥ width), m")
     std: tuple[float, float, float] = Field(
@@ -49,7 +49,7 @@ class SizePrior(BaseModel):
 class ShapeParams(BaseModel):
     """Parameters of the shape landmarks (``shapes:`` under the gtsam SLAM section)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     window: float = Field(12.0, gt=0, description="seconds of a landmark's points in one measurement")
     min_points: int = Field(80, ge=10, description="fewest window points for a measurement")

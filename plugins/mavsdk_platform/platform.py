@@ -38,10 +38,10 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from amslam.errors import PlatformError
-from amslam.interfaces import BackendParams, Platform, RunContext
+from amslam.interfaces import BackendParams, Platform, Point, RunContext, lo_below_hi
 from amslam.plugins.mavsdk_platform.camera_sources import CameraSource, CameraSourceParams, make_camera_source
 from amslam.plugins.mavsdk_platform.frames import enu_to_ned, pose_enu_from_ned, yaw_enu_to_ned
 from amslam.types import CameraModel, Failsafe, Frame, Odometry, RobotSpec, VehicleStatus
@@ -55,10 +55,15 @@ _ACTION_RANK = {"return_and_land": 0, "land": 1, "hand_over": 2}
 class GeofenceParams(BaseModel):
     """An axis-aligned box in the odometry frame (ENU of the autopilot's local frame), metres."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    lo: tuple[float, float, float]
-    hi: tuple[float, float, float]
+    lo: Point
+    hi: Point
+
+    @model_validator(mode="after")
+    def _lo_below_hi(self) -> GeofenceParams:
+        lo_below_hi(self.lo, self.hi)
+        return self
 
     def contains(self, p: np.ndarray, margin: float = 0.0) -> bool:
         lo, hi = np.array(self.lo) + margin, np.array(self.hi) - margin
@@ -106,10 +111,16 @@ class MavsdkPlatform(Platform):
         component: Literal["companion_computer", "ground_station"] = Field(
             "companion_computer", description="who amslam is on the MAVLink network"
         )
-        connect_timeout: float = Field(15.0, gt=0, description="wait this long for the autopilot, s")
-        estimate_timeout: float = Field(15.0, gt=0, description="wait this long for a position estimate, s")
-        command_timeout: float = Field(5.0, gt=0, description="bound on every command to the vehicle, s")
-        link_timeout: float = Field(1.5, gt=0, description="telemetry silence that counts as link lost, s")
+        connect_timeout: float = Field(15.0, gt=0, le=3600, description="wait this long for the autopilot, s")
+        estimate_timeout: float = Field(
+            15.0, gt=0, le=3600, description="wait this long for a position estimate, s"
+        )
+        command_timeout: float = Field(
+            5.0, gt=0, le=3600, description="bound on every command to the vehicle, s"
+        )
+        link_timeout: float = Field(
+            1.5, gt=0, le=3600, description="telemetry silence that counts as link lost, s"
+        )
         geofence: GeofenceParams | None = Field(
             None, description="box the vehicle must stay in (odometry frame, ENU, m); none: no fence"
         )
@@ -117,9 +128,11 @@ class MavsdkPlatform(Platform):
         battery_return: float = Field(0.3, ge=0, le=1, description="below this charge: return and land")
         battery_land: float = Field(0.15, ge=0, le=1, description="below this charge: land where it is")
         hold_speed: float = Field(
-            0.3, gt=0, description="land(): hold first when moving faster than this, m/s"
+            0.3, gt=0, le=30, description="land(): hold first when moving faster than this, m/s"
         )
-        land_timeout: float = Field(60.0, gt=0, description="give up confirming a landing after this, s")
+        land_timeout: float = Field(
+            60.0, gt=0, le=3600, description="give up confirming a landing after this, s"
+        )
         camera: CameraSourceParams = Field(default_factory=CameraSourceParams)
 
     def __init__(self) -> None:

@@ -58,7 +58,9 @@ class OnnxDetector(Detector):
             description="ONNX model in the YOLOv8-seg layout, relative to the mission file; "
             "default: the shipped model trained on simulator images (chair, table, shelf, sofa)",
         )
-        rate_hz: float = Field(2.0, gt=0.0, description="how often the runner calls detect() (paper 1: 2 Hz)")
+        rate_hz: float = Field(
+            2.0, gt=0.0, le=1000.0, description="how often the runner calls detect() (paper 1: 2 Hz)"
+        )
         confidence: float = Field(
             0.25, gt=0.0, lt=1.0, description="minimum class score of a detection (ultralytics: 0.25)"
         )

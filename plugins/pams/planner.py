@@ -44,11 +44,18 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 from scipy import ndimage
 
 from amslam.errors import PlanningError
-from amslam.interfaces import BackendParams, Planner, RunContext
+from amslam.interfaces import (
+    BackendParams,
+    MissionFile,
+    Planner,
+    RunContext,
+    check_mission_file,
+    mission_file_path,
+)
 from amslam.lib.tours import exact_open_tour, nearest_neighbour_tour, two_opt
 from amslam.plugins.pams.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
 from amslam.types import BoundingBox, PlanRequest, TourItem, TourItemKind
@@ -194,10 +201,29 @@ def count_paths(a: int, T: int) -> int:
 # -- parameters ----------------------------------------------------------------------------------
 
 
+def _prior_objects_file(value: str | None, info: ValidationInfo) -> str | None:
+    """``prior_objects``: 'world', or a landmarks file that is there and readable."""
+    return value if value == "world" else check_mission_file(value, info)
+
+
 class PamsParams(BackendParams):
     """Parameters of the ``pams`` planner."""
 
-    models: str | None = Field(
+    @field_validator("models")
+    @classmethod
+    def _models_load(cls, value: str | None, info: ValidationInfo) -> str | None:
+        # present and readable (MissionFile) is not enough: a truncated file is named here, not mid-run
+        path = mission_file_path(value, info) if value is not None else None
+        if path is not None and path.is_absolute():
+            try:
+                UncertaintyModels.load(path)
+            except Exception as exc:  # noqa: BLE001 — any reason it cannot be read, in one line
+                raise ValueError(
+                    f"not readable uncertainty models ({type(exc).__name__}: {exc}): {path}"
+                ) from None
+        return value
+
+    models: MissionFile | None = Field(
         None, description="uncertainty models (.npz from `amslam characterise`); None = the packaged ones"
     )
     prior_objects: str | None = Field(
@@ -208,7 +234,7 @@ class PamsParams(BackendParams):
     target_classes: list[str] | None = Field(None, description="classes to map; None = every modelled class")
     horizon: int = Field(3, ge=1, le=5, description="planning horizon T (viewpoints per path)")
     sampling: Literal["uniform", "centroid"] = Field("centroid", description="how samples are drawn (Fig. 6)")
-    samples: int = Field(8, ge=1, description="uniform sampling: samples per target")
+    samples: int = Field(8, ge=1, le=10_000, description="uniform sampling: samples per target")
     min_confidence: float = Field(0.8, ge=0.0, le=1.0, description="high-confidence region threshold")
     max_position_std: float = Field(0.1, gt=0.0, description="low-uncertainty region: position std limit, m")
     max_dimension_std: float = Field(
@@ -249,6 +275,8 @@ class PamsParams(BackendParams):
     )
     default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
 
+    _prior_file = field_validator("prior_objects")(_prior_objects_file)
+
 
 class PriorVisitParams(BackendParams):
     """Parameters of the ``prior_visit`` baseline."""
@@ -275,6 +303,8 @@ class PriorVisitParams(BackendParams):
         3, ge=1, description="times a stop may be given up (the robot's first open stop) before it is dropped"
     )
     default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
+
+    _prior_file = field_validator("prior_objects")(_prior_objects_file)
 
 
 # -- shared bookkeeping ---------------------------------------------------------------------------
@@ -500,8 +530,10 @@ class PamsPlanner(_TargetPlanner):
                 path = (context.mission_dir / path).resolve()
         try:
             self.models = UncertaintyModels.load(path)
-        except (OSError, ValueError, KeyError) as exc:
-            raise PlanningError(f"pams: cannot load uncertainty models {path or 'default'}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 — a truncated or foreign file: one line naming it
+            raise PlanningError(
+                f"pams: cannot load uncertainty models {path or 'default'}: {type(exc).__name__}: {exc}"
+            ) from None
         self.rng = context.rng
         self.states = {}
         self._emit = context.emit

@@ -14,10 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from amslam.geometry import pose_from
-from amslam.interfaces import BackendParams
+from amslam.interfaces import BackendParams, FieldError
 from amslam.plugins.sim.world import World
 from amslam.types import CameraModel
 
@@ -25,23 +25,35 @@ from amslam.types import CameraModel
 class CameraParams(BackendParams):
     """The simulated depth camera (Intel RealSense D435i-like defaults)."""
 
-    width: int = Field(640, ge=8)
-    height: int = Field(480, ge=8)
+    width: int = Field(640, ge=8, le=4096, description="image width, pixels")
+    height: int = Field(480, ge=8, le=4096, description="image height, pixels")
     hfov_deg: float = Field(87.0, gt=10.0, lt=170.0)
     vfov_deg: float = Field(58.0, gt=10.0, lt=170.0)
-    min_range: float = Field(0.3, ge=0.0, description="closer returns are dropped (0 in the image)")
-    max_range: float = Field(5.0, gt=0.0, description="farther returns are dropped (0 in the image)")
-    rate_hz: float = Field(10.0, gt=0.0, description="frame rate; frames are rendered only when due")
+    min_range: float = Field(0.3, ge=0.0, le=100.0, description="closer returns are dropped (0 in the image)")
+    max_range: float = Field(
+        5.0, gt=0.0, le=100.0, description="farther returns are dropped (0 in the image)"
+    )
+    rate_hz: float = Field(
+        10.0, gt=0.0, le=1000.0, description="frame rate; frames are rendered only when due"
+    )
     pitch_deg: float = Field(0.0, ge=-60.0, le=60.0, description="downward tilt of the camera")
     depth_noise: float = Field(
-        0.005, ge=0.0, description="σ of depth noise = depth_noise·z² (m); D435i ≈ 0.002–0.01"
+        0.005, ge=0.0, le=1.0, description="σ of depth noise = depth_noise·z² (m); D435i ≈ 0.002–0.01"
     )
     dropout: float = Field(0.01, ge=0.0, le=1.0, description="probability that a pixel has no return")
     grazing_dropout: float = Field(
         0.5, ge=0.0, le=1.0, description="extra dropout probability at grazing incidence (cos < 0.2)"
     )
     rgb: bool = Field(True, description="render a shaded RGB image")
-    rgb_noise: float = Field(3.0, ge=0.0, description="σ of RGB pixel noise in 8-bit levels")
+    rgb_noise: float = Field(3.0, ge=0.0, le=255.0, description="σ of RGB pixel noise in 8-bit levels")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> CameraParams:
+        if not self.min_range < self.max_range:
+            raise FieldError(
+                "min_range", f"{self.min_range:g} m must be below max_range ({self.max_range:g} m)"
+            )
+        return self
 
     def model(self) -> CameraModel:
         """The :class:`CameraModel` these parameters describe."""

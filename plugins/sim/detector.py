@@ -49,7 +49,7 @@ from amslam.types import Detection, Frame, WorldSummary
 class PerceptionModel(BaseModel):
     """How confidence and geometric noise of one class depend on range and viewing angle."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     confidence_max: float = Field(0.95, gt=0.0, le=1.0, description="confidence of an ideal close view")
     range_half: float = Field(
@@ -92,9 +92,13 @@ class SimDetector(Detector):
     class Params(BackendParams):
         """Parameters of the simulated detector."""
 
-        rate_hz: float = Field(2.0, gt=0.0, description="how often the runner should call detect()")
+        rate_hz: float = Field(
+            2.0, gt=0.0, le=1000.0, description="how often the runner should call detect()"
+        )
         classes: list[str] | None = Field(None, description="classes to report; None = every object class")
-        max_range: float = Field(5.0, gt=0.0, description="pixels farther than this are ignored (m)")
+        max_range: float = Field(
+            5.0, gt=0.0, le=100.0, description="pixels farther than this are ignored (m)"
+        )
         min_pixels: int = Field(
             60, ge=1, description="fewest valid pixels of an instance at 640×480 (scaled with image area)"
         )

@@ -25,7 +25,7 @@ from pydantic import Field
 from scipy.spatial import cKDTree
 
 from amslam.errors import PlatformError
-from amslam.interfaces import BackendParams
+from amslam.interfaces import BackendParams, Coordinate, MissionFile
 from amslam.plugins.sim.world import MeshPart, World, WorldObject, WorldSpec, class_colour, survey_floors
 
 #: classes treated as building structure (instance 0) unless the mission says otherwise
@@ -38,12 +38,14 @@ class MeshWorldParams(BackendParams):
     """A world loaded from a mesh file and an objects file."""
 
     kind: Literal["mesh"] = "mesh"
-    mesh: str = Field(description="world mesh (PLY/OBJ/STL/GLB), relative to the mission file")
-    objects: str | None = Field(None, description="objects JSON, relative to the mission file")
+    mesh: MissionFile = Field(description="world mesh (PLY/OBJ/STL/GLB), relative to the mission file")
+    objects: MissionFile | None = Field(None, description="objects JSON, relative to the mission file")
     name: str | None = Field(None, description="name in reports (default: the mesh's folder name)")
     up_axis: Literal["z", "y"] = Field("z", description="'y' for y-up files such as glTF/GLB exports")
-    scale: float = Field(1.0, gt=0.0, description="multiplies coordinates (e.g. 0.01 for centimetres)")
-    floor_heights: tuple[float, ...] | None = Field(
+    scale: float = Field(
+        1.0, gt=0.0, le=1000.0, description="multiplies coordinates (e.g. 0.01 for centimetres)"
+    )
+    floor_heights: tuple[Coordinate, ...] | None = Field(
         None,
         description="z of each floor (ascending); default: found in the mesh (the lowest large walkable"
         " surface inside walls, and the storeys above it; see docs/worlds.md)",
@@ -58,7 +60,9 @@ class MeshWorldParams(BackendParams):
         default_factory=lambda: list(DEFAULT_STRUCTURE),
         description="classes (after renaming) that are building structure, not objects",
     )
-    match_tolerance: float = Field(1e-3, gt=0.0, description="centroid distance (m) that matches triangles")
+    match_tolerance: float = Field(
+        1e-3, gt=0.0, le=10.0, description="centroid distance (m) that matches triangles"
+    )
 
 
 _SNAKE = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])")

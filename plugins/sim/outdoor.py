@@ -33,13 +33,13 @@ plane}``). ``ground_class: null`` makes the ground plain structure.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from amslam.geometry import yaw_matrix
-from amslam.interfaces import BackendParams
+from amslam.interfaces import BackendParams, FieldError
 from amslam.plugins.sim.world import MeshPart, WorldObject, WorldSpec, box_mesh, merge_meshes
 
 __all__ = ["OutdoorWorldParams", "generate_outdoor"]
@@ -69,21 +69,45 @@ class OutdoorWorldParams(BackendParams):
     kind: Literal["outdoor"] = "outdoor"
     name: str = Field("outdoor", description="name of the world in reports")
     layout: Literal["parking_lot", "street"] = Field("parking_lot", description="scene layout")
-    size: tuple[float, float] = Field((36.0, 26.0), description="extent (x, y) of the scene in metres")
-    height: float = Field(7.0, gt=2.0, description="top of the flight volume above the lowest ground, m")
+    size: tuple[Annotated[float, Field(ge=12.0, le=500.0)], Annotated[float, Field(ge=12.0, le=500.0)]] = (
+        Field((36.0, 26.0), description="extent (x, y) of the scene in metres (12 to 500 m a side)")
+    )
+    height: float = Field(
+        7.0, gt=2.0, le=100.0, description="top of the flight volume above the lowest ground, m"
+    )
     slope_deg: float = Field(0.0, ge=0.0, le=10.0, description="ground slope in degrees")
-    slope_direction: float = Field(0.0, description="direction (rad, from +x) in which the ground rises")
+    slope_direction: float = Field(
+        0.0, ge=-100.0, le=100.0, description="direction (rad, from +x) in which the ground rises"
+    )
     occupancy: float = Field(0.7, ge=0.0, le=1.0, description="share of parking spaces holding a vehicle")
     van_fraction: float = Field(0.25, ge=0.0, le=1.0, description="share of vehicles that are vans")
-    yaw_jitter_deg: float = Field(4.0, ge=0.0, description="σ of a parked vehicle's yaw about its stall")
-    poles: int = Field(4, ge=0, description="light poles")
-    trees: int = Field(6, ge=0, description="tree trunks")
-    clutter: int = Field(4, ge=0, description="unlabelled clutter items (benches, bins)")
-    pole_height: tuple[float, float] = Field((5.0, 7.0), description="range of light-pole heights, m")
-    trunk_height: tuple[float, float] = Field((4.0, 6.5), description="range of tree-trunk heights, m")
-    ground_tile: float = Field(6.0, gt=1.0, description="side of a ground tile (one ground instance), m")
+    yaw_jitter_deg: float = Field(
+        4.0, ge=0.0, le=90.0, description="σ of a parked vehicle's yaw about its stall"
+    )
+    poles: int = Field(4, ge=0, le=1000, description="light poles")
+    trees: int = Field(6, ge=0, le=1000, description="tree trunks")
+    clutter: int = Field(4, ge=0, le=1000, description="unlabelled clutter items (benches, bins)")
+    pole_height: tuple[
+        Annotated[float, Field(gt=0.0, le=100.0)], Annotated[float, Field(gt=0.0, le=100.0)]
+    ] = Field((5.0, 7.0), description="range of light-pole heights, m")
+    trunk_height: tuple[
+        Annotated[float, Field(gt=0.0, le=100.0)], Annotated[float, Field(gt=0.0, le=100.0)]
+    ] = Field((4.0, 6.5), description="range of tree-trunk heights, m")
+    ground_tile: float = Field(
+        6.0, gt=1.0, le=1000.0, description="side of a ground tile (one ground instance), m"
+    )
     ground_class: str | None = Field("ground", description="class of the ground tiles; null = structure")
-    seed_offset: int = Field(0, description="added to the run seed: a different scene, same run")
+    seed_offset: int = Field(
+        0, ge=-(2**63), le=2**63 - 1, description="added to the run seed: a different scene, same run"
+    )
+
+    @model_validator(mode="after")
+    def _ranges(self) -> OutdoorWorldParams:
+        for name in ("pole_height", "trunk_height"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise FieldError(name, f"[{lo:g}, {hi:g}]: the lower end must not be above the upper")
+        return self
 
 
 # -------------------------------------------------------------------------------------------

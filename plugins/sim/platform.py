@@ -6,11 +6,11 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Discriminator, Field, Tag
+from pydantic import Discriminator, Field, Tag, model_validator
 
 from amslam.errors import PlatformError
 from amslam.geometry import pose_from, wrap_angle
-from amslam.interfaces import BackendParams, Platform, RunContext
+from amslam.interfaces import BackendParams, Coordinate, FieldError, Platform, RunContext
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
 from amslam.plugins.sim.outdoor import OutdoorWorldParams, generate_outdoor
@@ -61,7 +61,7 @@ class SimPlatform(Platform):
             description="kind: procedural (seeded building), mesh (a mesh file + objects file) or outdoor"
             " (seeded parking lot / street)",
         )
-        start: tuple[float, float] | None = Field(
+        start: tuple[Coordinate, Coordinate] | None = Field(
             None,
             description="start (x, y) on the ground floor; default: the procedural world's corridor end,"
             " or a mesh world's most open spot on its ground floor whose take-off column is clear, inside"
@@ -70,22 +70,27 @@ class SimPlatform(Platform):
         start_margin: float = Field(
             0.2,
             ge=0.0,
+            le=10.0,
             description="clearance beyond the robot radius that the take-off column needs at the start,"
             " from the landed height to the flight altitude (m)",
         )
-        start_yaw: float | None = Field(None, description="start heading in radians; default: the world's")
+        start_yaw: float | None = Field(
+            None, ge=-100.0, le=100.0, description="start heading in radians; default: the world's"
+        )
         camera: CameraParams = Field(default_factory=CameraParams)
         vio: VioParams = Field(default_factory=VioParams)
-        physics_hz: float = Field(50.0, ge=10.0, description="integration rate of the vehicle")
+        physics_hz: float = Field(50.0, ge=10.0, le=1000.0, description="integration rate of the vehicle")
         position_gain: float = Field(
-            1.5, gt=0.0, description="P gain (1/s) of the position loop near the goal"
+            1.5, gt=0.0, le=100.0, description="P gain (1/s) of the position loop near the goal"
         )
-        yaw_gain: float = Field(2.0, gt=0.0, description="P gain (1/s) of the yaw loop")
-        landing_speed: float = Field(0.4, gt=0.0, description="descent speed when landing, m/s")
+        yaw_gain: float = Field(2.0, gt=0.0, le=100.0, description="P gain (1/s) of the yaw loop")
+        landing_speed: float = Field(0.4, gt=0.0, le=10.0, description="descent speed when landing, m/s")
         landed_clearance: float = Field(
-            0.05, ge=0.0, description="gap between the collision sphere and the ground when landed"
+            0.05, ge=0.0, le=1.0, description="gap between the collision sphere and the ground when landed"
         )
-        reachable_cell: float = Field(0.25, gt=0.0, description="grid of the reachable-free-space summary")
+        reachable_cell: float = Field(
+            0.25, ge=0.05, le=10.0, description="grid of the reachable-free-space summary"
+        )
         reachable_by: Literal["robot", "air"] = Field(
             "robot",
             description="what explored % is a share of: 'robot', the free space the robot's body can"
@@ -93,6 +98,20 @@ class SimPlatform(Platform):
             " free space connected to the start through gaps wider than half a cell (the measure before"
             " issue #19)",
         )
+
+        @model_validator(mode="after")
+        def _start_inside(self) -> SimPlatform.Params:
+            # a generated world spans [0, W] x [0, D]; a mesh world's extent is known once it is loaded
+            size = getattr(self.world, "size", None)
+            if self.start is not None and size is not None:
+                (x, y), (W, D) = self.start, size
+                if not (0.0 < x < W and 0.0 < y < D):
+                    raise FieldError(
+                        "start",
+                        f"({x:g}, {y:g}) is outside the {self.world.kind} world, which spans "
+                        f"[0, {W:g}] x [0, {D:g}] m",
+                    )
+            return self
 
     def __init__(self) -> None:
         self.params: SimPlatform.Params | None = None
@@ -113,7 +132,9 @@ class SimPlatform(Platform):
         # Separate streams: the world, the VIO, the camera and the detector noise must not
         # shift one another when one of them is reconfigured.
         seeds = context.rng.integers(0, 2**63 - 1, size=3)
-        self._world_seed = int(seeds[0]) + getattr(params.world, "seed_offset", 0)
+        world_seed = int(seeds[0]) + getattr(params.world, "seed_offset", 0)
+        # a negative sum is no seed numpy takes: wrap it (every seed that worked before is unchanged)
+        self._world_seed = world_seed if world_seed >= 0 else world_seed % 2**63
         self._vio_rng = np.random.default_rng(int(seeds[1]))
         self._cam_rng = np.random.default_rng(int(seeds[2]))
 

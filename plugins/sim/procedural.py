@@ -25,13 +25,13 @@ seed fixes the building.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from amslam.geometry import yaw_matrix
-from amslam.interfaces import BackendParams
+from amslam.interfaces import BackendParams, FieldError
 from amslam.plugins.sim.world import (
     MeshPart,
     WorldObject,
@@ -47,20 +47,64 @@ class ProceduralWorldParams(BackendParams):
 
     kind: Literal["procedural"] = "procedural"
     name: str = Field("procedural", description="name of the world in reports")
-    size: tuple[float, float] = Field((20.0, 14.0), description="footprint (x, y) in metres")
+    size: tuple[Annotated[float, Field(gt=0.0, le=500.0)], Annotated[float, Field(gt=0.0, le=500.0)]] = Field(
+        (20.0, 14.0), description="footprint (x, y) in metres (at most 500 m a side)"
+    )
     floors: int = Field(1, ge=1, le=4, description="number of floors")
-    floor_height: float = Field(3.0, gt=2.0, description="floor-to-floor height in metres")
-    slab: float = Field(0.2, gt=0.0, description="floor slab thickness in metres (ceiling = height - slab)")
-    wall_thickness: float = Field(0.2, gt=0.0)
-    corridor_width: float = Field(2.0, ge=1.2, description="clear width of the corridor")
-    door_width: float = Field(1.2, ge=1.0, description="clear width of door openings")
-    door_height: float = Field(2.1, gt=1.5)
-    room_width: tuple[float, float] = Field((3.5, 6.0), description="range of room widths along x")
-    lobby_width: float = Field(4.5, ge=3.0, description="width (x) of the lobby at the east end")
-    shaft_size: float = Field(2.6, ge=1.5, description="side of the open shaft between floors")
-    furniture: float = Field(1.0, ge=0.0, description="furniture density multiplier (0 = empty rooms)")
+    floor_height: float = Field(3.0, gt=2.0, le=20.0, description="floor-to-floor height in metres")
+    slab: float = Field(
+        0.2, gt=0.0, le=1.0, description="floor slab thickness in metres (ceiling = height - slab)"
+    )
+    wall_thickness: float = Field(0.2, gt=0.0, le=1.0, description="thickness of every wall, m")
+    corridor_width: float = Field(2.0, ge=1.2, le=50.0, description="clear width of the corridor")
+    door_width: float = Field(1.2, ge=1.0, le=10.0, description="clear width of door openings")
+    door_height: float = Field(2.1, gt=1.5, le=20.0, description="clear height of door openings, m")
+    room_width: tuple[
+        Annotated[float, Field(ge=1.5, le=100.0)], Annotated[float, Field(ge=1.5, le=100.0)]
+    ] = Field((3.5, 6.0), description="range [narrowest, widest] of room widths along x, m (at least 1.5)")
+    lobby_width: float = Field(4.5, ge=3.0, le=100.0, description="width (x) of the lobby at the east end")
+    shaft_size: float = Field(2.6, ge=1.5, le=100.0, description="side of the open shaft between floors")
+    furniture: float = Field(
+        1.0, ge=0.0, le=10.0, description="furniture density multiplier (0 = empty rooms)"
+    )
     extra_doors: float = Field(0.35, ge=0.0, le=1.0, description="probability of a door to a neighbour")
-    seed_offset: int = Field(0, description="added to the run seed: a different building, same run")
+    seed_offset: int = Field(
+        0, ge=-(2**63), le=2**63 - 1, description="added to the run seed: a different building, same run"
+    )
+
+    @model_validator(mode="after")
+    def _fits(self) -> ProceduralWorldParams:
+        problem = self.layout_problem()
+        if problem:
+            raise FieldError(*problem)
+        return self
+
+    def layout_problem(self) -> tuple[str, str] | None:
+        """The field and why these dimensions make no building (None if they make one)."""
+        W, D = self.size
+        lo, hi = self.room_width
+        if lo > hi:
+            return "room_width", f"[{lo:g}, {hi:g}]: the narrowest room must not be wider than the widest"
+        if self.door_height >= self.floor_height - self.slab:
+            ceiling = self.floor_height - self.slab
+            return (
+                "door_height",
+                f"{self.door_height:g} m: a door must be lower than the ceiling ({ceiling:g} m)",
+            )
+        if self.shaft_size >= self.lobby_width:
+            return (
+                "shaft_size",
+                f"{self.shaft_size:g} m: the shaft must be smaller than lobby_width ({self.lobby_width:g} m)",
+            )
+        t = self.wall_thickness
+        cy0 = D / 2 - self.corridor_width / 2 - t / 2  # corridor wall centre lines
+        cy1 = D / 2 + self.corridor_width / 2 + t / 2
+        if cy0 < 2.5 or D - cy1 < 2.5 or W - self.lobby_width < 4.0:
+            return "size", (
+                f"building {W:g}x{D:g} m is too small for a corridor ({self.corridor_width:g} m), rooms "
+                f"(2.5 m deep) and a lobby ({self.lobby_width:g} m)"
+            )
+        return None
 
 
 @dataclass

@@ -32,16 +32,22 @@ from amslam.interfaces import BackendParams
 class VioParams(BackendParams):
     """Drift of the simulated visual-inertial odometry."""
 
-    rate_hz: float = Field(30.0, gt=0.0, description="rate at which odometry is published")
-    sigma_xy: float = Field(0.05, ge=0.0, description="horizontal position random walk, m/√m travelled")
-    sigma_z: float = Field(
-        0.012, ge=0.0, description="vertical position random walk, m/√m travelled (gravity + barometer aided)"
+    rate_hz: float = Field(30.0, gt=0.0, le=1000.0, description="rate at which odometry is published")
+    sigma_xy: float = Field(
+        0.05, ge=0.0, le=10.0, description="horizontal position random walk, m/√m travelled"
     )
-    sigma_yaw: float = Field(0.004, ge=0.0, description="yaw random walk, rad/√m travelled")
-    sigma_yaw_rotation: float = Field(0.003, ge=0.0, description="yaw random walk, rad/√rad turned")
+    sigma_z: float = Field(
+        0.012,
+        ge=0.0,
+        le=10.0,
+        description="vertical position random walk, m/√m travelled (gravity + barometer aided)",
+    )
+    sigma_yaw: float = Field(0.004, ge=0.0, le=10.0, description="yaw random walk, rad/√m travelled")
+    sigma_yaw_rotation: float = Field(0.003, ge=0.0, le=10.0, description="yaw random walk, rad/√rad turned")
     smoothing_distance: float = Field(
         1.0,
-        gt=0.0,
+        ge=0.01,
+        le=1000.0,
         description="the position random walk is drawn at nodes this far apart (m) and interpolated"
         " linearly in between, so the estimate drifts smoothly instead of jittering every step",
     )

@@ -74,7 +74,10 @@ def test_backend_exception_leaves_a_readable_run_folder(tmp_path):
     registry = build_plugin_manager(extra_plugins=[FailingMapPlugin()])
     mission = load_mission(small_mission(tmp_path, mapping="{plugin: failing}"), registry)
     result = Runner(mission, registry, tmp_path / "runs").run()
-    assert result.verdict == "failed: RuntimeError: voxel block pool exhausted"
+    assert result.verdict == (
+        "failed: mapping 'failing' (registered in-process, from no distribution): "
+        "integrate_global() raised RuntimeError: voxel block pool exhausted"
+    )
     metrics = json.loads((result.run_dir / "metrics.json").read_text())
     assert metrics["verdict"] == result.verdict and metrics["sim_duration_s"] > 5
     assert (result.run_dir / "report.md").read_text().count("voxel block pool exhausted") == 1

@@ -36,7 +36,7 @@ class RgbdImage:
 class CameraSourceParams(BaseModel):
     """Which camera a real platform reads, its nominal model and where it is mounted."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     source: Literal["none", "realsense", "replay"] = Field(
         "none", description="none (no frames), realsense (pyrealsense2), replay (a folder of .npz frames)"
