@@ -64,8 +64,8 @@ class Experiment:
     several_missions: bool = False
 
 
-def whole_number(minimum: int) -> Callable[[str], int]:
-    """An argparse type: a whole number ≥ ``minimum``, refused in one line otherwise."""
+def whole_number(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: a whole number in [``minimum``, ``maximum``], refused in one line otherwise."""
 
     def parse(text: str) -> int:
         try:
@@ -74,6 +74,8 @@ def whole_number(minimum: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"{value} is not at least {minimum}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"{value} is more than {maximum}")
         return value
 
     return parse

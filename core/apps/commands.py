@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 import amslam
-from amslam.cli import Command
+from amslam.cli import Command, whole_number
 from amslam.errors import AmslamError
 from amslam.registry import build_plugin_manager
 
@@ -305,7 +305,12 @@ def _view_arguments(parser) -> None:
     parser.add_argument(
         "--serve", action="store_true", help="serve on 127.0.0.1 and follow a run in progress"
     )
-    parser.add_argument("--port", type=int, default=8765, help="port for --serve (default 8765; 0: any free)")
+    parser.add_argument(
+        "--port",
+        type=whole_number(0, 65535),
+        default=8765,
+        help="port for --serve (default 8765; 0: any free)",
+    )
     parser.add_argument("--at", type=float, metavar="T", help="print the tree's state at time T (s) instead")
     parser.add_argument(
         "--screenshot", metavar="PNG", help="also save a picture of the page (headless Chromium)"

@@ -165,3 +165,19 @@ def test_an_experiment_whose_every_run_failed_exits_1(tmp_path):
     done = amslam("experiment", "planners", str(mission), "--seeds", "1", *wide, *out)
     assert done.returncode == 1, done.stderr
     assert "error: none of the 3 runs completed (failed: no room to take off" in done.stderr
+
+
+def test_view_port_out_of_range_or_taken_is_one_error(tmp_path: Path) -> None:
+    import socket
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "events.jsonl").write_text('{"t": 0.0, "event": "run_start"}\n')
+    for port in ("99999", "-1"):
+        assert "argument --port:" in one_error(amslam("view", str(run), "--serve", "--port", port))
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        line = one_error(amslam("view", str(run), "--serve", "--port", port))
+    assert line.startswith(f"error: cannot serve on 127.0.0.1:{port}:"), line

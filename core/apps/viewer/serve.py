@@ -21,6 +21,7 @@ from urllib.parse import parse_qs, urlparse
 
 from amslam.apps.viewer.build import embed_json, page_data, render_page
 from amslam.apps.viewer.runfiles import poll_run
+from amslam.errors import AmslamError
 
 POLL_PATH = "/api/poll"
 #: largest byte offset a cursor may hold (JSON numbers are exact up to 2**53)
@@ -101,7 +102,12 @@ class LiveServer:
 
     def __init__(self, run_dir: Path, port: int = 0, interval: float = 1.0):
         self.run_dir = Path(run_dir)
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", port), _handler(self.run_dir, int(interval * 1000)))
+        try:
+            self.httpd = ThreadingHTTPServer(
+                ("127.0.0.1", port), _handler(self.run_dir, int(interval * 1000))
+            )
+        except OSError as exc:  # the port is taken, or not ours to open
+            raise AmslamError(f"cannot serve on 127.0.0.1:{port}: {exc.strerror or exc}") from None
         self.httpd.daemon_threads = True
         self.thread: threading.Thread | None = None
 
