@@ -9,6 +9,8 @@ mission's path; ``M:7`` is its line 7 (see :func:`tests.e2e.missions.small_missi
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from amslam.cli import main
@@ -202,6 +204,9 @@ CASES = [
     ("slam.keypose_distance=.inf", f"M:10: slam.keypose_distance: {FINITE} (got inf)"),
 ]
 
+#: the real house missions/small_house.yaml flies, outside the repository
+SHARED_HOUSE = Path(__file__).resolve().parents[2] / ".." / "shared" / "worlds" / "small_house"
+
 
 def validate(capsys, *argv: str) -> tuple[int, list[str]]:
     try:
@@ -303,6 +308,14 @@ def test_an_inverted_geofence_is_refused(capsys):
                                   "parking_lot", "px4_square", "small_house", "three_floors"])  # fmt: skip
 def test_the_shipped_missions_stay_valid(capsys, name):
     status, lines = validate(capsys, name)
+    if name == "small_house" and not SHARED_HOUSE.is_dir():
+        # the mission flies the shared house beside the repository (../shared/worlds), absent in a
+        # checkout elsewhere: then exactly its two files are named, each with its line
+        assert status == 2 and [line.split(": ")[2] for line in lines] == [
+            "platform.world.mesh",
+            "platform.world.objects",
+        ], lines
+        return
     assert status == 0 and lines == [], lines
 
 
