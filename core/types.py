@@ -172,6 +172,20 @@ class BoundingBox:
     def nothing() -> BoundingBox:
         return BoundingBox(np.full(3, np.inf), np.full(3, -np.inf))
 
+    def flyable(self, radius: float) -> BoundingBox:
+        """Where a robot of ``radius`` may have its centre inside this box as a flight bound: its
+        body inside every face but the floor (it stands on the floor; an open-topped building is
+        explored inside, not over its walls)."""
+        return BoundingBox(
+            np.asarray(self.lo, float) + np.array([radius, radius, -np.inf]),
+            np.asarray(self.hi, float) - radius,
+        )
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Which of the points (N×3) lie inside, faces included."""
+        p = np.asarray(points, float)
+        return np.all((p >= self.lo) & (p <= self.hi), axis=-1)
+
 
 @dataclass(frozen=True)
 class Viewpoint:

@@ -419,10 +419,7 @@ class FrontierTracker:
         """Candidate voxels whose voxels within the robot radius are all known free, and where the
         robot stays inside the area on every face but the floor's (the planner's flyable volume:
         a viewpoint over an open-topped building's walls could never be reached)."""
-        centre = centres(index, self.cfg.voxel)
-        r = self.cfg.robot_radius
-        lo, hi = self.cfg.area.lo + np.array([r, r, -np.inf]), self.cfg.area.hi - r
-        inside = np.all((centre >= lo) & (centre <= hi), axis=1)
+        inside = self.cfg.area.flyable(self.cfg.robot_radius).contains(centres(index, self.cfg.voxel))
         out = np.zeros(len(index), dtype=bool)
         if inside.any():
             base = self.block.flat_index(index[inside])

@@ -445,10 +445,9 @@ class VoxelMapBase(Mapping):
         up to 4.3 m). The robot's radius stays inside every face but the floor's.
         """
         v = self.global_map.voxel
+        box = self.area.flyable(self.robot_radius)
         centres = [(lo[i] + np.arange(shape[i]) + 0.5) * v for i in range(3)]
-        r = self.robot_radius
-        lo_box, hi_box = self.area.lo + np.array([r, r, -np.inf]), self.area.hi - r
-        ok = [(c >= lo_box[i]) & (c <= hi_box[i]) for i, c in enumerate(centres)]
+        ok = [(c >= box.lo[i]) & (c <= box.hi[i]) for i, c in enumerate(centres)]
         return ok[0][:, None, None] & ok[1][None, :, None] & ok[2][None, None, :]
 
     def path_costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from amslam.types import WorldSummary
+from amslam.types import BoundingBox, WorldSummary
 
 #: Open3D's ``RaycastingScene.INVALID_ID`` (uint32 max): no geometry was hit.
 INVALID_ID = np.uint32(0xFFFFFFFF)
@@ -321,10 +321,7 @@ class World:
         else:
             fits = distance > robot_radius
             if bound is not None:
-                b_lo = np.asarray(bound[0], float) + np.array([robot_radius, robot_radius, -np.inf])
-                b_hi = np.asarray(bound[1], float) - robot_radius
-                inside = np.all((grid >= b_lo) & (grid <= b_hi), axis=1).reshape(shape)
-                fits &= inside
+                fits &= BoundingBox(*bound).flyable(robot_radius).contains(grid).reshape(shape)
             flown = _component(fits, idx)
             # the free cells the robot's body sweeps: within its radius (plus half a cell, the
             # cell centres' spacing) of a cell its centre can reach

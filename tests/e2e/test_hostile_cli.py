@@ -127,18 +127,7 @@ def test_output_closed_early_is_quiet():
 
 
 def test_sigterm_lands_and_leaves_a_complete_run_folder_and_a_second_signal_waits(tmp_path):
-    mission = small_mission(tmp_path, max_time=600)
-    out = tmp_path / "runs"
-    proc = subprocess.Popen(
-        [AMSLAM, "run", str(mission), "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + BOUND
-    while not list(out.glob("*/events.jsonl")) or "takeoff" not in _events(out):
-        assert proc.poll() is None and time.monotonic() < deadline, "the flight did not start"
-        time.sleep(0.2)
+    proc, out = start_flight(tmp_path)
     proc.send_signal(signal.SIGTERM)
     time.sleep(0.2)
     proc.send_signal(signal.SIGINT)  # while landing and saving: must not tear the run folder
@@ -156,6 +145,23 @@ def test_sigterm_lands_and_leaves_a_complete_run_folder_and_a_second_signal_wait
 
 def _events(out: Path) -> str:
     return "".join(p.read_text() for p in out.glob("*/events.jsonl"))
+
+
+def start_flight(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+    """``amslam run`` of a long small mission in a child process, returned once it has taken off."""
+    mission = small_mission(tmp_path, max_time=600)
+    out = tmp_path / "runs"
+    proc = subprocess.Popen(
+        [AMSLAM, "run", str(mission), "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + BOUND
+    while not list(out.glob("*/events.jsonl")) or "takeoff" not in _events(out):
+        assert proc.poll() is None and time.monotonic() < deadline, "the flight did not start"
+        time.sleep(0.2)
+    return proc, out
 
 
 def test_an_experiment_whose_every_run_failed_exits_1(tmp_path):

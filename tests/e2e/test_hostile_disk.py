@@ -19,7 +19,7 @@ from amslam.mission import load_mission
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
 from tests.e2e.missions import small_mission
-from tests.e2e.test_hostile_cli import AMSLAM, BOUND, _events
+from tests.e2e.test_hostile_cli import AMSLAM, BOUND, start_flight
 
 
 def parses(run: Path, *, torn_last_line: bool = False) -> list[dict]:
@@ -124,24 +124,8 @@ def test_a_disk_full_while_the_summary_is_saved_leaves_no_empty_file(tmp_path, c
     view_opens(run, capsys)
 
 
-def _start(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
-    mission = small_mission(tmp_path, max_time=600)
-    out = tmp_path / "runs"
-    proc = subprocess.Popen(
-        [AMSLAM, "run", str(mission), "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + BOUND
-    while not list(out.glob("*/events.jsonl")) or "takeoff" not in _events(out):
-        assert proc.poll() is None and time.monotonic() < deadline, "the flight did not start"
-        time.sleep(0.2)
-    return proc, out
-
-
 def test_a_double_ctrl_c_lands_and_completes_the_run_folder(tmp_path, capsys):
-    proc, out = _start(tmp_path)
+    proc, out = start_flight(tmp_path)
     proc.send_signal(signal.SIGINT)
     time.sleep(0.3)
     proc.send_signal(signal.SIGINT)  # impatient: must not tear the run folder nor print a traceback
@@ -158,7 +142,7 @@ def test_a_double_ctrl_c_lands_and_completes_the_run_folder(tmp_path, capsys):
 
 
 def test_sigkill_leaves_streams_that_parse_and_a_folder_the_viewer_opens(tmp_path, capsys):
-    proc, out = _start(tmp_path)
+    proc, out = start_flight(tmp_path)
     time.sleep(1.0)
     proc.kill()  # no handler runs: whatever was flushed is what is left
     proc.communicate(timeout=BOUND)
@@ -172,7 +156,7 @@ def test_sigkill_leaves_streams_that_parse_and_a_folder_the_viewer_opens(tmp_pat
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
 def test_a_stop_signal_says_why_in_the_events(tmp_path, capsys, signum):
-    proc, out = _start(tmp_path)
+    proc, out = start_flight(tmp_path)
     proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=BOUND)
     assert proc.returncode == 128 + signum and "Traceback" not in stderr
