@@ -10,14 +10,15 @@ viewpoints, path costs, collision checks, volumes, save/load) on top of a small 
 from __future__ import annotations
 
 import abc
+import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import Annotated, Any, ClassVar, Protocol
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from amslam.interfaces import BackendParams, Mapping, RunContext
+from amslam.interfaces import BackendParams, FieldError, Mapping, Point, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
     inflate,
@@ -42,6 +43,8 @@ from amslam.lib.voxel_grid import (
 from amslam.types import BoundingBox, Viewpoint
 
 Vec3 = tuple[float, float, float]
+#: a side of the local window, m: its voxels are allocated at once (100 m at 0.1 m: 10⁶ a layer)
+_Window = Annotated[float, Field(gt=0, le=100)]
 
 
 class VoxelMapParams(BackendParams):
@@ -53,11 +56,14 @@ class VoxelMapParams(BackendParams):
     local_voxel: float = Field(
         0.1, ge=0.02, le=5.0, description="Edge of a local (odometry-frame) voxel, metres (0.02 to 5)."
     )
-    local_size: Vec3 = Field(
+    local_size: tuple[_Window, _Window, _Window] = Field(
         (10.0, 10.0, 5.0), description="Size (x, y, z) in metres of the ego-centric local window."
     )
     local_recentre: float = Field(
-        1.0, ge=0, description="The local window re-centres on the camera once it is this far off-centre (m)."
+        1.0,
+        ge=0,
+        le=100,
+        description="The local window re-centres on the camera once it is this far off-centre (m).",
     )
     p_hit: float = Field(0.70, gt=0.5, lt=1, description="Occupancy probability of a voxel where a ray ends.")
     p_miss: float = Field(0.35, gt=0, lt=0.5, description="Occupancy probability of a voxel a ray crosses.")
@@ -70,37 +76,44 @@ class VoxelMapParams(BackendParams):
     p_min: float = Field(0.12, gt=0, lt=0.5, description="Lower clamp of the occupancy probability.")
     p_max: float = Field(0.97, gt=0.5, lt=1, description="Upper clamp of the occupancy probability.")
     max_range: float = Field(
-        5.0, gt=0, description="Max ray length (m); no-return and farther pixels carve free space to it."
+        5.0,
+        gt=0,
+        le=100,
+        description="Max ray length (m); no-return and farther pixels carve free space to it.",
     )
     global_stride: int | None = Field(
         None,
         ge=1,
+        le=1000,
         description="Use every n-th pixel (both axes) for the global map; None: the largest stride whose "
         "rays are at most half a voxel apart at max_range (8 for 640×480 at 0.25 m).",
     )
     local_stride: int | None = Field(
-        None, ge=1, description="Same for the local map (None: auto, 3 for 640×480 at 0.1 m)."
+        None, ge=1, le=1000, description="Same for the local map (None: auto, 3 for 640×480 at 0.1 m)."
     )
     area_margin: float = Field(
-        1.0, ge=0, description="The global map extends this far (m) beyond the exploration area."
+        1.0, ge=0, le=100, description="The global map extends this far (m) beyond the exploration area."
     )
-    default_area: tuple[Vec3, Vec3] = Field(
+    default_area: tuple[Point, Point] = Field(
         ((-25.0, -25.0, -1.0), (25.0, 25.0, 6.0)),
         description="Exploration area (lo, hi corners, m) when the run context gives none.",
     )
     min_cluster_size: int = Field(
-        4, ge=1, description="Frontier clusters smaller than this (voxels) are ignored."
+        4, ge=1, le=1_000_000, description="Frontier clusters smaller than this (voxels) are ignored."
     )
     max_cluster_extent: float = Field(
-        2.5, gt=0, description="Clusters longer than this along their principal axis (m) are split in two."
+        2.5,
+        gt=0,
+        le=100,
+        description="Clusters longer than this along their principal axis (m) are split in two.",
     )
-    viewpoint_radii: tuple[float, ...] = Field(
+    viewpoint_radii: tuple[Annotated[float, Field(gt=0, le=100)], ...] = Field(
         (1.0, 1.75, 2.5), description="Distances (m) of candidate viewpoints from a cluster centroid."
     )
     viewpoint_angles: int = Field(
         12, ge=1, le=360, description="Candidate directions around a cluster centroid."
     )
-    viewpoint_heights: tuple[float, ...] = Field(
+    viewpoint_heights: tuple[Annotated[float, Field(ge=-100, le=100)], ...] = Field(
         (-0.5, 0.0, 0.5), description="Candidate heights (m) relative to the cluster centroid."
     )
     viewpoint_yaws: int = Field(
@@ -113,10 +126,16 @@ class VoxelMapParams(BackendParams):
         8, ge=1, le=1000, description="Elevations (over the vertical fov) of that fan."
     )
     sensing_range: float | None = Field(
-        None, gt=0, description="Range (m) of the gain rays; default min(camera max range, max_range) - 0.5."
+        None,
+        gt=0,
+        le=100,
+        description="Range (m) of the gain rays; default min(camera max range, max_range) - 0.5.",
     )
     min_gain: float = Field(
-        0.5, ge=0, description="Viewpoints expecting to see less unknown volume (m³) than this are dropped."
+        0.5,
+        ge=0,
+        le=1_000_000,
+        description="Viewpoints expecting to see less unknown volume (m³) than this are dropped.",
     )
     viewpoint_resample_ratio: float = Field(
         0.5,
@@ -128,17 +147,20 @@ class VoxelMapParams(BackendParams):
     tight_penalty: float = Field(
         3.0,
         ge=1.0,
+        le=1000,
         description="Cost multiplier of path stretches closer to obstacles than the robot radius plus "
         "its clearance margin (still passable, e.g. doors).",
     )
     snap_radius: float = Field(
         0.6,
         ge=0,
+        le=100,
         description="Path start/goal off the free graph connect to the nearest free voxel within this.",
     )
     unseen_surface_reach: float = Field(
         0.25,
         ge=0,
+        le=100,
         description="Unknown voxels connected to a seen slab, floor or ceiling within this distance (m)"
         " count as occupied in path search and segment checks, both maps (the unseen top or edge of a"
         " slab seen from one side); 0: only occupied voxels keep paths away.",
@@ -151,6 +173,7 @@ class VoxelMapParams(BackendParams):
     floor_change_opening: float = Field(
         0.75,
         ge=0,
+        le=100,
         description="In the z layer of a slab, floor or ceiling, paths move vertically only this far (m)"
         " horizontally from it: floors are changed through wide openings (a shaft, a stairwell), not"
         " through a hole the global map carved into a slab from drifted poses; 0: no such rule.",
@@ -161,6 +184,21 @@ class VoxelMapParams(BackendParams):
         " where a robot must cross ground it has not mapped to reach a known object); the local map"
         " still checks every step. Off: paths stay in known free space (buildings).",
     )
+
+    #: most voxels of the local window, allocated at once (the default: 10 x 10 x 5 m at 0.1 m, 5·10⁵)
+    MAX_LOCAL_VOXELS: ClassVar[int] = 50_000_000
+
+    @model_validator(mode="after")
+    def _local_window_fits(self) -> VoxelMapParams:
+        cells = math.prod(math.ceil(s / self.local_voxel) for s in self.local_size)
+        if cells > self.MAX_LOCAL_VOXELS:
+            size = " x ".join(f"{s:g}" for s in self.local_size)
+            raise FieldError(
+                "local_size",
+                f"{size} m at local_voxel {self.local_voxel:g} m is {cells:.3g} voxels, more than"
+                f" {self.MAX_LOCAL_VOXELS:.0e} (a smaller window or a coarser local_voxel)",
+            )
+        return self
 
 
 def _smoothed_path(

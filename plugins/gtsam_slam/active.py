@@ -28,9 +28,11 @@ class ActiveParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    dbscan_eps: float = Field(2.5, gt=0, description="DBSCAN neighbourhood of landmark clusters, m")
-    cluster_min_landmarks: int = Field(3, ge=1, description="fewest landmarks of an SLC cluster")
-    floor_height: float = Field(3.0, gt=0, description="height of a floor for per-floor clustering, m")
+    dbscan_eps: float = Field(2.5, gt=0, le=1000, description="DBSCAN neighbourhood of landmark clusters, m")
+    cluster_min_landmarks: int = Field(3, ge=1, le=10_000, description="fewest landmarks of an SLC cluster")
+    floor_height: float = Field(
+        3.0, gt=0, le=100, description="height of a floor for per-floor clustering, m"
+    )
     ig_variables: Literal["poses", "all"] = Field(
         "all", description="variables whose covariance trace eq. (10) measures"
     )

@@ -8,6 +8,7 @@ iSAM2 propagate the correction.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Literal
 
@@ -24,28 +25,32 @@ __all__ = ["LoopCloser", "LoopClosureParams"]
 
 
 class LoopClosureParams(BaseModel):
-    """Semantic loop closure (``slam.loop_closure``)."""
+    """Semantic loop closure (``slam.loop_closure``); yaw bounds are at most π (rad, rad/m)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     solver: Literal["scalable", "exhaustive"] = Field("scalable", description="SLC registration")
-    tolerance: float = Field(0.3, gt=0, description="accepted RMS residual per landmark, m")
-    inlier_gate: float = Field(0.5, gt=0, description="largest matched-pair error, m")
-    min_matches: int = Field(3, ge=3, description="fewest matched landmarks")
+    tolerance: float = Field(0.3, gt=0, le=100, description="accepted RMS residual per landmark, m")
+    inlier_gate: float = Field(0.5, gt=0, le=100, description="largest matched-pair error, m")
+    min_matches: int = Field(3, ge=3, le=1000, description="fewest matched landmarks")
     ambiguity_ratio: float = Field(0.75, gt=0, le=1, description="runner-up share that rejects")
     min_age: float = Field(
-        8.0, ge=0, description="map landmarks first seen within this travel (m) are not loop targets"
+        8.0,
+        ge=0,
+        le=100_000,
+        description="map landmarks first seen within this travel (m) are not loop targets",
     )
-    window: float = Field(30.0, gt=0, description="panorama: detections of the last N seconds")
-    panorama_radius: float = Field(1.0, gt=0, description="panorama: within this of the robot, m")
-    merge_radius: float = Field(0.4, gt=0, description="same-class panorama detections merge, m")
+    window: float = Field(30.0, gt=0, le=3600, description="panorama: detections of the last N seconds")
+    panorama_radius: float = Field(1.0, gt=0, le=100, description="panorama: within this of the robot, m")
+    merge_radius: float = Field(0.4, gt=0, le=100, description="same-class panorama detections merge, m")
     max_drift_ratio: float = Field(
-        0.1, gt=0, description="reject corrections beyond this share of the distance travelled"
+        0.1, gt=0, le=10, description="reject corrections beyond this share of the distance travelled"
     )
-    max_drift_floor: float = Field(1.0, ge=0, description="plus this many metres")
+    max_drift_floor: float = Field(1.0, ge=0, le=1000, description="plus this many metres")
     fuse_ratio: float = Field(
         0.5,
         gt=0,
+        le=10,
         description="fuse a duplicate with its old twin only if their post-alignment error is below"
         " this share of tolerance (a looser pair still gets its range-bearing factors)",
     )
@@ -55,16 +60,22 @@ class LoopClosureParams(BaseModel):
         " (False: the paper's search over all transforms)",
     )
     prior_translation_floor: float = Field(
-        0.4, ge=0, description="drift bound: position correction at zero untied travel, m"
+        0.4, ge=0, le=1000, description="drift bound: position correction at zero untied travel, m"
     )
     prior_translation_ratio: float = Field(
-        0.03, ge=0, description="drift bound: plus this share of the travel since the map here was seen"
+        0.03,
+        ge=0,
+        le=10,
+        description="drift bound: plus this share of the travel since the map here was seen",
     )
     prior_yaw_floor: float = Field(
-        0.15, ge=0, description="drift bound: yaw correction at zero untied travel, rad"
+        0.15, ge=0, le=math.pi, description="drift bound: yaw correction at zero untied travel, rad"
     )
     prior_yaw_ratio: float = Field(
-        0.005, ge=0, description="drift bound: plus this much yaw per metre of untied travel, rad/m"
+        0.005,
+        ge=0,
+        le=math.pi,
+        description="drift bound: plus this much yaw per metre of untied travel, rad/m",
     )
 
 

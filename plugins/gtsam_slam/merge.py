@@ -57,10 +57,11 @@ the optimised key poses, when a ``shape_fitter`` is given.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import gtsam
 import numpy as np
@@ -106,38 +107,53 @@ def robot_key(robot: int, keypose: int) -> int:
     return gtsam.symbol(ROBOT_CHARS[robot], keypose)
 
 
+#: a size, m: above zero and at most 100 m (no object is larger)
+_Size = Annotated[float, Field(gt=0, le=100)]
+
+
 class MergeParams(BaseModel):
-    """Noise models and gates of the merged graph (defaults: the onboard ``gtsam`` backend's)."""
+    """Noise models and gates of the merged graph (defaults: the onboard ``gtsam`` backend's).
+
+    Bounds as in :class:`~amslam.plugins.gtsam_slam.graph.GraphParams`: angle stds (rad) at most π."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    base_sigma_translation: float = Field(0.01, gt=0, description="std of a known base position, m")
-    base_sigma_rotation: float = Field(0.005, gt=0, description="std of a known base attitude, rad")
-    odom_sigma_translation_per_m: float = Field(0.02, gt=0, description="VIO translation std per metre")
-    odom_sigma_translation_min: float = Field(0.005, gt=0, description="VIO translation std floor, m")
-    odom_sigma_yaw_per_m: float = Field(0.005, ge=0, description="VIO yaw std per metre, rad/m")
-    odom_sigma_yaw_per_rad: float = Field(0.01, ge=0, description="VIO yaw std per radian turned")
-    odom_sigma_yaw_min: float = Field(0.002, gt=0, description="VIO yaw std floor, rad")
-    odom_sigma_roll_pitch: float = Field(0.002, gt=0, description="roll/pitch std (IMU), rad")
+    base_sigma_translation: float = Field(0.01, gt=0, le=1000, description="std of a known base position, m")
+    base_sigma_rotation: float = Field(
+        0.005, gt=0, le=math.pi, description="std of a known base attitude, rad"
+    )
+    odom_sigma_translation_per_m: float = Field(
+        0.02, gt=0, le=10, description="VIO translation std per metre"
+    )
+    odom_sigma_translation_min: float = Field(0.005, gt=0, le=10, description="VIO translation std floor, m")
+    odom_sigma_yaw_per_m: float = Field(0.005, ge=0, le=math.pi, description="VIO yaw std per metre, rad/m")
+    odom_sigma_yaw_per_rad: float = Field(0.01, ge=0, le=10, description="VIO yaw std per radian turned")
+    odom_sigma_yaw_min: float = Field(0.002, gt=0, le=math.pi, description="VIO yaw std floor, rad")
+    odom_sigma_roll_pitch: float = Field(0.002, gt=0, le=math.pi, description="roll/pitch std (IMU), rad")
     attitude_sigma: float = Field(
         0.01,
         ge=0,
+        le=math.pi,
         description="std of each key pose's tilt against gravity (IMU), rad (0: no attitude factors)",
     )
-    bearing_sigma: float = Field(0.05, gt=0, description="bearing std of an object centroid, rad")
-    range_sigma: float = Field(0.05, gt=0, description="range std at zero range, m")
-    range_sigma_per_m: float = Field(0.03, ge=0, description="range std growth per metre")
-    robust_k: float = Field(1.345, gt=0, description="Huber kernel width (whitened units)")
-    association_gate: float = Field(0.8, gt=0, description="nearest-neighbour gate, m")
-    min_observations: int = Field(3, ge=1, description="detections before a landmark is trusted")
+    bearing_sigma: float = Field(0.05, gt=0, le=math.pi, description="bearing std of an object centroid, rad")
+    range_sigma: float = Field(0.05, gt=0, le=100, description="range std at zero range, m")
+    range_sigma_per_m: float = Field(0.03, ge=0, le=10, description="range std growth per metre")
+    robust_k: float = Field(1.345, gt=0, le=100, description="Huber kernel width (whitened units)")
+    association_gate: float = Field(0.8, gt=0, le=100, description="nearest-neighbour gate, m")
+    min_observations: int = Field(3, ge=1, le=1000, description="detections before a landmark is trusted")
     min_confidence: float = Field(0.3, ge=0, le=1, description="ignore weaker detections")
-    max_range: float = Field(8.0, gt=0, description="ignore detections farther than this, m")
-    fuse_gate: float = Field(0.8, ge=0, description="fuse same-class landmarks closer than this, m (0: off)")
+    max_range: float = Field(8.0, gt=0, le=1000, description="ignore detections farther than this, m")
+    fuse_gate: float = Field(
+        0.8, ge=0, le=100, description="fuse same-class landmarks closer than this, m (0: off)"
+    )
     optimizer: Literal["lm", "isam2"] = Field("lm", description="final joint optimisation")
     refine_rounds: int = Field(
-        8, ge=0, description="rounds of re-association + duplicate fusion + joint optimisation"
+        8, ge=0, le=1000, description="rounds of re-association + duplicate fusion + joint optimisation"
     )
-    update_every: int = Field(20, ge=1, description="iSAM2 update at least every this many key poses")
+    update_every: int = Field(
+        20, ge=1, le=1_000_000, description="iSAM2 update at least every this many key poses"
+    )
     landmark_models: dict[str, Literal["centroid", "cuboid", "cylinder"]] = Field(
         default_factory=dict,
         description="landmark model per class (default centroid); cuboid / cylinder classes are "
@@ -146,6 +162,7 @@ class MergeParams(BaseModel):
     shape_margin: float = Field(
         _SHAPE.association_margin,
         ge=0,
+        le=100,
         description="shape association: distance to a landmark's points or shape, m",
     )
     shape_overlap: float = Field(
@@ -154,15 +171,15 @@ class MergeParams(BaseModel):
         le=1,
         description="share of a detection's points inside to associate",
     )
-    shape_max_dims: dict[str, tuple[float, float, float]] = Field(
+    shape_max_dims: dict[str, tuple[_Size, _Size, _Size]] = Field(
         default_factory=lambda: {"car": (6.0, 2.6, 2.8)},
         description="largest single object of a cuboid class (length, width, height), m: two landmarks "
         "whose points fit in one such box are fused (cars and vans are <= 5.5 x 2.05 x 2.3 m)",
     )
     shape_max_radius: float = Field(
-        _SHAPE.max_radius, gt=0, description="largest radius of one cylinder object (fusion), m"
+        _SHAPE.max_radius, gt=0, le=100, description="largest radius of one cylinder object (fusion), m"
     )
-    shape_centroid_sigma: dict[str, float] = Field(
+    shape_centroid_sigma: dict[str, Annotated[float, Field(ge=0, le=1000)]] = Field(
         default_factory=lambda: {"car": 5.0, "cuboid": 0.5, "cylinder": 0.3},
         description="extra std (m) of a shape-class detection's centroid as a range-bearing measurement, "
         "by class, else by model (cuboid: furniture-sized, <= 1.5 m): "
@@ -171,9 +188,14 @@ class MergeParams(BaseModel):
         "two lot_a logs, 1.0 m for cars bent the chains to 0.90 / 0.69 m mean error, VIO alone "
         "0.53 / 0.41 m, 5.0 m gave 0.15 / 0.36 m)",
     )
-    shape_cloud: int = Field(1500, ge=50, description="points kept per shape landmark (even thinning)")
+    shape_cloud: int = Field(
+        1500, ge=50, le=1_000_000, description="points kept per shape landmark (even thinning)"
+    )
     shape_fit_points: int = Field(
-        400, ge=20, description="points a landmark's shape is fitted to during association (cost of the fit)"
+        400,
+        ge=20,
+        le=1_000_000,
+        description="points a landmark's shape is fitted to during association (cost of the fit)",
     )
 
 

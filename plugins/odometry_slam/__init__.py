@@ -9,6 +9,8 @@ so the semantic map still exists (without any correction).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydantic import Field
 
@@ -22,9 +24,9 @@ class OdometrySlam(Slam):
     """World = odometry: no correction, landmarks placed with the VIO pose."""
 
     class Params(BackendParams):
-        keypose_distance: float = Field(0.5, gt=0, description="a key pose every this many metres")
-        keypose_yaw: float = Field(0.5, gt=0, description="or every this much yaw change, rad")
-        association_gate: float = Field(1.0, gt=0, description="max distance to merge a detection, m")
+        keypose_distance: float = Field(0.5, gt=0, le=100, description="a key pose every this many metres")
+        keypose_yaw: float = Field(0.5, gt=0, le=math.pi, description="or every this much yaw change, rad")
+        association_gate: float = Field(1.0, gt=0, le=100, description="max distance to merge a detection, m")
 
     def __init__(self) -> None:
         self._keyposes: list[KeyPose] = []

@@ -70,18 +70,26 @@ class OnnxDetector(Detector):
             le=1.0,
             description="NMS IoU: the weaker of two same-class boxes overlapping more is dropped",
         )
-        max_detections: int = Field(50, ge=1, description="most detections per image")
+        max_detections: int = Field(50, ge=1, le=10_000, description="most detections per image")
         mask_threshold: float = Field(0.5, gt=0.0, lt=1.0, description="mask probability of an object pixel")
         class_names: list[str] | None = Field(
             None, description="class names by class index; default: the model's 'names' metadata"
         )
         classes: list[str] | None = Field(None, description="classes to report; None = every class")
-        max_range: float = Field(5.0, gt=0.0, description="depth pixels farther than this are ignored (m)")
+        max_range: float = Field(
+            5.0, gt=0.0, le=1000, description="depth pixels farther than this are ignored (m)"
+        )
         min_pixels: int = Field(
-            60, ge=1, description="fewest valid depth pixels under a mask at 640×480 (scaled with image area)"
+            60,
+            ge=1,
+            le=1_000_000,
+            description="fewest valid depth pixels under a mask at 640×480 (scaled with image area)",
         )
         depth_gap: float = Field(
-            0.3, ge=0.0, description="split the mask's depths at gaps larger than this (m); 0 = keep all"
+            0.3,
+            ge=0.0,
+            le=1000,
+            description="split the mask's depths at gaps larger than this (m); 0 = keep all",
         )
         centroid_height: Literal["mask", "box"] = Field(
             "box",
@@ -95,7 +103,9 @@ class OnnxDetector(Detector):
             description="a detection whose depth pixels lie more than this share in stronger detections of"
             " its class is a part or a merge of them and is dropped (mask NMS); 1 = off",
         )
-        max_points: int = Field(400, ge=0, description="points_cam is subsampled to at most this many")
+        max_points: int = Field(
+            400, ge=0, le=1_000_000, description="points_cam is subsampled to at most this many"
+        )
         threads: int = Field(1, ge=1, le=16, description="onnxruntime intra-op threads")
 
         @field_validator("model")

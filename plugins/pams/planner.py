@@ -50,6 +50,7 @@ from scipy import ndimage
 from amslam.errors import PlanningError
 from amslam.interfaces import (
     BackendParams,
+    Coordinate,
     MissionFile,
     Planner,
     RunContext,
@@ -236,9 +237,11 @@ class PamsParams(BackendParams):
     sampling: Literal["uniform", "centroid"] = Field("centroid", description="how samples are drawn (Fig. 6)")
     samples: int = Field(8, ge=1, le=10_000, description="uniform sampling: samples per target")
     min_confidence: float = Field(0.8, ge=0.0, le=1.0, description="high-confidence region threshold")
-    max_position_std: float = Field(0.1, gt=0.0, description="low-uncertainty region: position std limit, m")
+    max_position_std: float = Field(
+        0.1, gt=0.0, le=100, description="low-uncertainty region: position std limit, m"
+    )
     max_dimension_std: float = Field(
-        0.2, gt=0.0, description="low-uncertainty region: dimension std limit, m"
+        0.2, gt=0.0, le=100, description="low-uncertainty region: dimension std limit, m"
     )
     min_region_share: float = Field(
         0.1,
@@ -246,34 +249,52 @@ class PamsParams(BackendParams):
         le=1.0,
         description="if the intersection is empty, the lowest-entropy share of the confident cells instead",
     )
-    range_step: float = Field(0.5, gt=0.0, description="grid step of the horizontal distance, m")
-    bearing_step_deg: float = Field(10.0, gt=0.0, description="grid step of the bearing, degrees")
-    max_distance: float = Field(12.0, gt=0.0, description="farthest candidate from a target, m")
-    height: float | None = Field(
+    range_step: float = Field(
+        0.5,
+        ge=0.05,
+        le=100,
+        description="grid step of the horizontal distance, m (from 0.05: the grid of candidates stays small)",
+    )
+    bearing_step_deg: float = Field(
+        10.0,
+        ge=0.5,
+        le=360,
+        description="grid step of the bearing, degrees (from 0.5: the grid of candidates stays small)",
+    )
+    max_distance: float = Field(12.0, gt=0.0, le=200, description="farthest candidate from a target, m")
+    height: Coordinate | None = Field(
         None, description="flight height of the viewpoints (world z); None = the robot's"
     )
     clearance: float = Field(
-        1.0, ge=0.0, description="viewpoints keep this far from every object's footprint, m"
+        1.0, ge=0.0, le=100, description="viewpoints keep this far from every object's footprint, m"
     )
-    prior_std: float = Field(0.5, gt=0.0, description="std of every component before any look, m")
+    prior_std: float = Field(0.5, gt=0.0, le=1000, description="std of every component before any look, m")
     target_std: float = Field(
-        0.05, gt=0.0, description="stop when the entropy is that of this std per component"
+        0.05, gt=0.0, le=1000, description="stop when the entropy is that of this std per component"
     )
-    entropy_threshold: float | None = Field(None, description="explicit stop threshold on ½ ln det Σ")
-    cost_weight: float = Field(0.01, ge=0.0, description="nats per metre of path: breaks ties between orders")
+    entropy_threshold: float | None = Field(
+        None, ge=-1000, le=1000, description="explicit stop threshold on ½ ln det Σ, nats"
+    )
+    cost_weight: float = Field(
+        0.01, ge=0.0, le=1000, description="nats per metre of path: breaks ties between orders"
+    )
     overfly: float | None = Field(
         None,
         ge=0.0,
+        le=1000,
         description="objects whose top is this far (m) below the viewpoints' height do not block them; "
         "None = every object's footprint (plus clearance) blocks",
     )
-    reach_tolerance: float = Field(1.0, gt=0.0, description="a viewpoint counts as taken within this, m")
+    reach_tolerance: float = Field(
+        1.0, gt=0.0, le=1000, description="a viewpoint counts as taken within this, m"
+    )
     max_attempts: int = Field(
         3,
         ge=1,
+        le=1000,
         description="times a viewpoint may be given up (the robot's first open stop) before it is dropped",
     )
-    default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
+    default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
 
     _prior_file = field_validator("prior_objects")(_prior_objects_file)
 
@@ -286,23 +307,29 @@ class PriorVisitParams(BackendParams):
     )
     target_classes: list[str] | None = Field(None, description="classes to visit; None = every class")
     standoff: float = Field(
-        3.0, gt=0.0, description="horizontal distance from an object's edge to look from, m"
+        3.0, gt=0.0, le=1000, description="horizontal distance from an object's edge to look from, m"
     )
-    height: float | None = Field(None, description="flight height (world z); None = the robot's")
+    height: Coordinate | None = Field(None, description="flight height (world z); None = the robot's")
     clearance: float = Field(
-        1.0, ge=0.0, description="the look-from place keeps this far from other objects, m"
+        1.0, ge=0.0, le=100, description="the look-from place keeps this far from other objects, m"
     )
     overfly: float | None = Field(
         None,
         ge=0.0,
+        le=1000,
         description="objects whose top is this far (m) below the viewpoints' height do not block them; "
         "None = every object's footprint (plus clearance) blocks",
     )
-    reach_tolerance: float = Field(1.0, gt=0.0, description="a stop counts as visited within this, m")
-    max_attempts: int = Field(
-        3, ge=1, description="times a stop may be given up (the robot's first open stop) before it is dropped"
+    reach_tolerance: float = Field(
+        1.0, gt=0.0, le=1000, description="a stop counts as visited within this, m"
     )
-    default_radius: float = Field(0.5, gt=0.0, description="half-size of objects without a shape, m")
+    max_attempts: int = Field(
+        3,
+        ge=1,
+        le=1000,
+        description="times a stop may be given up (the robot's first open stop) before it is dropped",
+    )
+    default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
 
     _prior_file = field_validator("prior_objects")(_prior_objects_file)
 

@@ -54,11 +54,15 @@ class CopParams(BackendParams):
     """Parameters of the ``cop`` planner."""
 
     budget_factor: float = Field(
-        2.0, ge=1.0, description="budget = factor × summed cost to the budget_k nearest viewpoints"
+        2.0, ge=1.0, le=1000, description="budget = factor × summed cost to the budget_k nearest viewpoints"
     )
-    budget_k: int = Field(3, ge=1, description="how many nearest viewpoints set the budget")
-    min_budget: float = Field(0.0, ge=0.0, description="lower bound of the travel budget in metres")
-    min_gain: float = Field(0.0, ge=0.0, description="viewpoints with gain (m³) at or below this are ignored")
+    budget_k: int = Field(3, ge=1, le=1000, description="how many nearest viewpoints set the budget")
+    min_budget: float = Field(
+        0.0, ge=0.0, le=100_000, description="lower bound of the travel budget in metres"
+    )
+    min_gain: float = Field(
+        0.0, ge=0.0, le=1_000_000, description="viewpoints with gain (m³) at or below this are ignored"
+    )
     stop_at_first_violation: bool = Field(
         False,
         description="end construction at the first vertex that breaks the budget (else skip it and go on)",
@@ -67,22 +71,24 @@ class CopParams(BackendParams):
     fov_range: float | None = Field(
         None,
         gt=0.0,
+        le=1000,
         description="far range (m) of the frustum used for correlation; default camera max_range",
     )
     slc: bool = Field(True, description="refine the tour with loop-closure stops (Algorithm 1)")
     slc_scale: float = Field(
         10.0,
         ge=0.0,
+        le=1_000_000,
         description="Scale(IG): exploration utility (m³/m) worth one unit of covariance-trace reduction",
     )
     slc_min_gain: float = Field(
-        0.0, ge=0.0, description="loop-closure candidates with IG at or below this are ignored"
+        0.0, ge=0.0, le=1_000_000, description="loop-closure candidates with IG at or below this are ignored"
     )
     slc_budget_factor: float = Field(
-        1.0, ge=1.0, description="budget of the refined tour relative to the COP budget"
+        1.0, ge=1.0, le=1000, description="budget of the refined tour relative to the COP budget"
     )
     utility_epsilon: float = Field(
-        0.5, gt=0.0, description="metres added to a viewpoint's cost in its utility IG/(cost+eps)"
+        0.5, gt=0.0, le=1000, description="metres added to a viewpoint's cost in its utility IG/(cost+eps)"
     )
 
 

@@ -29,10 +29,12 @@ class GreedyParams(BackendParams):
     utility: Literal["ratio", "exp"] = Field(
         "ratio", description="ratio: gain/(cost+epsilon); exp: gain*exp(-lam*cost)"
     )
-    epsilon: float = Field(0.5, gt=0.0, description="metres added to the cost in the ratio utility")
-    lam: float = Field(0.25, ge=0.0, description="distance discount (1/m) of the exp utility")
-    items: int = Field(1, ge=1, description="viewpoints in the returned tour, chained greedily")
-    min_gain: float = Field(0.0, ge=0.0, description="viewpoints with gain (m³) at or below this are ignored")
+    epsilon: float = Field(0.5, gt=0.0, le=1000, description="metres added to the cost in the ratio utility")
+    lam: float = Field(0.25, ge=0.0, le=100, description="distance discount (1/m) of the exp utility")
+    items: int = Field(1, ge=1, le=10_000, description="viewpoints in the returned tour, chained greedily")
+    min_gain: float = Field(
+        0.0, ge=0.0, le=1_000_000, description="viewpoints with gain (m³) at or below this are ignored"
+    )
 
 
 def greedy_utility(gains: np.ndarray, costs: np.ndarray, params: GreedyParams) -> np.ndarray:

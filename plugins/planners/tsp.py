@@ -29,8 +29,12 @@ class TspParams(BackendParams):
     exact_max: int = Field(
         12, ge=0, le=15, description="largest number of viewpoints solved exactly by dynamic programming"
     )
-    min_gain: float = Field(0.0, ge=0.0, description="viewpoints with gain (m³) at or below this are ignored")
-    max_rounds: int = Field(50, ge=1, description="improvement rounds of the 2-opt / or-opt heuristic")
+    min_gain: float = Field(
+        0.0, ge=0.0, le=1_000_000, description="viewpoints with gain (m³) at or below this are ignored"
+    )
+    max_rounds: int = Field(
+        50, ge=1, le=100_000, description="improvement rounds of the 2-opt / or-opt heuristic"
+    )
 
 
 def open_tsp(costs, nodes: list[int], params: TspParams) -> list[int]:

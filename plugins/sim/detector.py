@@ -53,9 +53,9 @@ class PerceptionModel(BaseModel):
 
     confidence_max: float = Field(0.95, gt=0.0, le=1.0, description="confidence of an ideal close view")
     range_half: float = Field(
-        7.0, gt=0.0, description="range at which the range factor of the confidence halves, m"
+        7.0, gt=0.0, le=1000, description="range at which the range factor of the confidence halves, m"
     )
-    range_width: float = Field(1.2, gt=0.0, description="width of the logistic range fall-off, m")
+    range_width: float = Field(1.2, gt=0.0, le=1000, description="width of the logistic range fall-off, m")
     front_penalty: float = Field(
         0.1, ge=0.0, le=1.0, description="share of confidence lost when seen end-on from the front"
     )
@@ -63,7 +63,7 @@ class PerceptionModel(BaseModel):
         0.05, ge=0.0, le=1.0, description="share of confidence lost when seen end-on from behind"
     )
     centroid_noise_per_m2: float = Field(
-        0.002, ge=0.0, description="growth of the localisation std with range squared, m per m²"
+        0.002, ge=0.0, le=10, description="growth of the localisation std with range squared, m per m²"
     )
 
 
@@ -100,7 +100,10 @@ class SimDetector(Detector):
             5.0, gt=0.0, le=100.0, description="pixels farther than this are ignored (m)"
         )
         min_pixels: int = Field(
-            60, ge=1, description="fewest valid pixels of an instance at 640×480 (scaled with image area)"
+            60,
+            ge=1,
+            le=1_000_000,
+            description="fewest valid pixels of an instance at 640×480 (scaled with image area)",
         )
         miss_probability: float = Field(
             0.05, ge=0.0, le=1.0, description="chance to miss a visible object even when confident"
@@ -111,14 +114,22 @@ class SimDetector(Detector):
         miss_ceiling: float = Field(
             0.55, ge=0.0, le=1.0, description="above this confidence only miss_probability misses"
         )
-        confidence_noise: float = Field(0.03, ge=0.0, description="σ of the noise on the confidence")
+        confidence_noise: float = Field(0.03, ge=0.0, le=1, description="σ of the noise on the confidence")
         false_positive_rate: float = Field(
-            0.02, ge=0.0, description="expected false detections per frame (Poisson)"
+            0.02,
+            ge=0.0,
+            le=100,
+            description="expected false detections per frame (Poisson; at most 100: each one is drawn)",
         )
         centroid_noise: float = Field(
-            0.03, ge=0.0, description="σ of the localisation error of a detection at zero range, per axis (m)"
+            0.03,
+            ge=0.0,
+            le=100,
+            description="σ of the localisation error of a detection at zero range, per axis (m)",
         )
-        max_points: int = Field(400, ge=0, description="points_cam is subsampled to at most this many")
+        max_points: int = Field(
+            400, ge=0, le=1_000_000, description="points_cam is subsampled to at most this many"
+        )
         default_model: PerceptionModel = Field(
             default_factory=PerceptionModel, description="perception model of classes not listed in models"
         )

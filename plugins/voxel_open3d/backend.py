@@ -42,7 +42,11 @@ class Open3dVoxelMapParams(VoxelMapParams):
     """Parameters of the ``open3d`` backend: those of the voxel backends plus hash-map sizing."""
 
     initial_capacity: int = Field(
-        200_000, ge=1024, description="Voxels the hash map reserves at start (it grows as needed)."
+        200_000,
+        ge=1024,
+        le=100_000_000,
+        description="Voxels the hash map reserves at start (it grows as needed; at most 10⁸: reserved"
+        " at once).",
     )
 
 

@@ -202,6 +202,63 @@ CASES = [
     ("planner.epsilon=.nan", f"M:12: planner.epsilon: {FINITE} (got nan)"),
     ("planner.items=0", "M:12: planner.items: input should be greater than or equal to 1 (got 0)"),
     ("slam.keypose_distance=.inf", f"M:10: slam.keypose_distance: {FINITE} (got inf)"),
+    # ... and their upper bounds, a case per kind of bound: a noise std (1e300 was an OverflowError
+    # mid-run), an angle, a gate, a count, a time window, an object size, a budget, a gain, a grid
+    # step, a Poisson rate, a window allocated at once
+    (
+        "slam={plugin: gtsam, graph: {odometry_sigma_translation: 1e300}}",
+        "M:10: slam.graph.odometry_sigma_translation: input should be less than or equal to 10 (got '1e300')",
+    ),
+    (
+        "slam={plugin: gtsam, graph: {bearing_sigma: 10}}",
+        "M:10: slam.graph.bearing_sigma: input should be less than or equal to 3.141592653589793 (got 10)",
+    ),
+    (
+        "slam.keypose_yaw=100",
+        "M:10: slam.keypose_yaw: input should be less than or equal to 3.141592653589793 (got 100)",
+    ),
+    (
+        "slam={plugin: gtsam, association: {chi2: 1e9}}",
+        "M:10: slam.association.chi2: input should be less than or equal to 1000 (got '1e9')",
+    ),
+    (
+        "slam={plugin: gtsam, association: {tentative_timeout: 10000000000}}",
+        "M:10: slam.association.tentative_timeout: input should be less than or equal to 1000000 "
+        "(got 10000000000)",
+    ),
+    (
+        "slam={plugin: gtsam, loop_closure: {window: 1e9}}",
+        "M:10: slam.loop_closure.window: input should be less than or equal to 3600 (got '1e9')",
+    ),
+    (
+        "slam={plugin: gtsam, shapes: {size_prior: {car: {dims: [4, 2, 1e9]}}}}",
+        "M:10: slam.shapes.size_prior.car.dims.2: input should be less than or equal to 100 (got '1e9')",
+    ),
+    (
+        "planner={plugin: cop, budget_factor: 1e9}",
+        "M:12: planner.budget_factor: input should be less than or equal to 1000 (got '1e9')",
+    ),
+    (
+        "planner.min_gain=1e300",
+        "M:12: planner.min_gain: input should be less than or equal to 1000000 (got '1e300')",
+    ),
+    (
+        "planner={plugin: pams, range_step: 1e-9}",
+        "M:12: planner.range_step: input should be greater than or equal to 0.05 (got '1e-9')",
+    ),
+    (
+        "detector.false_positive_rate=1e9",
+        "M:11: detector.false_positive_rate: input should be less than or equal to 100 (got '1e9')",
+    ),
+    (
+        "mapping.local_size=[1e4, 10, 5]",
+        "M:9: mapping.local_size.0: input should be less than or equal to 100 (got '1e4')",
+    ),
+    (
+        "mapping={plugin: open3d, local_size: [100, 100, 100], local_voxel: 0.02}",
+        "M:9: mapping.local_size: 100 x 100 x 100 m at local_voxel 0.02 m is 1.25e+11 voxels, more than "
+        "5e+07 (a smaller window or a coarser local_voxel)",
+    ),
 ]
 
 #: the real house missions/small_house.yaml flies, outside the repository
@@ -266,6 +323,31 @@ def test_the_file_and_set_are_treated_alike(tmp_path, capsys, text, expected):
     message = expected.replace("D/", f"{tmp_path}/")
     assert from_set == [f"error: {mission}: {message}"]
     assert from_file == [f"error: {mission}:{len(lines) + 1}: {message}"]
+
+
+BACKEND_FILE_CASES = [  # (line of the small mission replaced, its new text, the error after path:line)
+    (10, "slam: {plugin: gtsam, graph: {odometry_sigma_translation: 11}}",
+     "slam.graph.odometry_sigma_translation: input should be less than or equal to 10 (got 11)"),
+    (12, "planner: {plugin: greedy, items: 100000}",
+     "planner.items: input should be less than or equal to 10000 (got 100000)"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("line", "text", "expected"), BACKEND_FILE_CASES, ids=[c[1] for c in BACKEND_FILE_CASES]
+)
+def test_a_backend_bound_from_the_file_and_set_alike(tmp_path, capsys, line, text, expected):
+    mission = small_mission(tmp_path)
+    key, value = text.split(": ", 1)
+    status, from_set = validate(capsys, str(mission), "--set", f"{key}={value}")
+    assert status == 2
+    lines = mission.read_text().splitlines()
+    assert lines[line - 1].startswith(f"{key}:")
+    lines[line - 1] = text
+    mission.write_text("\n".join(lines) + "\n")
+    status, from_file = validate(capsys, str(mission))
+    assert status == 2
+    assert from_set == from_file == [f"error: {mission}:{line}: {expected}"]
 
 
 def test_an_unreadable_referenced_file_is_named(tmp_path, capsys):

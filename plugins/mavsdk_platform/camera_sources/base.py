@@ -6,7 +6,7 @@ import abc
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -33,6 +33,10 @@ class RgbdImage:
     rgb: np.ndarray | None = None
 
 
+#: an offset on the vehicle's body, m
+_Mount = Annotated[float, Field(ge=-10, le=10)]
+
+
 class CameraSourceParams(BaseModel):
     """Which camera a real platform reads, its nominal model and where it is mounted."""
 
@@ -41,17 +45,17 @@ class CameraSourceParams(BaseModel):
     source: Literal["none", "realsense", "replay"] = Field(
         "none", description="none (no frames), realsense (pyrealsense2), replay (a folder of .npz frames)"
     )
-    width: int = Field(640, gt=0, description="image width, px")
-    height: int = Field(480, gt=0, description="image height, px")
+    width: int = Field(640, gt=0, le=4096, description="image width, px")
+    height: int = Field(480, gt=0, le=4096, description="image height, px")
     hfov_deg: float = Field(87.0, gt=0, lt=180, description="nominal horizontal field of view (D435: 87°)")
     vfov_deg: float = Field(58.0, gt=0, lt=180, description="nominal vertical field of view (D435: 58°)")
-    rate_hz: float = Field(15.0, gt=0, description="frame rate")
-    min_range: float = Field(0.3, ge=0, description="closest valid depth, m")
-    max_range: float = Field(5.0, gt=0, description="farthest depth used, m")
-    mount_xyz: tuple[float, float, float] = Field(
-        (0.1, 0.0, 0.0), description="camera position in the body frame (FLU), m"
+    rate_hz: float = Field(15.0, gt=0, le=1000, description="frame rate")
+    min_range: float = Field(0.3, ge=0, le=100, description="closest valid depth, m")
+    max_range: float = Field(5.0, gt=0, le=100, description="farthest depth used, m")
+    mount_xyz: tuple[_Mount, _Mount, _Mount] = Field(
+        (0.1, 0.0, 0.0), description="camera position in the body frame (FLU), m (within 10 m)"
     )
-    mount_pitch_deg: float = Field(0.0, description="downward tilt of the camera, degrees")
+    mount_pitch_deg: float = Field(0.0, ge=-90, le=90, description="downward tilt of the camera, degrees")
     serial: str | None = Field(None, description="realsense: the device serial number (default: the first)")
     folder: str | None = Field(None, description="replay: folder of .npz frames (relative to the mission)")
 
