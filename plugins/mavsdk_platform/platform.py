@@ -41,7 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from amslam.errors import PlatformError
-from amslam.interfaces import BackendParams, Platform, Point, RunContext, lo_below_hi
+from amslam.interfaces import BackendParams, FieldError, Platform, Point, RunContext, lo_below_hi
 from amslam.plugins.mavsdk_platform.camera_sources import CameraSource, CameraSourceParams, make_camera_source
 from amslam.plugins.mavsdk_platform.frames import enu_to_ned, pose_enu_from_ned, yaw_enu_to_ned
 from amslam.types import CameraModel, Failsafe, Frame, Odometry, RobotSpec, VehicleStatus
@@ -135,6 +135,24 @@ class MavsdkPlatform(Platform):
         )
         camera: CameraSourceParams = Field(default_factory=CameraSourceParams)
 
+        @model_validator(mode="after")
+        def _battery_ordered(self) -> MavsdkPlatform.Params:
+            """battery_land ≤ battery_return ≤ battery_min_start: the vehicle returns before it must
+            land, and takes off with more than it returns at."""
+            if self.battery_land > self.battery_return:
+                raise FieldError(
+                    "battery_land",
+                    f"{self.battery_land:g} must not be above battery_return ({self.battery_return:g}):"
+                    " the vehicle returns before it must land",
+                )
+            if self.battery_return > self.battery_min_start:
+                raise FieldError(
+                    "battery_return",
+                    f"{self.battery_return:g} must not be above battery_min_start"
+                    f" ({self.battery_min_start:g}): a flight would start already returning",
+                )
+            return self
+
     def __init__(self) -> None:
         self.params: MavsdkPlatform.Params | None = None
         self._camera: CameraModel | None = None
@@ -169,10 +187,6 @@ class MavsdkPlatform(Platform):
 
     def configure(self, params: BackendParams, context: RunContext) -> None:
         assert isinstance(params, MavsdkPlatform.Params), type(params)
-        if not params.battery_land <= params.battery_return <= params.battery_min_start:
-            raise PlatformError(
-                "mavsdk battery thresholds must satisfy battery_land ≤ battery_return ≤ battery_min_start"
-            )
         self.params = params
         self.context = context
         self.robot: RobotSpec = context.robot

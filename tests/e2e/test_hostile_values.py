@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from amslam.cli import main
+from amslam.mission import resolve_mission_path
 from tests.e2e.missions import small_mission
 
 FINITE = "input should be a finite number"
@@ -373,6 +374,37 @@ def test_waypoints_must_fit_inside_the_geofence(capsys):
         ": waypoints.points: the pattern spans 500 m in x, more than the geofence's 10 m "
         "(platform.geofence): it cannot lie inside the fence"
     )
+
+
+BATTERY_CASES = [  # (key, value, its line in px4_square.yaml, the error after path:line)
+    ("battery_land", "0.4", 36,
+     "platform.battery_land: 0.4 must not be above battery_return (0.3): the vehicle returns before it must "
+     "land"),
+    ("battery_return", "0.9", 35,
+     "platform.battery_return: 0.9 must not be above battery_min_start (0.5): a flight would start already "
+     "returning"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "line", "expected"), BATTERY_CASES, ids=[c[0] for c in BATTERY_CASES]
+)
+def test_battery_thresholds_out_of_order_are_refused_before_the_run(
+    tmp_path, capsys, key, value, line, expected
+):
+    # checked when the platform configured, i.e. after take-off preparations; now amslam validate
+    shipped = resolve_mission_path("px4_square")
+    status, from_set = validate(capsys, str(shipped), "--set", f"platform.{key}={value}")
+    assert status == 2
+    lines = shipped.read_text().splitlines()
+    assert lines[line - 1].startswith(f"  {key}: ")
+    lines[line - 1] = f"  {key}: {value}"
+    copy = tmp_path / "px4_square.yaml"
+    copy.write_text("\n".join(lines) + "\n")
+    status, from_file = validate(capsys, str(copy))
+    assert status == 2
+    assert from_set == [f"error: {shipped}:{line}: {expected}"]
+    assert from_file == [f"error: {copy}:{line}: {expected}"]
 
 
 def test_an_inverted_geofence_is_refused(capsys):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from amslam.errors import PlatformError
 from amslam.geometry import yaw_of
@@ -90,9 +91,17 @@ def test_start_refuses_with_the_reason(make_peer, tmp_path):
     assert ("preflight", {"check": "battery", "ok": False, "detail": "20 % (< 50 %)"}) in log
 
 
-def test_battery_thresholds_must_be_ordered(tmp_path):
-    with pytest.raises(PlatformError, match="battery_land ≤ battery_return ≤ battery_min_start"):
-        _platform("udpin://127.0.0.1:1", tmp_path, battery_return=0.6)
+@pytest.mark.parametrize(
+    ("params", "field", "match"),
+    [
+        ({"battery_return": 0.6}, "battery_return", r"0.6 must not be above battery_min_start \(0.5\)"),
+        ({"battery_land": 0.4}, "battery_land", r"0.4 must not be above battery_return \(0.3\)"),
+    ],
+)
+def test_battery_thresholds_must_be_ordered_when_validated(params, field, match):
+    with pytest.raises(ValidationError, match=match) as caught:
+        MavsdkPlatform.Params(**params)
+    assert caught.value.errors()[0]["ctx"]["error"].field == field
 
 
 def test_replay_camera_source(tmp_path):
