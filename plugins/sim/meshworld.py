@@ -15,6 +15,7 @@ are objects whose class is listed in ``structure_classes`` (walls, floors, ceili
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from pathlib import Path
@@ -90,6 +91,27 @@ def _read_mesh(path: Path, p: MeshWorldParams) -> tuple[np.ndarray, np.ndarray, 
         v = np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)
     colours = np.asarray(mesh.vertex_colors, dtype=np.float64) if mesh.has_vertex_colors() else None
     return v, t, colours
+
+
+def mesh_xy_extent(path: Path, p: MeshWorldParams) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1) of the world mesh at ``path`` as the world will place it (scale, up axis),
+    for validating a start before the run; PlatformError if the file holds no triangles. Cached
+    per file version, so validating and then running a mission reads the mesh once for this."""
+    stat = path.stat()
+    return _mesh_xy_extent(str(path), stat.st_mtime_ns, stat.st_size, p.scale, p.up_axis)
+
+
+@functools.lru_cache(maxsize=4)
+def _mesh_xy_extent(
+    path: str, mtime_ns: int, size: int, scale: float, up_axis: str
+) -> tuple[float, float, float, float]:
+    import open3d as o3d
+
+    # a file that is no mesh is the caller's error line, not also open3d's warning on stdout
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        v, _, _ = _read_mesh(Path(path), MeshWorldParams.model_construct(scale=scale, up_axis=up_axis))
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
 
 
 def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:

@@ -6,13 +6,13 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Discriminator, Field, Tag, model_validator
+from pydantic import Discriminator, Field, Tag, ValidationInfo, model_validator
 
 from amslam.errors import PlatformError
 from amslam.geometry import pose_from, wrap_angle
-from amslam.interfaces import BackendParams, Coordinate, FieldError, Platform, RunContext
+from amslam.interfaces import BackendParams, Coordinate, FieldError, Platform, RunContext, mission_file_path
 from amslam.plugins.sim.camera import CameraParams, Renderer
-from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
+from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world, mesh_xy_extent
 from amslam.plugins.sim.outdoor import OutdoorWorldParams, generate_outdoor
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
 from amslam.plugins.sim.vio import VioParams, VioState
@@ -100,16 +100,34 @@ class SimPlatform(Platform):
         )
 
         @model_validator(mode="after")
-        def _start_inside(self) -> SimPlatform.Params:
-            # a generated world spans [0, W] x [0, D]; a mesh world's extent is known once it is loaded
+        def _start_inside(self, info: ValidationInfo) -> SimPlatform.Params:
+            # a generated world spans [0, W] x [0, D]; a mesh world, its mesh's extent (read here,
+            # once the mesh file is known to be there: the world itself is built when the run starts)
             size = getattr(self.world, "size", None)
-            if self.start is not None and size is not None:
-                (x, y), (W, D) = self.start, size
+            if self.start is None:
+                return self
+            x, y = self.start
+            if size is not None:
+                W, D = size
                 if not (0.0 < x < W and 0.0 < y < D):
                     raise FieldError(
                         "start",
                         f"({x:g}, {y:g}) is outside the {self.world.kind} world, which spans "
                         f"[0, {W:g}] x [0, {D:g}] m",
+                    )
+            elif isinstance(self.world, MeshWorldParams):
+                path = mission_file_path(self.world.mesh, info)
+                if not path.is_absolute():
+                    return self  # no mission folder to resolve against: checked when the world is built
+                try:
+                    x0, x1, y0, y1 = mesh_xy_extent(path, self.world)
+                except PlatformError:
+                    raise FieldError("world.mesh", f"no triangles in {path}: not a mesh file") from None
+                if not (x0 < x < x1 and y0 < y < y1):
+                    raise FieldError(
+                        "start",
+                        f"({x:g}, {y:g}) is outside the mesh world, which spans "
+                        f"[{x0:.2f}, {x1:.2f}] x [{y0:.2f}, {y1:.2f}] m",
                     )
             return self
 

@@ -351,6 +351,46 @@ def test_a_backend_bound_from_the_file_and_set_alike(tmp_path, capsys, line, tex
     assert from_set == from_file == [f"error: {mission}:{line}: {expected}"]
 
 
+def _box_ply(path: Path, hi: tuple[float, float, float]) -> Path:
+    """An ASCII PLY of the closed box [0, hi] (12 triangles): the smallest mesh world."""
+    v = [(x, y, z) for x in (0, hi[0]) for y in (0, hi[1]) for z in (0, hi[2])]
+    f = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1),
+         (2, 3, 7), (2, 7, 6), (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3)]  # fmt: skip
+    head = ["ply", "format ascii 1.0", f"element vertex {len(v)}", "property float x", "property float y",
+            "property float z", f"element face {len(f)}", "property list uchar int vertex_indices",
+            "end_header"]  # fmt: skip
+    body = [" ".join(map(str, p)) for p in v] + ["3 " + " ".join(map(str, t)) for t in f]
+    path.write_text("\n".join(head + body) + "\n")
+    return path
+
+
+MESH_START_CASES = [  # (the mesh file, platform.start, the error after M:line; None: valid)
+    ("box.ply", "[10, 1]",
+     "5: platform.start: (10, 1) is outside the mesh world, which spans [0.00, 4.00] x [0.00, 3.00] m"),
+    ("box.ply", "[2, -0.5]",
+     "5: platform.start: (2, -0.5) is outside the mesh world, which spans [0.00, 4.00] x [0.00, 3.00] m"),
+    ("box.ply", "[2, 1.5]", None),
+    ("small.yaml", "[2, 1.5]", "7: platform.world.mesh: no triangles in D/small.yaml: not a mesh file"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("mesh", "start", "expected"), MESH_START_CASES, ids=[f"{c[0]}-{c[1]}" for c in MESH_START_CASES]
+)
+def test_a_mesh_worlds_start_is_checked_against_its_mesh(tmp_path, capfd, mesh, start, expected):
+    # a generated world's start was checked against its size; a mesh world's only when it was built
+    mission = small_mission(tmp_path)
+    _box_ply(tmp_path / "box.ply", (4, 3, 2.5))
+    world = f"platform.world={{kind: mesh, mesh: {mesh}}}"
+    status = main(["validate", str(mission), "--set", world, "--set", f"platform.start={start}"])
+    out, err = capfd.readouterr()  # at the descriptors: open3d's C++ warnings would show here
+    if expected is None:
+        assert (status, err) == (0, "") and out.startswith(f"{mission}: valid")
+        return
+    assert status == 2 and out == ""
+    assert err == f"error: {mission}:{expected.replace('D/', f'{tmp_path}/')}\n"
+
+
 def test_an_unreadable_referenced_file_is_named(tmp_path, capsys):
     locked = tmp_path / "map.npz"
     locked.write_bytes(b"x")
