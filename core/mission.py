@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import copy
 import importlib.resources
+import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -31,6 +33,7 @@ from amslam.interfaces import (
     FieldError,
     MissionFile,
     Point,
+    check_mission_file,
     lo_below_hi,
 )
 from amslam.registry import Registry
@@ -251,11 +254,45 @@ class Mission:
         return self.source.parent
 
     def resolved(self) -> dict[str, Any]:
-        """The whole mission with every default filled in, as written to the run folder."""
-        out = self.model.model_dump(mode="json", exclude=set(BACKEND_KINDS))
+        """The whole mission with every default filled in, as written to the run folder: every file
+        it names (:data:`MissionFile`) an absolute path, so the copy stands on its own anywhere."""
+        out = _absolute_files(
+            self.model, self.model.model_dump(mode="json", exclude=set(BACKEND_KINDS)), self.directory
+        )
         for kind, choice in self.backends.items():
-            out[kind] = {"plugin": choice.plugin, **choice.params.model_dump(mode="json")}
+            params = _absolute_files(choice.params, choice.params.model_dump(mode="json"), self.directory)
+            out[kind] = {"plugin": choice.plugin, **params}
         return out
+
+
+def _names_a_file(annotation: Any, metadata: Sequence[Any] = ()) -> bool:
+    """Whether a field of this annotation is a :data:`MissionFile` (also inside ``| None``)."""
+    marks = [*metadata, *getattr(annotation, "__metadata__", ())]
+    if any(getattr(mark, "func", None) is check_mission_file for mark in marks):
+        return True
+    return any(_names_a_file(arg) for arg in typing.get_args(annotation))
+
+
+def _absolute_files(model: BaseModel, dumped: dict[str, Any], base: Path) -> dict[str, Any]:
+    """``dumped`` (the JSON dump of ``model``) with each file the model names resolved against
+    ``base``, in nested models too (a world section, a list of them)."""
+    for name, info in type(model).model_fields.items():
+        value = getattr(model, name)
+        if name not in dumped or value is None:
+            continue
+        if isinstance(value, str) and _names_a_file(info.annotation, info.metadata):
+            dumped[name] = str((base / Path(value).expanduser()).resolve())
+        elif isinstance(value, BaseModel):
+            _absolute_files(value, dumped[name], base)
+        elif isinstance(value, list | tuple):
+            for item, out in zip(value, dumped[name], strict=False):
+                if isinstance(item, BaseModel):
+                    _absolute_files(item, out, base)
+        elif isinstance(value, dict):
+            for key, item in value.items():
+                if isinstance(item, BaseModel) and str(key) in dumped[name]:
+                    _absolute_files(item, dumped[name][str(key)], base)
+    return dumped
 
 
 def packaged_missions() -> list[str]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import textwrap
 
 import pytest
+import yaml
 
 from amslam.errors import MissionError
 from amslam.mission import load_mission, packaged_missions
@@ -83,6 +84,34 @@ def test_resolved_mission_fills_every_default(registry):
     assert resolved["robot"]["radius"] > 0
     assert resolved["planner"]["plugin"]
     assert "replan_period" in resolved["exploration"]
+
+
+def test_the_run_folders_mission_names_its_files_absolutely(tmp_path, registry):
+    # a mesh world's files are relative to the mission file; the run folder's copy (mission.yaml,
+    # written from resolved()) is read from elsewhere (--reuse, a team's world): it must stand alone
+    source = tmp_path / "site"
+    (source / "meshes").mkdir(parents=True)
+    for name in ("world.ply", "objects.json", "map.npz"):
+        (source / "meshes" / name).write_text("x")
+    mission = write(
+        source,
+        """\
+        name: mesh
+        prior_map: meshes/map.npz
+        platform: {plugin: sim, world: {kind: mesh, mesh: meshes/world.ply, objects: ./meshes/objects.json}}
+        """,
+    )
+    resolved = load_mission(mission, registry).resolved()
+    world = resolved["platform"]["world"]
+    assert world["mesh"] == str(source / "meshes" / "world.ply")
+    assert world["objects"] == str(source / "meshes" / "objects.json")
+    assert resolved["prior_map"] == str(source / "meshes" / "map.npz")
+    run = tmp_path / "runs" / "mesh_1"
+    run.mkdir(parents=True)
+    (run / "mission.yaml").write_text(yaml.safe_dump(resolved))
+    again = load_mission(run / "mission.yaml", registry)
+    assert again.backends["platform"].params.world.mesh == str(source / "meshes" / "world.ply")
+    assert again.resolved() == resolved
 
 
 def test_robot_base_is_for_real_vehicles_only(registry):
