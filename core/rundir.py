@@ -67,9 +67,13 @@ def write_atomically(path: Path, data: str | bytes) -> Path:
     return path
 
 
-def _new_folder(root: Path, name: str) -> Path:
+def new_folder(root: Path, name: str, what: str = "a run folder") -> Path:
     """``<root>/<name>``, or ``<name>-2``, ``-3``, … : ``mkdir`` itself decides, so processes that
-    start in the same second never pick the same folder (checking ``exists`` first would race)."""
+    start in the same second never pick the same folder (checking ``exists`` first would race).
+
+    Every output folder amslam creates (a run's, an experiment's) comes from here, so a ``--out``
+    that cannot hold one (a file, ``/proc``, a read-only disk) is one :class:`AmslamError` saying
+    ``cannot create WHAT in ROOT: why``."""
     try:
         root.mkdir(parents=True, exist_ok=True)
         for suffix in range(1, 10_000):
@@ -80,8 +84,8 @@ def _new_folder(root: Path, name: str) -> Path:
                 continue
             return path
     except OSError as exc:  # a file where the folder should be, no permission, a read-only disk
-        raise AmslamError(f"cannot create a run folder in {root}: {exc.strerror or exc}") from None
-    raise AmslamError(f"cannot create a run folder in {root}: 10000 run folders named {name}-* already")
+        raise AmslamError(f"cannot create {what} in {root}: {exc.strerror or exc}") from None
+    raise AmslamError(f"cannot create {what} in {root}: 10000 folders named {name}-* already")
 
 
 class RunFiles:
@@ -121,7 +125,7 @@ class RunDir(RunFiles):
 
     def __init__(self, root: Path, mission_name: str):
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        super().__init__(_new_folder(Path(root), f"{mission_name}-{stamp}"))
+        super().__init__(new_folder(Path(root), f"{mission_name}-{stamp}"))
         path = self.path
         self._events = open(path / "events.jsonl", "w")  # noqa: SIM115 — lives as long as the run
         self._tree = open(path / "tree.jsonl", "w")  # noqa: SIM115

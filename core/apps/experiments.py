@@ -23,6 +23,7 @@ import amslam
 from amslam.cli import Experiment
 from amslam.mission import load_mission
 from amslam.registry import Registry
+from amslam.rundir import new_folder
 from amslam.runner import Runner
 
 
@@ -38,8 +39,10 @@ def _fly(
 
 
 def _folder(out: Path, experiment: str, mission: str) -> Path:
-    folder = Path(out) / f"{experiment}-{Path(mission).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    (folder / "runs").mkdir(parents=True)
+    """A new experiment folder with its ``runs`` folder (as a run's: one error line if it cannot be)."""
+    name = f"{experiment}-{Path(mission).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder = new_folder(Path(out), name, "an experiment folder")
+    (folder / "runs").mkdir()
     return folder
 
 

@@ -43,6 +43,7 @@ from amslam.cli import Experiment, positive_int
 from amslam.errors import AmslamError
 from amslam.mission import Mission, load_mission
 from amslam.registry import Registry
+from amslam.rundir import new_folder
 from amslam.runner import Runner, started_platform
 from amslam.types import WorldSummary
 
@@ -334,8 +335,9 @@ def multi_robot(
     earlier experiment folders (:func:`index_runs`).
     """
     modes: list[Mode] = ["homogeneous", "heterogeneous"] if mode == "both" else [mode]
-    folder = Path(out) / f"multi-robot-{mode}-{Path(spec).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    (folder / "runs").mkdir(parents=True)
+    name = f"multi-robot-{mode}-{Path(spec).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder = new_folder(Path(out), name, "an experiment folder")
+    (folder / "runs").mkdir()
     results = []
     flights = index_runs(reuse, registry)
     merges: dict[tuple[str, ...], Any] = {}

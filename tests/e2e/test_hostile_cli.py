@@ -113,6 +113,15 @@ def test_out_where_no_folder_can_be(tmp_path):
     )
 
 
+@pytest.mark.parametrize("experiment", ["planners", "multi-robot"])
+def test_experiment_out_where_no_folder_can_be(tmp_path, experiment):
+    a_file = tmp_path / "taken"
+    a_file.write_text("")
+    mission = str(small_mission(tmp_path, max_time=5))
+    line = one_error(amslam("experiment", experiment, mission, "--seeds", "1", "--out", str(a_file)))
+    assert line == f"error: cannot create an experiment folder in {a_file}: File exists"
+
+
 def test_output_closed_early_is_quiet():
     done = subprocess.run(
         f"{AMSLAM} dump-config slam gtsam | head -1",
