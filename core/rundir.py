@@ -67,6 +67,20 @@ def write_atomically(path: Path, data: str | bytes) -> Path:
     return path
 
 
+def write_output(path: Path, text: str) -> Path:
+    """A file the user named (``--out FILE``), its folder made if need be. Written in place, not
+    atomically: it may be a special file (``/dev/stdout``) that a rename would replace. A place it
+    cannot be written (``/proc``, a folder, a read-only disk) is one :class:`AmslamError`
+    ``cannot write PATH: why``."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise AmslamError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return path
+
+
 def new_folder(root: Path, name: str, what: str = "a run folder") -> Path:
     """``<root>/<name>``, or ``<name>-2``, ``-3``, … : ``mkdir`` itself decides, so processes that
     start in the same second never pick the same folder (checking ``exists`` first would race).

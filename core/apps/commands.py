@@ -232,7 +232,9 @@ def _write_text(text: str, out: str | None) -> int:
     if out is None:
         print(text)
     else:
-        Path(out).write_text(text + "\n")
+        from amslam.rundir import write_output
+
+        write_output(Path(out), text + "\n")
         print(f"written to {out}")
     return 0
 

@@ -122,6 +122,27 @@ def test_experiment_out_where_no_folder_can_be(tmp_path, experiment):
     assert line == f"error: cannot create an experiment folder in {a_file}: File exists"
 
 
+def _a_run_folder(tmp_path: Path) -> Path:
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "events.jsonl").write_text('{"t": 0.0, "event": "run_start"}\n')
+    return run
+
+
+@pytest.mark.parametrize(
+    ("out", "why"), [("/proc/page.html", "No such file or directory"), (".", "Is a directory")]
+)
+def test_view_out_where_no_page_can_be(tmp_path, out, why):
+    out = out if out.startswith("/") else str(tmp_path)
+    line = one_error(amslam("view", str(_a_run_folder(tmp_path)), "--out", out))
+    assert line == f"error: cannot write {out}: {why}"
+
+
+def test_tree_out_where_no_file_can_be(tmp_path):
+    line = one_error(amslam("tree", str(small_mission(tmp_path)), "--out", "/proc/tree.txt"))
+    assert line == "error: cannot write /proc/tree.txt: No such file or directory"
+
+
 def test_output_closed_early_is_quiet():
     done = subprocess.run(
         f"{AMSLAM} dump-config slam gtsam | head -1",

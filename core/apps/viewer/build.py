@@ -15,6 +15,7 @@ from typing import Any
 
 from amslam.apps.viewer.runfiles import FILES, mission_info, poll_run
 from amslam.errors import AmslamError
+from amslam.rundir import write_output
 
 PAGE_NAME = "viewer.html"
 
@@ -102,6 +103,4 @@ def build_page(run_dir: Path, out: Path | None = None) -> Path:
     """Write the replay page of ``run_dir`` to ``out`` (default ``<run_dir>/viewer.html``)."""
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else run_dir / PAGE_NAME
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(render_page(page_data(run_dir)), encoding="utf-8")
-    return out
+    return write_output(out, render_page(page_data(run_dir)))
