@@ -26,13 +26,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from amslam.geometry import invert, transform_points
-from amslam.rundir import jsonable
+from amslam.rundir import Stream, jsonable
 from amslam.types import Detection, Odometry
 
 FORMAT = "amslam-measurements"
@@ -76,7 +76,7 @@ class MeasurementLog:
         self.path = Path(path)
         self.T_body_cam = np.asarray(T_body_cam, float)
         self.max_points = max_points
-        self._file: IO[str] = open(self.path, "w")  # noqa: SIM115 — lives as long as the run
+        self._file = Stream(self.path)  # a full disk stops the log, not the flight
         self._last: np.ndarray | None = None
         self._count = 0
         T_wo = np.eye(4) if T_world_odom is None else np.asarray(T_world_odom, float)
@@ -96,7 +96,6 @@ class MeasurementLog:
             return
         # a non-finite number becomes null: a line of measurements.jsonl is always JSON
         self._file.write(json.dumps(jsonable(record), separators=(",", ":"), allow_nan=False) + "\n")
-        self._file.flush()
 
     def keypose(self, odom: Odometry, truth: np.ndarray | None = None) -> int:
         """Log a key pose at the VIO pose ``odom`` (``truth``: true pose, simulation only).
@@ -153,10 +152,14 @@ class MeasurementLog:
         stamp = round(float(odom.stamp), 4)
         self._write({"type": "detections", "keypose": kp, "t": stamp, "objects": objects})
 
+    @property
+    def error(self) -> str | None:
+        """Why the log could not all be written (a full disk), or None."""
+        return self._file.error
+
     def close(self) -> None:
         """Close the file; safe to call twice."""
-        if not self._file.closed:
-            self._file.close()
+        self._file.close()
 
 
 # -- reading ---------------------------------------------------------------------------------

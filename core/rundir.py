@@ -1,7 +1,8 @@
 """The run folder: everything a run produces, written as it happens.
 
 Streams (events, trajectories, tree changes) are appended and flushed line by line, so that a
-crash or Ctrl-C loses nothing already computed (a reader tolerates a torn last line); summaries
+crash or Ctrl-C loses nothing already computed (a reader tolerates a torn last line); a stream
+that cannot be written (a full disk) stops and says so at the end, it does not stop the flight; summaries
 (metrics, map, plots, report) are written once at the end, on every exit path, each **atomically**:
 to a temporary file beside it, then renamed over it, so a kill or a full disk mid-write leaves the
 old file or none — never an empty or half-written ``metrics.json``.
@@ -102,6 +103,50 @@ def new_folder(root: Path, name: str, what: str = "a run folder") -> Path:
     raise AmslamError(f"cannot create {what} in {root}: 10000 folders named {name}-* already")
 
 
+class Stream:
+    """One append-only stream of a run folder (``events.jsonl``, a trajectory), flushed line by line.
+
+    A write, flush or close that fails (a full disk, a file-size limit) is remembered in
+    :attr:`error`, never raised: a flight must not fall out of the air because its log cannot be
+    written. The stream then stops (its last line may be torn, which every reader tolerates) and
+    the runner reports it as an output error, like a summary file it could not write.
+    """
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._file: IO[str] = open(self.path, "w")  # noqa: SIM115 — lives as long as the run
+        #: the first failure, ``name: OSError: ...``, or None
+        self.error: str | None = None
+
+    @property
+    def closed(self) -> bool:
+        return self._file.closed
+
+    def write(self, line: str) -> None:
+        """Append ``line`` (ending in a newline) and flush it; nothing once the stream failed."""
+        if self.error is not None or self._file.closed:
+            return
+        try:
+            self._file.write(line)
+            self._file.flush()
+        except OSError as exc:
+            self._failed(exc)
+            with contextlib.suppress(OSError):  # what is buffered is lost with the disk space
+                self._file.close()
+
+    def close(self) -> None:
+        if self._file.closed:
+            return
+        try:
+            self._file.close()  # the file is closed even when its last flush fails
+        except OSError as exc:
+            self._failed(exc)
+
+    def _failed(self, exc: OSError) -> None:
+        if self.error is None:
+            self.error = f"{self.path.name}: {type(exc).__name__}: {exc}"
+
+
 class RunFiles:
     """The summary files of a run folder, each written atomically: what the runner and the
     run-end observers (an application such as the report, given only the folder) write."""
@@ -141,9 +186,10 @@ class RunDir(RunFiles):
         stamp = time.strftime("%Y%m%d-%H%M%S")
         super().__init__(new_folder(Path(root), f"{mission_name}-{stamp}"))
         path = self.path
-        self._events = open(path / "events.jsonl", "w")  # noqa: SIM115 — lives as long as the run
-        self._tree = open(path / "tree.jsonl", "w")  # noqa: SIM115
-        self._tum: dict[str, IO[str]] = {}
+        self._events = Stream(path / "events.jsonl")
+        self._tree = Stream(path / "tree.jsonl")
+        self._tum: dict[str, Stream] = {}
+        self._closed_streams: list[Stream] = []
 
     # -- streams ------------------------------------------------------------------------------
 
@@ -151,29 +197,31 @@ class RunDir(RunFiles):
         """Append one event to ``events.jsonl`` (the run's clock ``t`` wins over a field of that name)."""
         record = {"t": round(float(t), 4), "event": name, **{k: v for k, v in fields.items() if k != "t"}}
         self._events.write(json.dumps(jsonable(record)) + "\n")
-        self._events.flush()
 
     def tree_change(self, record: dict[str, Any]) -> None:
         """Append one behaviour-tree change record to ``tree.jsonl``."""
         self._tree.write(json.dumps(jsonable(record)) + "\n")
-        self._tree.flush()
 
     def pose(self, which: str, stamp: float, T: np.ndarray) -> None:
         """Append a pose to ``<which>.tum``."""
         f = self._tum.get(which)
         if f is None:
-            f = self._tum[which] = open(self.path / f"{which}.tum", "w")  # noqa: SIM115
+            f = self._tum[which] = Stream(self.path / f"{which}.tum")
         f.write(tum_line(stamp, T))
-        f.flush()
 
     def close_trajectories(self) -> None:
         """End the trajectory streams: the flight is over, and a run-end observer may replace a
         trajectory as a whole (:meth:`RunFiles.write_trajectory`) without a stream still open on it."""
         for f in self._tum.values():
             f.close()
+        self._closed_streams += self._tum.values()
         self._tum.clear()
+
+    def stream_errors(self) -> list[str]:
+        """The streams that could not all be written (:attr:`Stream.error`), so far."""
+        streams = (self._events, self._tree, *self._tum.values(), *self._closed_streams)
+        return [f.error for f in streams if f.error is not None]
 
     def close(self) -> None:
         for f in (self._events, self._tree, *self._tum.values()):
-            if not f.closed:
-                f.close()
+            f.close()

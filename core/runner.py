@@ -183,7 +183,10 @@ class Runner:
     def run(self) -> RunResult:
         """Fly the mission; always returns with a verdict and a complete run folder."""
         self.rundir = RunDir(self.out_root, self.mission.name)
-        self.rundir.write_yaml("mission.yaml", self.mission.resolved())
+        try:
+            self.rundir.write_yaml("mission.yaml", self.mission.resolved())
+        except OSError as exc:  # a full disk: the flight goes on, the outputs say what is missing
+            self._write_errors.append(f"mission.yaml: {type(exc).__name__}: {exc}")
         self.on_start(self.rundir.path)
         verdict = "failed: did not start"
         try:
@@ -365,6 +368,7 @@ class Runner:
                 traceback=traceback.format_exc(),
             )
         self.rundir.close_trajectories()
+        self._stream_errors()
         metrics = self._write_metrics(self._measured(metrics, summary))
         self._hook(
             "amslam_run_end",
@@ -374,6 +378,7 @@ class Runner:
             trajectory=summary.trajectory,
             summary=summary,
         )
+        self._stream_errors()  # an observer's appends, too
         if self._write_errors:  # a full disk, say: say so where it can still be said
             metrics["outputs_error"] = "; ".join(dict.fromkeys(self._write_errors))  # each once
             self.rundir.event(self._now(), "outputs_error", error=metrics["outputs_error"])
@@ -386,6 +391,13 @@ class Runner:
                 self.rundir.event(self._now(), "close_failed", backend=type(backend).__name__, error=str(exc))
         self.rundir.close()
         return RunResult(self.rundir.path, verdict, metrics)
+
+    def _stream_errors(self) -> None:
+        """The streams that could not all be written (a full disk) join the output errors."""
+        errors = self.rundir.stream_errors()
+        if self.runtime is not None and self.runtime.measurements.error is not None:
+            errors.append(self.runtime.measurements.error)
+        self._write_errors += [e for e in errors if e not in self._write_errors]
 
     def _identity(self, verdict: str) -> dict[str, Any]:
         """What the runner itself knows of every run, flown or not: the rest is measured by observers."""

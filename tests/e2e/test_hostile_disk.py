@@ -57,13 +57,14 @@ def view_opens(run: Path, capsys) -> None:
     assert (run / "page.html").stat().st_size > 0
 
 
-def test_files_too_large_for_the_disk_keep_the_verdict_and_say_so(tmp_path, capsys):
-    """Every file limited to 64 KiB (RLIMIT_FSIZE): the map, its plots and its .npz cannot be written."""
+def run_with_files_limited_to(tmp_path: Path, kib: int) -> tuple[subprocess.CompletedProcess, Path]:
+    """``amslam run`` of a small mission with every file limited to ``kib`` KiB (RLIMIT_FSIZE):
+    a write beyond it fails with EFBIG, as a full disk fails with ENOSPC."""
     mission = small_mission(tmp_path, max_time=20)
     out = tmp_path / "runs"
 
     def small_files() -> None:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (kib * 1024, kib * 1024))
 
     done = subprocess.run(
         [AMSLAM, "run", str(mission), "--out", str(out), "--quiet"],
@@ -73,6 +74,12 @@ def test_files_too_large_for_the_disk_keep_the_verdict_and_say_so(tmp_path, caps
         preexec_fn=small_files,
         check=False,
     )
+    return done, out
+
+
+def test_files_too_large_for_the_disk_keep_the_verdict_and_say_so(tmp_path, capsys):
+    """Every file limited to 64 KiB (RLIMIT_FSIZE): the map, its plots and its .npz cannot be written."""
+    done, out = run_with_files_limited_to(tmp_path, 64)
     assert "Traceback" not in done.stderr
     assert done.returncode == 1, done.stderr
     assert done.stderr.strip().splitlines()[-1] == (
@@ -90,6 +97,29 @@ def test_files_too_large_for_the_disk_keep_the_verdict_and_say_so(tmp_path, caps
     assert [e["event"] for e in events][-2:] == ["outputs_error", "run_end"]
     assert "File too large" in events[-2]["error"]
     assert "could not all be written" in (run / "report.md").read_text()
+    view_opens(run, capsys)
+
+
+def test_streams_that_cannot_be_flushed_mid_flight_are_output_errors(tmp_path, capsys):
+    """8 KiB per file: the trajectories and measurements.jsonl fill up during the flight, and
+    their buffered tail cannot be flushed when they are closed. The flight goes on to its verdict;
+    the streams are named as outputs that could not be written."""
+    done, out = run_with_files_limited_to(tmp_path, 8)
+    assert "Traceback" not in done.stderr, done.stderr
+    assert done.returncode == 1, done.stderr
+    assert "verdict: completed" in done.stdout.splitlines()
+    too_large = "OSError: [Errno 27] File too large"
+    streams = ("vio.tum", "slam.tum", "ground_truth.tum", "measurements.jsonl")
+    outputs_error = "; ".join([*(f"{name}: {too_large}" for name in streams), f"report: {too_large}"])
+    assert done.stderr.strip().splitlines() == [
+        f"warning: not every output of the run could be written ({outputs_error}); events.jsonl says which"
+    ]
+    (run,) = out.iterdir()
+    events = parses(run, torn_last_line=True)
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["verdict"] == "completed" and metrics["outputs_error"] == outputs_error
+    assert [e["event"] for e in events][-2:] == ["outputs_error", "run_end"]
+    assert events[-1]["verdict"] == "completed"
     view_opens(run, capsys)
 
 
