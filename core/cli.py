@@ -14,7 +14,9 @@ distribution would.
 1     a run failed, crashed or was aborted (its run folder says why)
 2     bad input: an ``error: ...`` line says what and where, never a traceback
 130   interrupted (Ctrl-C); 143 terminated (SIGTERM); 129 hung up (SIGHUP): a flight lands first
-141   the output was closed early (piped into ``head``)
+141   the output was closed early (piped into ``head``): amslam did not stop for it — a flight
+      went on to its verdict and completed its run folder (``events.jsonl``: ``stdout_closed``),
+      an experiment flew all its runs — but printed nothing more (:mod:`amslam.console`)
 ====  ===========================================================================================
 """
 
@@ -29,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from amslam import console
 from amslam.errors import AmslamError, MissionError
 
 if TYPE_CHECKING:
@@ -181,7 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     received_signal = None
     previous = {signum: signal.signal(signum, _stop) for signum in STOP_SIGNALS}
     try:
-        return _main(argv)
+        with console.guarded():
+            return _main(argv)
     finally:  # an embedding process (a test calling main) gets its own handlers back
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -197,10 +201,12 @@ def _main(argv: list[str] | None) -> int:
             status = run_experiment(args, registry)
         else:
             status = registry.commands[args.command].run(args, registry)
-        sys.stdout.flush()  # a closed pipe shows here, inside the handler below
+        sys.stdout.flush()  # a closed pipe shows here (console.closed)
         if received_signal is not None:  # the command caught it and finished cleanly (a run landed)
             print(f"stopped by {signal.Signals(received_signal).name}", file=sys.stderr)
             return 128 + received_signal
+        if console.closed:  # the command went on to its end; its output went nowhere
+            return 141
         return status
     except MissionError as exc:
         for problem in exc.problems:
@@ -210,9 +216,10 @@ def _main(argv: list[str] | None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:
-        # the reader (e.g. `head`) closed the pipe: stop quietly; point stdout at /dev/null so the
+        # a pipe written to past the guarded sys.stdout / sys.stderr (a child's, a raw file
+        # descriptor) lost its reader: stop quietly; stdout to /dev/null, so that the
         # interpreter's last flush at exit does not complain about it a second time
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.__stdout__.fileno())
         return 141
     except KeyboardInterrupt as exc:
         signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT

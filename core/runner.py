@@ -29,7 +29,7 @@ import numpy as np
 import py_trees
 from py_trees.common import Status
 
-from amslam import __version__
+from amslam import __version__, console
 from amslam.boundary import BackendError, Boundary
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import pose_from
@@ -183,6 +183,21 @@ class Runner:
     def run(self) -> RunResult:
         """Fly the mission; always returns with a verdict and a complete run folder."""
         self.rundir = RunDir(self.out_root, self.mission.name)
+        # `amslam run | head -1`: a closed stdout does not stop the flight, the events say so
+        stop_watching = console.when_closed(self._output_closed)
+        try:
+            return self._run()
+        finally:
+            stop_watching()
+
+    def _output_closed(self, name: str) -> None:
+        self.rundir.event(
+            self._now(),
+            f"{name}_closed",
+            reason=f"{name}'s reader went away; the run goes on to its end, printing nothing more there",
+        )
+
+    def _run(self) -> RunResult:
         try:
             self.rundir.write_yaml("mission.yaml", self.mission.resolved())
         except OSError as exc:  # a full disk: the flight goes on, the outputs say what is missing

@@ -156,6 +156,59 @@ def test_output_closed_early_is_quiet():
     assert "Traceback" not in done.stderr and "BrokenPipe" not in done.stderr
 
 
+def first_line_then_close(*args: str) -> tuple[str, int, str]:
+    """``amslam ARGS | head -1``: the first stdout line, then the pipe closed. Returns that line,
+    the exit status and stderr."""
+    proc = subprocess.Popen([AMSLAM, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline()
+    proc.stdout.close()  # the reader goes away: amslam's next print meets a broken pipe
+    try:
+        status = proc.wait(timeout=BOUND)
+    finally:
+        proc.kill()
+    return first, status, proc.stderr.read()
+
+
+def test_a_closed_stdout_does_not_stop_the_flight(tmp_path):
+    """``amslam run | head -1``: the flight goes on to its verdict and completes its run folder;
+    events.jsonl says stdout was closed; exit 141 (README)."""
+    mission, out = small_mission(tmp_path, max_time=20), tmp_path / "runs"
+    first, status, stderr = first_line_then_close("run", str(mission), "--out", str(out), "--quiet")
+    assert first == f"flying mission 'small' ({mission})\n"
+    assert status == 141 and stderr == "", stderr
+    (run,) = out.iterdir()
+    assert json.loads((run / "metrics.json").read_text())["verdict"] == "completed"
+    assert (run / "report.md").stat().st_size > 0
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    closed = [e for e in events if e["event"] == "stdout_closed"]
+    assert closed == [
+        {
+            "t": closed[0]["t"],
+            "event": "stdout_closed",
+            "reason": "stdout's reader went away; the run goes on to its end, printing nothing more there",
+        }
+    ]
+    assert events[-1] == {"t": events[-1]["t"], "event": "run_end", "verdict": "completed"}
+
+
+def test_a_closed_stdout_does_not_stop_an_experiment(tmp_path):
+    mission, out = small_mission(tmp_path, max_time=5), tmp_path / "out"
+    args = ("experiment", "planners", str(mission), "--seeds", "1", "--out", str(out))
+    first, status, stderr = first_line_then_close(*args)
+    assert first == f"experiment planners on {mission}, seeds [1]\n"
+    assert status == 141 and stderr == "", stderr
+    (folder,) = out.iterdir()
+    assert (folder / "table.md").stat().st_size > 0  # every run flown, the summary written
+    runs = [Path(row["run_dir"]) for row in json.loads((folder / "results.json").read_text())]
+    assert len(runs) == 3 and sorted(runs) == sorted((folder / "runs").iterdir())  # in flight order
+    for run in runs:
+        events = (run / "events.jsonl").read_text().splitlines()
+        assert json.loads(events[-1])["event"] == "run_end"
+        assert json.loads((run / "metrics.json").read_text())["verdict"] == "completed"
+    # the first run ended before the experiment printed again (and met the closed pipe)
+    assert ["stdout_closed" in (run / "events.jsonl").read_text() for run in runs] == [False, True, True]
+
+
 def test_sigterm_lands_and_leaves_a_complete_run_folder_and_a_second_signal_waits(tmp_path):
     proc, out = start_flight(tmp_path)
     proc.send_signal(signal.SIGTERM)
