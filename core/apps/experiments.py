@@ -50,6 +50,13 @@ def _pct_reduction(before: float, after: float) -> float:
     return 100.0 * (before - after) / before if before else float("nan")
 
 
+def _mean(values: Any) -> float | None:
+    """The mean of the finite ones among ``values`` (None and NaN are runs that did not measure
+    it); None, shown as "—", when there are none: every run failed, say."""
+    finite = [float(v) for v in values if v is not None and np.isfinite(v)]
+    return float(np.mean(finite)) if finite else None
+
+
 def _fmt(x: Any, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "—"
@@ -107,8 +114,7 @@ def slc_tables(rows: list[dict]) -> str:
             f"{_fmt(vio_y)} | {_fmt(slam_y)} | {_fmt(ry, 1)} % |"
         )
     lines += [
-        f"| **mean** | | | | | **{_fmt(float(np.nanmean(pos_red)), 1)} %** | | | "
-        f"**{_fmt(float(np.nanmean(yaw_red)), 1)} %** |",
+        f"| **mean** | | | | | **{_fmt(_mean(pos_red), 1)} %** | | | **{_fmt(_mean(yaw_red), 1)} %** |",
         "",
         "## Final mean uncertainty, SLC on vs off (like paper 1 Table II / Fig. 7)",
         "",
@@ -130,8 +136,7 @@ def slc_tables(rows: list[dict]) -> str:
             f"{_fmt(l_on, 4)} | {_fmt(l_off, 4)} | {_fmt(rl, 1)} % |"
         )
     lines += [
-        f"| **mean** | | | **{_fmt(float(np.nanmean(pose_unc_red)), 1)} %** | | | "
-        f"**{_fmt(float(np.nanmean(lm_unc_red)), 1)} %** |",
+        f"| **mean** | | | **{_fmt(_mean(pose_unc_red), 1)} %** | | | **{_fmt(_mean(lm_unc_red), 1)} %** |",
         "",
     ]
     return "\n".join(lines)
@@ -144,19 +149,23 @@ def plot_fig7(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    drawn = [
+        (row, key, style, series)
+        for row in rows
+        for key, style in (("on", "-"), ("off", "--"))
+        if (series := row[key]["metrics"].get("uncertainty", {}).get("series"))
+    ]
+    if not drawn:  # no run measured its uncertainty (every run failed, say): no empty plot
+        return
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for row in rows:
-        for key, style in (("on", "-"), ("off", "--")):
-            series = row[key]["metrics"].get("uncertainty", {}).get("series")
-            if not series:
-                continue
-            s = np.array(series, dtype=float)
-            label = f"seed {row['seed']}, SLC {key}"
-            axes[0].plot(s[:, 1], s[:, 2], style, label=label)
-            axes[1].plot(s[:, 1], s[:, 3], style, label=label)
-            for ev in row[key]["metrics"].get("slc", {}).get("events", []):
-                if ev["accepted"]:
-                    axes[0].axvline(ev["distance"], color="0.7", lw=0.8)
+    for row, key, style, series in drawn:
+        s = np.array(series, dtype=float)
+        label = f"seed {row['seed']}, SLC {key}"
+        axes[0].plot(s[:, 1], s[:, 2], style, label=label)
+        axes[1].plot(s[:, 1], s[:, 3], style, label=label)
+        for ev in row[key]["metrics"].get("slc", {}).get("events", []):
+            if ev["accepted"]:
+                axes[0].axvline(ev["distance"], color="0.7", lw=0.8)
     axes[0].set_title("mean pose uncertainty")
     axes[1].set_title("mean landmark uncertainty")
     for ax in axes:
@@ -240,16 +249,16 @@ def planner_table(rows: list[dict]) -> str:
     ]
     for planner in dict.fromkeys(r["planner"] for r in rows):
         ms = [r["metrics"] for r in rows if r["planner"] == planner]
-        p90 = np.array([x for r, x in zip(rows, to90, strict=True) if r["planner"] == planner], dtype=float)
+        p90 = [x for r, x in zip(rows, to90, strict=True) if r["planner"] == planner]
 
-        def mean(key: str, ms=ms) -> float:
-            return float(np.nanmean([m.get(key) if m.get(key) is not None else np.nan for m in ms]))
+        def mean(key: str, ms=ms) -> float | None:
+            return _mean(m.get(key) for m in ms)
 
         lines.append(
             f"| {planner} | {len(ms)} | {_fmt(mean('explored_percent'), 1)} | "
             f"{_fmt(mean('distance_m'), 1)} | {_fmt(mean('sim_duration_s'), 1)} | "
-            f"{_fmt(float(np.nanmean(p90[:, 0])), 1)} | "
-            f"{_fmt(float(np.nanmean(p90[:, 1])), 1)} |"
+            f"{_fmt(_mean(d for d, _ in p90), 1)} | "
+            f"{_fmt(_mean(t for _, t in p90), 1)} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -262,11 +271,11 @@ def plot_exploration(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     colours = {"cop": "tab:blue", "tsp": "tab:orange", "greedy": "tab:green"}
+    drawn = [(row, series) for row in rows if (series := row["metrics"].get("explored_series"))]
+    if not drawn:  # no run explored anything (every run failed, say): no empty plot
+        return
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for row in rows:
-        series = row["metrics"].get("explored_series")
-        if not series:
-            continue
+    for row, series in drawn:
         s = np.array(series, dtype=float)
         colour = colours.get(row["planner"])
         label = f"{row['planner']} (seed {row['seed']})"
@@ -397,10 +406,9 @@ def pams_table(rows: list[dict], planners: tuple[str, ...] = ("pams", "prior_vis
         for what, name in (("mean", "Err. mean"), ("std", "Err. std. dev."), ("mapped", "Obj. mapped")):
             lines.append(f"| {name}{label} | " + " | ".join(cell(w, cls, what) for w in cols) + " |")
     dist = {
-        p: np.nanmean([r["metrics"].get("distance_m") or np.nan for r in rows if r["planner"] == p])
-        for p in planners
+        p: _mean(r["metrics"].get("distance_m") or None for r in rows if r["planner"] == p) for p in planners
     }
-    lines += ["", "Mean path length: " + ", ".join(f"{p} {_fmt(float(d), 1)} m" for p, d in dist.items()), ""]
+    lines += ["", "Mean path length: " + ", ".join(f"{p} {_fmt(d, 1)} m" for p, d in dist.items()), ""]
     return "\n".join(lines)
 
 
