@@ -239,9 +239,43 @@ def _write_text(text: str, out: str | None) -> int:
     return 0
 
 
+#: the port of ``amslam view --serve`` without ``--port``
+DEFAULT_PORT = 8765
+#: the three ways of ``amslam view`` and the options each uses (an option of another is refused)
+VIEW_MODES = {
+    "--at": ("prints the tree's state at a time and writes no page", ()),
+    "--serve": ("serves the page live and writes none", ("--port",)),
+    "": ("", ("--out", "--screenshot", "--time")),
+}
+#: an option of the page mode that needs another
+VIEW_NEEDS = {"--time": "--screenshot", "--port": "--serve"}
+
+
+def _check_view_options(args) -> None:
+    """Refuse an option the chosen mode would silently ignore: one line naming it and its mode."""
+    given = {
+        "--out": args.out is not None,
+        "--screenshot": args.screenshot is not None,
+        "--time": args.time is not None,
+        "--port": args.port is not None,
+        "--serve": args.serve,
+    }
+    mode = "--at" if args.at is not None else "--serve" if args.serve else ""
+    what, uses = VIEW_MODES[mode]
+    for option, is_given in given.items():
+        if not is_given or option == mode:
+            continue
+        if option not in uses and mode:
+            raise AmslamError(f"{option} does not go with {mode}, which {what}")
+        need = VIEW_NEEDS.get(option)
+        if need is not None and need != mode and not given[need]:
+            raise AmslamError(f"{option} needs {need}")
+
+
 def cmd_view(args, registry) -> int:
     from amslam.apps.viewer import LiveServer, build_page, resolve_run_folder
 
+    _check_view_options(args)
     run_dir, picked = resolve_run_folder(Path(args.run))
     if picked:
         print(f"newest run in {args.run}: {run_dir}")
@@ -260,7 +294,7 @@ def cmd_view(args, registry) -> int:
 
             print(f"screenshot: {screenshot(page, Path(args.screenshot), at=args.time)}")
         return 0
-    server = LiveServer(run_dir, port=args.port)
+    server = LiveServer(run_dir, port=DEFAULT_PORT if args.port is None else args.port)
     print(f"serving {run_dir} at {server.start()} (follows the run while it is written; Ctrl-C to stop)")
     try:
         server.thread.join()
@@ -310,8 +344,7 @@ def _view_arguments(parser) -> None:
     parser.add_argument(
         "--port",
         type=whole_number(0, 65535),
-        default=8765,
-        help="port for --serve (default 8765; 0: any free)",
+        help=f"port for --serve (default {DEFAULT_PORT}; 0: any free)",
     )
     parser.add_argument("--at", type=float, metavar="T", help="print the tree's state at time T (s) instead")
     parser.add_argument(

@@ -138,6 +138,31 @@ def test_view_out_where_no_page_can_be(tmp_path, out, why):
     assert line == f"error: cannot write {out}: {why}"
 
 
+AT = "which prints the tree's state at a time and writes no page"
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (("--time", "5"), "error: --time needs --screenshot"),
+        (("--time", "5", "--out", "page.html"), "error: --time needs --screenshot"),
+        (("--port", "9000"), "error: --port needs --serve"),
+        (("--at", "5", "--out", "page.html"), f"error: --out does not go with --at, {AT}"),
+        (("--at", "5", "--serve"), f"error: --serve does not go with --at, {AT}"),
+        (("--at", "5", "--screenshot", "x.png"), f"error: --screenshot does not go with --at, {AT}"),
+        (
+            ("--serve", "--out", "page.html"),
+            "error: --out does not go with --serve, which serves the page live and writes none",
+        ),
+    ],
+)
+def test_view_options_of_another_mode_are_refused(tmp_path, args, expected):
+    """An option the chosen mode would ignore is misuse: one line naming it, nothing written."""
+    run = _a_run_folder(tmp_path)
+    assert one_error(amslam("view", str(run), *args, cwd=tmp_path)) == expected
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["events.jsonl", "run"]
+
+
 def test_tree_out_where_no_file_can_be(tmp_path):
     line = one_error(amslam("tree", str(small_mission(tmp_path)), "--out", "/proc/tree.txt"))
     assert line == "error: cannot write /proc/tree.txt: No such file or directory"
@@ -264,9 +289,7 @@ def test_an_experiment_whose_every_run_failed_exits_1(tmp_path):
 def test_view_port_out_of_range_or_taken_is_one_error(tmp_path: Path) -> None:
     import socket
 
-    run = tmp_path / "run"
-    run.mkdir()
-    (run / "events.jsonl").write_text('{"t": 0.0, "event": "run_start"}\n')
+    run = _a_run_folder(tmp_path)
     for port in ("99999", "-1"):
         assert "argument --port:" in one_error(amslam("view", str(run), "--serve", "--port", port))
     with socket.socket() as taken:
