@@ -178,8 +178,8 @@ def cluster(points: np.ndarray, eps: float = 0.5, min_samples: int = 10) -> list
 # -------------------------------------------------------------------------------------------
 # robust extents
 # -------------------------------------------------------------------------------------------
-def _extent(x: np.ndarray, percentile: float, extrapolate: bool = True) -> tuple[float, float]:
-    """Robust (lo, hi) bounds of a 1-D spread.
+def _extent(x: np.ndarray, percentile: float, extrapolate: bool = True) -> tuple:
+    """Robust (lo, hi) bounds of a 1-D spread (floats), or of each row of a 2-D one (arrays).
 
     With ``extrapolate`` (default), the ``p``-th and ``(100−p)``-th percentiles extrapolated
     linearly to the edge: ``lo = 2·q(p) − q(2p)``, ``hi = 2·q(100−p) − q(100−2p)`` (module
@@ -187,12 +187,13 @@ def _extent(x: np.ndarray, percentile: float, extrapolate: bool = True) -> tuple
     """
     p = float(percentile)
     if p <= 0:
-        return float(np.min(x)), float(np.max(x))
-    if not extrapolate:
-        lo, hi = np.percentile(x, [p, 100 - p])
-        return float(lo), float(hi)
-    q = np.percentile(x, [p, 2 * p, 100 - 2 * p, 100 - p])
-    return float(2 * q[0] - q[1]), float(2 * q[3] - q[2])
+        lo, hi = np.min(x, axis=-1), np.max(x, axis=-1)
+    elif not extrapolate:
+        lo, hi = np.percentile(x, [p, 100 - p], axis=-1)
+    else:
+        q = np.percentile(x, [p, 2 * p, 100 - 2 * p, 100 - p], axis=-1)
+        lo, hi = 2 * q[0] - q[1], 2 * q[3] - q[2]
+    return (float(lo), float(hi)) if np.ndim(x) == 1 else (lo, hi)
 
 
 def _plane_basis(normal: np.ndarray) -> np.ndarray:
@@ -233,18 +234,29 @@ def _polygon_axes(xy: np.ndarray) -> np.ndarray:
     return vec[:, ::-1].T
 
 
-def _closeness(xy: np.ndarray, angle: float, percentile: float, d0: float) -> float:
-    """L-shape fitting "closeness" score of a rectangle orientation (Zhang et al., IV 2017).
+def _closeness(xy: np.ndarray, angles: np.ndarray, percentile: float, d0: float) -> np.ndarray:
+    """L-shape fitting "closeness" score of each rectangle orientation (Zhang et al., IV 2017).
 
     Each point scores ``1 / max(d, d0)`` where ``d`` is its distance to the nearest side of the
-    rectangle of robust extents along ``angle``; the sum peaks when the sides follow the
-    visible faces.
+    rectangle of robust extents along the angle; the sum peaks when the sides follow the
+    visible faces. All angles at once (N points × A angles): one percentile call per axis
+    instead of one per angle (benchmarks/shapes.py).
     """
-    c, s = np.cos(angle), np.sin(angle)
-    u, v = xy @ np.array([c, s]), xy @ np.array([-s, c])
-    (lu, hu), (lv, hv) = _extent(u, percentile), _extent(v, percentile)
-    d = np.minimum(np.minimum(np.abs(hu - u), np.abs(u - lu)), np.minimum(np.abs(hv - v), np.abs(v - lv)))
-    return float(np.sum(1.0 / np.maximum(d, d0)))
+    angles = np.asarray(angles, float)
+    # angles × points, each row contiguous (the percentiles' partitions run along memory), in
+    # blocks of about 32 k values that stay in cache: one block of a 6000-point window's 201
+    # orientations is 9.6 MB per array and ran slower than one orientation at a time
+    step = max(1, 32_768 // max(len(xy), 1))
+    out = np.empty(len(angles))
+    for i in range(0, len(angles), step):
+        c, s = np.cos(angles[i : i + step])[:, None], np.sin(angles[i : i + step])[:, None]
+        u = c * xy[:, 0] + s * xy[:, 1]
+        v = c * xy[:, 1] - s * xy[:, 0]
+        (lu, hu), (lv, hv) = _extent(u, percentile), _extent(v, percentile)
+        lu, hu, lv, hv = lu[:, None], hu[:, None], lv[:, None], hv[:, None]
+        d = np.minimum(np.minimum(np.abs(hu - u), np.abs(u - lu)), np.minimum(np.abs(hv - v), np.abs(v - lv)))
+        out[i : i + step] = np.sum(1.0 / np.maximum(d, d0), axis=1)
+    return out
 
 
 def _lshape_axes(xy: np.ndarray, percentile: float, d0: float = 0.05) -> np.ndarray:
@@ -257,9 +269,9 @@ def _lshape_axes(xy: np.ndarray, percentile: float, d0: float = 0.05) -> np.ndar
     with 3 cm noise: mean error 0.15°, max 0.5° (PCA of the hull: 1.5°, max 13°).
     """
     grid = np.radians(np.arange(0.0, 90.0, 0.5))
-    a0 = grid[int(np.argmax([_closeness(xy, a, percentile, d0) for a in grid]))]
+    a0 = grid[int(np.argmax(_closeness(xy, grid, percentile, d0)))]
     fine = a0 + np.radians(np.arange(-0.5, 0.5001, 0.05))
-    a = float(fine[int(np.argmax([_closeness(xy, a, percentile, d0) for a in fine]))])
+    a = float(fine[int(np.argmax(_closeness(xy, fine, percentile, d0)))])
     return np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
 
 
