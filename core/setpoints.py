@@ -100,6 +100,8 @@ class SetpointFilter:
     #: how far from the vehicle a clear landing column is looked for, m, and the ring spacing
     LANDING_SEARCH = 1.5
     LANDING_RING = 0.25
+    #: how far below the vehicle the surface it would land on is looked for in the local map, m
+    DESCENT_REACH = 3.0
 
     def descent_clear(self, p_odom: np.ndarray) -> bool:
         """Whether a vertical descent from ``p_odom`` to the surface below keeps clear of the local map.
@@ -112,15 +114,16 @@ class SetpointFilter:
         """
         return self._descent(p_odom)[0]
 
-    def _descent(self, p_odom: np.ndarray) -> tuple[bool, float]:
-        """(descent clear, height of the surface landed on; +inf when none is in reach)."""
+    def _descent(self, p_odom: np.ndarray) -> tuple[bool, float, bool]:
+        """(descent clear, height of the surface landed on or +inf when none is in reach, the
+        column within reach free: nothing within the radius plus margin of it, down to the
+        surface or as deep as the search looks)."""
         p = np.asarray(p_odom, float)
         step = self.GUARD_STEP
-        depth = np.arange(step, 3.0 + 1e-9, step)
+        depth = np.arange(step, self.DESCENT_REACH + 1e-9, step)
         below = self.mapping.states(p - np.outer(depth, [0.0, 0.0, 1.0]), local=True) == VoxelState.OCCUPIED
-        if not below.any():
-            return False, float("inf")
-        surface = float(p[2] - depth[int(np.argmax(below))])
+        found = bool(below.any())
+        surface = float(p[2] - depth[int(np.argmax(below))]) if found else float(p[2] - depth[-1] - step)
         reach = self.radius + self.GUARD_MARGIN
         k = int(np.ceil(reach / step))
         axis = np.arange(-k, k + 1) * step
@@ -129,27 +132,36 @@ class SetpointFilter:
         # from a voxel above the surface (the occupied voxel's top face is the surface) up to the vehicle
         heights = np.append(np.arange(surface + 1.5 * step, p[2] - 1e-9, step), p[2])
         column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
-        return not bool(np.any(self.mapping.states(column, local=True) == VoxelState.OCCUPIED)), surface
+        free = not bool(np.any(self.mapping.states(column, local=True) == VoxelState.OCCUPIED))
+        return free and found, (surface if found else float("inf")), free
 
     def landing_spot(self, here_odom: np.ndarray) -> np.ndarray | None:
         """The nearest point at the vehicle's height whose descent is clear (:meth:`descent_clear`),
         onto a surface no higher than the one below the vehicle (the floor beside a table, never the
         table top), reached in a straight line clear of the local map; ``here_odom`` itself when
-        its own column is clear; None if no such point lies within ``LANDING_SEARCH``."""
+        its own column is clear; None if no such point lies within ``LANDING_SEARCH``.
+
+        When the local map does not reach the surface below the vehicle (outdoors at 3.5 m its
+        window ends about a metre above the ground), a surface it does reach nearby is higher than
+        that ground — a car's roof — and never a landing spot: the vehicle lands where it is if
+        its column is free as deep as the map sees, else at the nearest point whose column is."""
         here = np.asarray(here_odom, float)
-        clear, surface_here = self._descent(here)
+        clear, surface_here, free_here = self._descent(here)
         if clear:
+            return here
+        unseen_ground = not np.isfinite(surface_here)
+        if unseen_ground and free_here:
             return here
         for r in np.arange(self.LANDING_RING, self.LANDING_SEARCH + 1e-9, self.LANDING_RING):
             n = max(8, int(np.ceil(2 * np.pi * r / self.LANDING_RING)))
             for a in np.arange(n) * (2 * np.pi / n):
                 spot = here + np.array([r * np.cos(a), r * np.sin(a), 0.0])
-                clear, surface = self._descent(spot)
-                if (
-                    clear
-                    and surface <= surface_here + 1.5 * self.GUARD_STEP
-                    and self._straight_clear(here, spot)
-                ):
+                clear, surface, free = self._descent(spot)
+                if unseen_ground:
+                    ok = free and not np.isfinite(surface)
+                else:
+                    ok = clear and surface <= surface_here + 1.5 * self.GUARD_STEP
+                if ok and self._straight_clear(here, spot):
                     return spot
         return None
 

@@ -199,3 +199,20 @@ def test_home_on_an_occupied_voxel_moves_to_the_nearest_reachable_point() -> Non
     np.testing.assert_allclose(robot.reachable_near(free), free)  # a reachable goal stays put
     robot.mapping = SimpleNamespace(path_costs=lambda s, t: np.full((1, len(t)), np.inf))
     assert robot.reachable_near(home) is None
+
+
+def test_over_ground_the_map_cannot_see_a_car_roof_beside_is_no_landing_spot() -> None:
+    # lot_team, 1 robot, seeds 1 and 2: home at 3.45 m, the ground below beyond the local map's
+    # reach, a car 0.4 m beside the column: the search took the car's roof as the nearest
+    # "surface", moved 1 m over it and descended into the car (clearance 0.245 m)
+    car = ((0.6, -1.0, 0.0), (2.4, 3.5, 1.5))
+    guard = SetpointFilter(BoxMap([car]), RADIUS, min_height=0.0, min_headroom=0.0)
+    home = np.array([0.0, 0.0, 3.45])
+    assert not guard.descent_clear(home)  # no surface in reach: not judged clear
+    np.testing.assert_allclose(guard.landing_spot(home), home)  # but its column is free: land here
+    # right beside the car's side, its column is not free: move away from the car, never over it
+    beside = np.array([0.35, 0.0, 3.45])
+    spot = guard.landing_spot(beside)
+    assert spot is not None and spot[0] < 0.6 - RADIUS - SetpointFilter.GUARD_MARGIN + 1e-9
+    column = [spot - np.array([0, 0, dz]) for dz in np.arange(0.0, 3.45, 0.05)]
+    assert min(BoxMap([car]).clearance(p) for p in column) > RADIUS
