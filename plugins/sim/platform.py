@@ -553,8 +553,12 @@ class SimPlatform(Platform):
             return
         self._landing = True
         self._cruising = False
-        # the descent is vertical: the surface below is found once, not at every sub-step
-        self._land_ground = self.world.ground_below(self._p)
+        # the descent is vertical: the surface below is found once, not at every sub-step. Beyond
+        # the world's geometry (a parking lot's asphalt ends where its mesh does; drift took the
+        # lot_team overhead robot 0.7 m past it) the earth goes on at the ground floor's height:
+        # without a surface, the descent's target was -inf and the vehicle's state NaN.
+        ground = self.world.ground_below(self._p)
+        self._land_ground = ground if np.isfinite(ground) else float(self.world.spec.floor_heights[0])
         drop = self._p[2] - (self._land_ground + self._landed_height) + 0.05  # aim just below touchdown
         self._sp = self._vio.position - np.array([0.0, 0.0, drop])
         self._sp_yaw = self._vio.yaw

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.plugins.sim.world import World, box_room
+from amslam.plugins.sim.world import MeshPart, World, WorldSpec, box_room, boxes_mesh, class_colour
 from amslam.types import RobotSpec
 
 from .conftest import fly_to, make_platform
@@ -79,6 +79,33 @@ def test_land_comes_down_and_disarms(tmp_path, room_with_chair):
     plat.land()
     plat.advance(8.0)
     st = plat.status()
+    assert not st.armed and not st.airborne and not st.crashed
+    assert abs(plat.ground_truth()[2, 3] - z0) < 0.05
+
+
+def test_landing_beyond_the_worlds_geometry_comes_down_at_the_ground_floor(tmp_path):
+    # A parking lot's asphalt ends where its mesh does; drift carried a lot_team robot past that
+    # edge, and the descent aimed at -inf: the vehicle's state went NaN.
+    slab = boxes_mesh([(np.array([0.0, 0.0, -0.1]), np.array([4.0, 4.0, 0.0]))])
+    spec = WorldSpec(
+        name="slab",
+        parts=[MeshPart.uniform("ground", *slab, 0, class_colour("floor"))],
+        objects=[],
+        floor_heights=(0.0,),
+        bounds_lo=np.array([0.0, 0.0, -0.1]),
+        bounds_hi=np.array([4.0, 4.0, 3.0]),
+        start_xy=np.array([1.0, 1.0]),
+        start_floor_z=0.0,
+    )
+    plat = make_platform(tmp_path, spec=spec, vio={"sigma_xy": 0.0, "sigma_yaw": 0.0})
+    z0 = plat.ground_truth()[2, 3]
+    plat.arm_and_takeoff(1.5)
+    plat.advance(5.0)
+    fly_to(plat, np.array([7.0, 1.0, 1.5]))  # 3 m past the slab's edge
+    plat.land()
+    plat.advance(10.0)
+    st = plat.status()
+    assert np.all(np.isfinite(plat.odometry().T_odom_body))
     assert not st.armed and not st.airborne and not st.crashed
     assert abs(plat.ground_truth()[2, 3] - z0) < 0.05
 
