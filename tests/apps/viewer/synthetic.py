@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -145,14 +146,15 @@ def write_run(folder: Path, until: float = math.inf, with_summaries: bool | None
     }
     (folder / "mission.yaml").write_text(yaml.safe_dump(mission, sort_keys=False))
     lines = [json.dumps({"structure": STRUCTURE})] + [json.dumps(r) for r in TREE if r["t"] <= until]
-    (folder / "tree.jsonl").write_text("\n".join(lines) + "\n")
-    (folder / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in EVENTS if e["t"] <= until))
+    _grow(folder / "tree.jsonl", "\n".join(lines) + "\n")
+    _grow(folder / "events.jsonl", "".join(json.dumps(e) + "\n" for e in EVENTS if e["t"] <= until))
     stamps = [round(0.1 * i, 1) for i in range(1, 151) if 0.1 * i <= until + 1e-9]
     for name, offset in (("ground_truth", 0.0), ("vio", 0.15), ("slam", 0.05)):
-        with open(folder / f"{name}.tum", "w") as f:
-            for t in stamps:
-                x, y, z, yaw = pose(t)
-                f.write(tum(t, x + offset * t / 15, y, z, yaw))
+        text = ""
+        for t in stamps:
+            x, y, z, yaw = pose(t)
+            text += tum(t, x + offset * t / 15, y, z, yaw)
+        _grow(folder / f"{name}.tum", text)
     if finished:
         (folder / "landmarks.json").write_text(json.dumps(LANDMARKS))
         points = room_points()
@@ -168,3 +170,16 @@ def write_run(folder: Path, until: float = math.inf, with_summaries: bool | None
         }
         (folder / "metrics.json").write_text(json.dumps(metrics))
     return folder
+
+
+def _grow(path: Path, text: str) -> None:
+    """Write a stream's whole text so a live reader sees it grow, as a run's appended stream does.
+
+    Rewriting in place truncates the file first: a poll at that moment could see it shrink, which a
+    live run's streams never do (the likely cause of one failure of
+    test_live_view_follows_a_run_in_progress in a loaded fresh-clone suite, not reproduced in six
+    runs). Replacing it whole keeps every byte a reader has read.
+    """
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
