@@ -186,7 +186,9 @@ class Robot:
         T_odom_world = invert(T_world_odom)
         p_odom = transform_points(T_odom_world, np.asarray(position, float)[None])[0]
         yaw_odom = yaw + float(np.arctan2(T_odom_world[1, 0], T_odom_world[0, 0]))
-        sent = self.setpoints.apply(p_odom, self.platform.odometry().T_odom_body[:3, 3])
+        sent = self.setpoints.apply(
+            p_odom, self.platform.odometry().T_odom_body[:3, 3], odom_z=float(T_world_odom[2, 3])
+        )
         self.platform.set_setpoint(sent, yaw_odom)
         return transform_points(T_world_odom, sent[None])[0]
 

@@ -306,7 +306,11 @@ class Runner:
             spec=self.context.robot,
             limits=model.limits,
             setpoints=SetpointFilter(
-                shared["mapping"], self.context.robot.radius, ex.min_height, ex.min_headroom
+                shared["mapping"],
+                self.context.robot.radius,
+                ex.min_height,
+                ex.min_headroom,
+                ceiling=self._ceiling(),
             ),
             odometer=lambda: perception.distance,
             home_world=odom0.T_odom_body[:3, 3].copy(),
@@ -319,6 +323,13 @@ class Runner:
         )
         tree.setup(flight=robot, navigation=robot, planning=planning, events=events)
         return Runtime(perception, planning, robot, tree, TreeRecorder(tree, self.rundir), measurements)
+
+    def _ceiling(self) -> float:
+        """The highest a setpoint may go, world frame: the flight area's top less the radius."""
+        area = self.context.area
+        if area is None:
+            return float("inf")
+        return float(area.flyable(self.context.robot.radius).hi[2])
 
     def _tree_verdict(self, t: float) -> str | None:
         """The verdict once the tree has ended (None while it runs)."""

@@ -28,20 +28,49 @@ class SetpointFilter:
     #: surface enters the look before the vehicle can reach it
     GUARD_LOOK = 0.8
 
-    def __init__(self, mapping: Mapping, radius: float, min_height: float, min_headroom: float):
+    def __init__(
+        self,
+        mapping: Mapping,
+        radius: float,
+        min_height: float,
+        min_headroom: float,
+        ceiling: float = np.inf,
+    ):
         self.mapping = mapping
         self.radius = radius
         self.min_height = min_height
         self.min_headroom = min_headroom
+        #: highest setpoint, world frame, m: the flight area's top less the radius (its flyable top)
+        self.ceiling = float(ceiling)
         k = int(np.ceil(self.GUARD_LOOK / self.GUARD_STEP))
         axis = np.arange(-k, k + 1) * self.GUARD_STEP
         grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
         distance = np.linalg.norm(grid, axis=1)
         self._offsets = grid[(distance > 0) & (distance <= self.GUARD_LOOK)]
 
-    def apply(self, setpoint: np.ndarray, here: np.ndarray) -> np.ndarray:
-        """The setpoint (odometry frame) the vehicle at ``here`` (odometry frame) may fly to."""
-        return self.clearance_guard(self.height_guard(np.asarray(setpoint, float)), np.asarray(here, float))
+    def apply(self, setpoint: np.ndarray, here: np.ndarray, odom_z: float = 0.0) -> np.ndarray:
+        """The setpoint (odometry frame) the vehicle at ``here`` (odometry frame) may fly to.
+
+        ``odom_z`` is the height of the odometry frame's origin in the world frame (the SLAM
+        correction's z), which places the area's ceiling in the frame the vehicle flies in.
+
+        Both guards may lift a setpoint: the height guard takes the top of a wall the path
+        crosses for a floor, the corridor slides the vehicle over what is in its way. Under a
+        ceiling (the flight area's top) that lift is refused: over an open-topped building's
+        walls the vehicle would leave it (the PAL home, walls 2.5 m, was flown up to 3.27 m for 19 %
+        of its flight). The vehicle then stays where it is, and the goal is given up as
+        unreachable by the behaviour that waits for it.
+        """
+        here = np.asarray(here, float)
+        top = self.ceiling - odom_z
+        p = self.height_guard(np.asarray(setpoint, float))
+        if p[2] > top:
+            p = np.array([p[0], p[1], top])
+        sent = self.clearance_guard(p, here)
+        if sent[2] <= top + 1e-6:
+            return sent
+        stay = self.clearance_guard(np.array([here[0], here[1], min(here[2], top)]), here)
+        return stay if stay[2] <= top + 1e-6 else here
 
     def height_guard(self, p_odom: np.ndarray) -> np.ndarray:
         """Keep a setpoint inside the floor/ceiling band of the fresh local (odometry-frame) map.

@@ -125,6 +125,45 @@ def test_a_non_finite_setpoint_holds_and_names_the_culprit():
         robot.send_setpoint_world(np.array([1.0, 0.0, 1.2]), 0.0)
 
 
+# An open-topped building's wall (top 2.5 m) on a floor; the flight area's top is the wall's.
+OPEN_WALL = BoxMap([((-3, 2.0, 0), (3, 2.1, 2.5)), ((-5, -5, -0.2), (5, 5, 0.0))])
+
+
+def test_the_guards_never_lift_the_vehicle_over_the_flight_areas_top():
+    # A path laid on a coarse map with a hole in the wall runs just over its top: the height guard
+    # takes the wall's top for a floor and lifts the setpoint min_height above it (the PAL home
+    # was flown at 3.27 m, its walls 2.5 m). Under the area's ceiling the vehicle stays inside.
+    over_the_wall = (0.0, 2.05, 2.6)
+
+    def flown(ceiling):
+        robot = make_robot(OPEN_WALL, (0.0, 1.0, 2.0))
+        robot.setpoints = SetpointFilter(OPEN_WALL, RADIUS, 0.7, 0.3, ceiling=ceiling)
+        heights, clearances = [], []
+        for _ in range(60):
+            robot.send_setpoint_world(np.asarray(over_the_wall), 0.0)
+            heights.append(robot.platform.p[2])
+            clearances.append(OPEN_WALL.clearance(robot.platform.p))
+        return robot.platform.p, max(heights), min(clearances)
+
+    _, highest, _ = flown(np.inf)
+    assert highest > 2.5 + RADIUS  # without a ceiling: over the wall
+    end, highest, closest = flown(2.5 - RADIUS)
+    assert highest <= 2.5 - RADIUS + 1e-6
+    assert closest >= RADIUS + SetpointFilter.GUARD_MARGIN - 1e-9
+    assert end[1] < 2.0 - RADIUS  # still on its side of the wall
+
+
+def test_the_ceiling_is_placed_in_the_odometry_frame_by_the_slam_correction():
+    robot = make_robot(BoxMap([]), (0.0, 0.0, 1.0))
+    robot.setpoints = SetpointFilter(robot.mapping, RADIUS, 0.0, 0.0, ceiling=2.0)
+    T = np.eye(4)
+    T[2, 3] = 0.5  # the odometry frame sits 0.5 m above the world's origin
+    robot.slam = SimpleNamespace(T_world_odom=lambda: T)
+    sent_world = robot.send_setpoint_world(np.array([0.0, 0.0, 3.0]), 0.0)
+    assert sent_world[2] == pytest.approx(2.0)
+    np.testing.assert_allclose(robot.platform.setpoints[-1], [0.0, 0.0, 1.5])
+
+
 # -- landing -------------------------------------------------------------------------------------
 
 FLOOR = ((-5, -5, -0.2), (5, 5, 0.0))
