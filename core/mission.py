@@ -205,7 +205,8 @@ class MissionModel(_Strict):
     area: AreaSection | None = None
     prior_map: MissionFile | None = Field(
         None,
-        description="a map saved by an earlier run (its map.npz) to start from; relative to the mission file",
+        description="a map to start from: an earlier run's map.npz, or an OctoMap .bt (any resolution, "
+        "resampled; needs pyoctomap: amslam[interop]); relative to the mission file",
     )
     exploration: ExplorationSection = ExplorationSection()
     tree: str = Field(

@@ -18,6 +18,12 @@ from typing import Any
 import numpy as np
 
 import amslam
+from amslam.apps.mapformats import (
+    MapCloud,
+    landmark_classes,
+    probabilities_from_saved_map,
+    write_map_ply,
+)
 from amslam.geometry import wrap_angle, yaw_of
 from amslam.rundir import RunFiles
 from amslam.types import RunSummary, VoxelState, WorldSummary
@@ -318,9 +324,9 @@ def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunFiles
     is the kernel's: it is written before the run-end observers are called)."""
     mapping = summary.mapping
     if mapping is not None:
-        rundir.write_ply("map.ply", mapping.occupied_points())
         with contextlib.suppress(NotImplementedError):  # a backend may not export
             mapping.save(rundir.path / "map.npz")  # the whole map, for a later run's prior_map
+        write_map_ply(rundir.path / "map.ply", map_cloud(summary, rundir.path / "map.npz"))
     if summary.landmarks is not None:
         rundir.write_json(
             "landmarks.json",
@@ -345,6 +351,16 @@ def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunFiles
     if metrics.get("uncertainty", {}).get("series"):
         plots.append(plot_uncertainty(summary, metrics))
     write_report(summary, metrics, [p for p in plots if p])
+
+
+def map_cloud(summary: RunSummary, saved_map: Path) -> MapCloud:
+    """The occupied voxels of the final global map with their class (from the semantic map) and
+    occupancy probability (from the log-odds ``saved_map`` holds, if the backend saved them)."""
+    voxel = float(summary.mapping.voxel_size())
+    points = np.asarray(summary.mapping.occupied_points(), float).reshape(-1, 3)
+    classes, names = landmark_classes(points, summary.landmarks or (), voxel)
+    probability = probabilities_from_saved_map(points, saved_map, voxel)
+    return MapCloud(points, classes, probability, voxel, names)
 
 
 def plot_top_view(summary: RunSummary) -> str | None:
@@ -439,7 +455,9 @@ FILES_SECTION = [
     "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
     "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
     "- [landmarks.json](landmarks.json) — the semantic map",
-    "- [map.ply](map.ply) — occupied voxels of the global map",
+    "- [map.ply](map.ply) — occupied voxels of the global map (binary PLY: class and occupancy probability "
+    "per voxel, the voxel size in its header; `amslam map RUN --bt FILE` makes an OctoMap of it)",
+    "- [map.npz](map.npz) — the whole map with its log-odds, a later mission's `prior_map`",
     "",
 ]
 

@@ -30,6 +30,7 @@ from amslam.lib.free_space import (
     vertical_ok,
 )
 from amslam.lib.frontiers import FrontierConfig, FrontierTracker
+from amslam.lib.octomap_files import read_bt
 from amslam.lib.voxel_grid import (
     FREE,
     OCCUPIED,
@@ -37,6 +38,7 @@ from amslam.lib.voxel_grid import (
     LogOddsModel,
     centres,
     index_box,
+    logit,
     to_index,
     union,
 )
@@ -630,8 +632,14 @@ class VoxelMapBase(Mapping):
         )
 
     def load(self, path: Path) -> None:
-        """Load a map written by :meth:`save` (same voxel sizes) and recompute frontiers."""
+        """Load a map written by :meth:`save` (same voxel sizes), or an OctoMap ``.bt`` into the
+        global map (any resolution, resampled: :mod:`amslam.lib.octomap_files`), and recompute
+        frontiers. A ``.bt`` has states, not probabilities: its occupied voxels start at the upper
+        clamp ``p_max``, its free ones at the lower ``p_min``, as if seen many times."""
         self._require()
+        if Path(path).suffix.lower() == ".bt":
+            self._load_octomap(Path(path))
+            return
         with np.load(Path(path)) as f:
             for name, store in (("global", self.global_map), ("local", self.local_map)):
                 if not np.isclose(float(f[f"{name}_voxel"]), store.voxel):
@@ -640,6 +648,14 @@ class VoxelMapBase(Mapping):
                         f"{store.voxel} m"
                     )
                 store.from_arrays({"index": f[f"{name}_index"], "logodds": f[f"{name}_logodds"]})
+        self._version += 1
+        self._graph = None
+        self.recompute_frontiers()
+
+    def _load_octomap(self, path: Path) -> None:
+        index, occupied = read_bt(path, self.global_map.voxel)
+        logodds = np.where(occupied, logit(self.params.p_max), logit(self.params.p_min)).astype(np.float32)
+        self.global_map.from_arrays({"index": index, "logodds": logodds})
         self._version += 1
         self._graph = None
         self.recompute_frontiers()

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+import pytest
+
 import amslam
+from amslam.apps.mapformats import read_map_ply
+from amslam.cli import main
 from amslam.mission import load_mission
 from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
+from amslam.testing.mapping import make_context
 from tests.e2e.missions import small_mission
 
 RUN_FILES = (
@@ -97,3 +103,44 @@ def test_a_later_run_starts_from_a_saved_map(small_run, tmp_path):
     assert result.metrics["explored_percent"] >= 90.0
     events = (result.run_dir / "events.jsonl").read_text()
     assert "prior_map_loaded" in events
+
+
+def test_the_map_ply_carries_class_probability_and_voxel_size(small_run):
+    cloud = read_map_ply(small_run.run_dir / "map.ply")
+    metrics = json.loads((small_run.run_dir / "metrics.json").read_text())
+    assert cloud.voxel_size == 0.25 and len(cloud) > 1000
+    assert set(cloud.class_names[1:]) == set(metrics["landmarks"]["by_class"])
+    assert set(np.unique(cloud.classes)) > {0}  # some voxels belong to mapped objects
+    assert np.all(cloud.probability > 0.8)  # every occupied voxel is above the backend's p_occ
+
+
+def test_a_later_run_starts_from_an_octomap_of_a_run(small_run, tmp_path):
+    pytest.importorskip("pyoctomap", reason="OctoMap files need pyoctomap (amslam[interop])")
+    bt = tmp_path / "small.bt"
+    assert main(["map", str(small_run.run_dir), "--bt", str(bt)]) == 0
+    registry = build_plugin_manager()
+    mission_file = small_mission(tmp_path, max_time=3)
+    mission_file.write_text(mission_file.read_text() + f"prior_map: {bt.name}\n")
+    mission = load_mission(mission_file, registry)
+    result = Runner(mission, registry, tmp_path / "runs").run()
+    assert result.verdict == "completed"
+    assert result.metrics["explored_percent"] >= 90.0  # the known space came from the .bt
+    assert "prior_map_loaded" in (result.run_dir / "events.jsonl").read_text()
+    # the prior's occupied voxels are the exported run's, one for one
+    prior = Open3dVoxelMap()
+    prior.configure(mission.backends["mapping"].params, make_context(tmp_path))
+    prior.load(bt)
+    exported = read_map_ply(small_run.run_dir / "map.ply").points
+    np.testing.assert_allclose(np.sort(prior.occupied_points(), axis=0), np.sort(exported, axis=0), atol=1e-5)
+
+
+def test_a_prior_that_is_not_an_octree_fails_the_run_in_one_line(tmp_path):
+    bad = tmp_path / "map.bt"
+    bad.write_text("not a tree\n")
+    registry = build_plugin_manager()
+    mission_file = small_mission(tmp_path, max_time=3)
+    mission_file.write_text(mission_file.read_text() + "prior_map: map.bt\n")
+    result = Runner(load_mission(mission_file, registry), registry, tmp_path / "runs").run()
+    assert result.verdict == (
+        f"failed: {bad}: not an OctoMap binary tree (.bt files start with '# Octomap OcTree binary file')"
+    )

@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from amslam.apps.mapformats import read_map_ply
+
 STREAMS = ("events", "tree", "ground_truth", "vio", "slam")
 TRAJECTORIES = ("ground_truth", "vio", "slam")
 FILES = {
@@ -168,16 +170,19 @@ def poll_run(run_dir: Path, cursor: dict[str, int] | None = None) -> Delta:
 
 
 def read_ply_points(path: Path) -> np.ndarray:
-    """Vertices of an ASCII PLY as an N×3 array (empty when the file is missing or empty)."""
+    """Vertices of a map PLY (binary or ASCII) as an N×3 array (empty when the file is missing,
+    empty or not a PLY)."""
+    return read_map_points(path)[0]
+
+
+def read_map_points(path: Path) -> tuple[np.ndarray, float | None]:
+    """Vertices of a map PLY (N×3) and the voxel size its header gives (None: not given); empty
+    when the file is missing, empty or not a PLY."""
     try:
-        text = path.read_text()
-    except OSError:
-        return np.zeros((0, 3))
-    header, sep, body = text.partition("end_header\n")
-    if not sep or "format ascii" not in header:
-        return np.zeros((0, 3))
-    rows = [line.split()[:3] for line in body.splitlines() if line.strip()]
-    return np.asarray(rows, dtype=float).reshape(-1, 3)
+        cloud = read_map_ply(path)
+    except (OSError, ValueError):
+        return np.zeros((0, 3)), None
+    return cloud.points, cloud.voxel_size
 
 
 def voxel_size(points: np.ndarray) -> float:
@@ -331,14 +336,14 @@ METRIC_KEYS = (
 
 def read_summaries(run_dir: Path) -> dict[str, Any]:
     """The end-of-run files: the map sliced per floor, the landmarks and the headline metrics."""
-    points = read_ply_points(run_dir / "map.ply")
+    points, voxel = read_map_points(run_dir / "map.ply")
     heights = floor_heights(run_dir, points)
     try:
         metrics = json.loads((run_dir / "metrics.json").read_text())
     except (OSError, json.JSONDecodeError):
         metrics = {}
     return {
-        "voxel": voxel_size(points) if len(points) else None,
+        "voxel": voxel or (voxel_size(points) if len(points) else None),
         "floors": floor_slices(points, heights),
         "landmarks": read_landmarks(run_dir / "landmarks.json"),
         "metrics": {k: metrics[k] for k in METRIC_KEYS if k in metrics},
