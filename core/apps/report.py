@@ -363,45 +363,157 @@ def map_cloud(summary: RunSummary, saved_map: Path) -> MapCloud:
     return MapCloud(points, classes, probability, voxel, names)
 
 
+#: landmark colours by class (sorted by name), the viewer's palette (``viewer.js``)
+CLASS_COLOURS = ("#e6a100", "#b03fc4", "#0a9bb5", "#d4561c", "#6a8f00", "#c2185b", "#5c6bc0", "#795548")
+#: the trajectories of ``top_view.png``: ground truth, VIO (odometry frame) and SLAM (key poses)
+TRAJECTORY_STYLES = (("ground truth", "tab:green"), ("VIO", "tab:red"), ("SLAM", "tab:blue"))
+
+
 def plot_top_view(summary: RunSummary) -> str | None:
     """``top_view.png``: occupied voxels per floor, trajectories and landmarks, seen from above."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    world = summary.world
-    occupied = summary.mapping.occupied_points()
-    bands = _floor_bands(world) if world is not None else [(-math.inf, math.inf)]
-    fig, axes = plt.subplots(1, len(bands), figsize=(7 * len(bands), 6), squeeze=False)
-    truth = summary.trajectory
-    vio = np.array([T[:3, 3] for _, T in summary.vio]).reshape(-1, 3)
-    landmarks = summary.landmarks or ()
-    for ax, (lo, hi) in zip(axes[0], bands, strict=True):
-        # Slice above the floor slab and below the ceiling, where walls and furniture are.
-        band = (occupied[:, 2] > lo + 0.3) & (occupied[:, 2] < min(hi, lo + 2.2))
-        ax.scatter(occupied[band, 0], occupied[band, 1], s=1.5, c="0.35", marker="s", label="occupied voxels")
-        for traj, colour, label in ((truth, "tab:green", "ground truth"), (vio, "tab:red", "VIO")):
-            sel = (traj[:, 2] >= lo) & (traj[:, 2] < hi)
-            if sel.any():
-                ax.plot(traj[sel, 0], traj[sel, 1], ".", ms=1.0, color=colour)
-                ax.plot([], [], "-", color=colour, label=label)  # a legend entry people can see
-        lms = [lm for lm in landmarks if lo <= lm.position[2] < hi]
-        if lms:
-            pos = np.array([lm.position for lm in lms])
-            ax.scatter(pos[:, 0], pos[:, 1], s=25, c="tab:blue", marker="x", label="landmarks")
-        title = "" if math.isinf(lo) else f"floor z ∈ [{lo:.1f}, {hi:.1f}) m"
-        ax.set_title(title)
-        ax.set_aspect("equal")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.legend(loc="upper right", fontsize=7)
-    fig.suptitle(f"{summary.mission.name}: map and trajectory (top view)")
-    fig.tight_layout()
+    fig = top_view_figure(summary)
     path = summary.run_dir / "top_view.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path.name
+
+
+def _plan_extent(world: WorldSummary | None, clouds: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The (x, y) box every panel shows: the building's, so that each floor's panel has the same
+    size whatever was flown there; without a world, what the map, trajectories and landmarks span."""
+    if world is not None:
+        lo, hi = np.asarray(world.bounds_lo, float)[:2], np.asarray(world.bounds_hi, float)[:2]
+    else:
+        xy = np.vstack([c[:, :2] for c in clouds if len(c)] or [np.zeros((1, 2))])
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+    margin = 0.03 * max(float(np.max(hi - lo)), 1.0)
+    return lo - margin, hi + margin
+
+
+def _in_band(points: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The points with NaN where they leave the band ``[lo, hi)``: a line breaks there instead of
+    jumping between floors."""
+    out = np.array(points, float).reshape(-1, 3)
+    out[~((out[:, 2] >= lo) & (out[:, 2] < hi))] = np.nan
+    return out
+
+
+def _draw_voxels(ax, points: np.ndarray, voxel: float) -> None:
+    """Occupied voxels from above as filled grey cells of their true size (darker where a column
+    holds more of them)."""
+    if len(points) == 0:
+        return
+    cells = np.floor(points[:, :2] / voxel).astype(np.int64)
+    first = cells.min(axis=0)
+    shape = tuple(cells.max(axis=0) - first + 1)
+    count = np.zeros(shape)
+    np.add.at(count, tuple((cells - first).T), 1.0)
+    shade = np.ma.masked_equal(count, 0.0).T  # rows are y for imshow
+    lo = first * voxel
+    hi = lo + np.array(shape) * voxel
+    ax.imshow(
+        shade,
+        origin="lower",
+        extent=(lo[0], hi[0], lo[1], hi[1]),
+        cmap="Greys",
+        vmin=-0.3 * count.max(),
+        vmax=2.2 * count.max(),  # at most mid grey: the lines over it stay readable
+        interpolation="nearest",
+        zorder=0,
+    )
+
+
+def _draw_shape(ax, shape: dict, colour: str) -> None:
+    """A landmark's fitted shape from above: a cuboid's footprint, a cylinder's circle."""
+    import matplotlib.patches as mpatches
+
+    from amslam.lib.shapes import cuboid_pose
+
+    if shape["model"] == "cuboid":
+        T = cuboid_pose(shape)
+        half = np.asarray(shape["dims"], float)[:2] / 2
+        corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
+        xy = corners @ T[:2, :2].T + T[:2, 3]
+        ax.add_patch(mpatches.Polygon(xy, closed=True, fill=False, ec=colour, lw=1.0))
+    elif shape["model"] == "cylinder":
+        root = shape["root"]
+        ax.add_patch(mpatches.Circle((root[0], root[1]), shape["radius"], fill=False, ec=colour, lw=1.0))
+
+
+def top_view_figure(summary: RunSummary):
+    """The figure of ``top_view.png``: one panel per floor, all sized to the building; occupied
+    voxels, the ground-truth, VIO and SLAM trajectories, and the landmarks coloured by class, with
+    one legend under the panels (an entry per trajectory and per class)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    world = summary.world
+    occupied = np.asarray(summary.mapping.occupied_points(), float).reshape(-1, 3)
+    voxel = float(summary.mapping.voxel_size())
+    bands = _floor_bands(world) if world is not None else [(-math.inf, math.inf)]
+    trajectories = [
+        summary.trajectory,
+        np.array([T[:3, 3] for _, T in summary.vio]).reshape(-1, 3),
+        np.array([k.T_world_body[:3, 3] for k in summary.keyposes]).reshape(-1, 3),
+    ]
+    landmarks = list(summary.landmarks or ())
+    classes = sorted({lm.class_name for lm in landmarks})
+    colour = {c: CLASS_COLOURS[i % len(CLASS_COLOURS)] for i, c in enumerate(classes)}
+    positions = np.array([lm.position for lm in landmarks], float).reshape(-1, 3)
+    lo, hi = _plan_extent(world, [occupied, *trajectories, positions])
+    # every panel shows the building at one scale: its height fixed, its width following the plan
+    panel_h = 5.0
+    panel_w = float(np.clip(panel_h * (hi[0] - lo[0]) / (hi[1] - lo[1]), 3.0, 12.0))
+    fig, axes = plt.subplots(
+        1, len(bands), figsize=(panel_w * len(bands) + 0.8, panel_h + 1.8), squeeze=False
+    )
+    for floor, (ax, (z0, z1)) in enumerate(zip(axes[0], bands, strict=True)):
+        # Slice above the floor slab and below the ceiling, where walls and furniture are.
+        band = (occupied[:, 2] > z0 + 0.3) & (occupied[:, 2] < min(z1, z0 + 2.2))
+        _draw_voxels(ax, occupied[band], voxel)
+        for points, (label, line_colour) in zip(trajectories, TRAJECTORY_STYLES, strict=True):
+            if len(points):
+                xyz = _in_band(points, z0, z1)
+                ax.plot(xyz[:, 0], xyz[:, 1], "-", lw=0.9, color=line_colour, alpha=0.85, label=label)
+        for lm in landmarks:
+            if z0 <= lm.position[2] < z1:
+                if lm.shape:
+                    _draw_shape(ax, lm.shape, colour[lm.class_name])
+                ax.plot(
+                    lm.position[0],
+                    lm.position[1],
+                    "o",
+                    ms=4.5,
+                    mfc=colour[lm.class_name],
+                    mec="white",
+                    mew=0.5,
+                )
+        ax.set_title("" if math.isinf(z0) else f"floor {floor}: z ∈ [{z0:.1f}, {z1:.1f}) m", fontsize=10)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    counts = {c: sum(lm.class_name == c for lm in landmarks) for c in classes}
+    handles = [Line2D([], [], ls="", marker="s", ms=4, mfc="0.6", mec="0.6", label="occupied voxels")]
+    handles += [
+        Line2D([], [], color=c, lw=1.5, label=label)
+        for (label, c), points in zip(TRAJECTORY_STYLES, trajectories, strict=True)
+        if len(points)
+    ]
+    handles += [
+        Line2D([], [], ls="", marker="o", ms=6, mfc=colour[c], mec="white", label=f"{c} ×{counts[c]}")
+        for c in classes
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 9), fontsize=8, frameon=False)
+    fig.suptitle(f"{summary.mission.name}: map, trajectories and landmarks (top view)")
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    return fig
 
 
 def plot_uncertainty(summary: RunSummary, metrics: dict[str, Any]) -> str | None:

@@ -78,3 +78,66 @@ def test_object_accuracy_fig9_error_is_length_and_width_of_vehicles_only() -> No
     assert overall["fig9_objects"] == 2 and overall["fig9_mapped"] == 2
     assert overall["fig9_error_mean_m"] == pytest.approx(0.1)
     assert overall["mapped"] == 3
+
+
+class _Map:
+    """What the top view reads of a mapping backend."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+
+    def occupied_points(self) -> np.ndarray:
+        return self.points
+
+    def voxel_size(self) -> float:
+        return 0.25
+
+
+def _pose(x: float, y: float, z: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def test_top_view_shows_slam_classes_and_floors_sized_to_the_building(tmp_path):
+    from types import SimpleNamespace
+
+    from amslam.apps.report import top_view_figure
+    from amslam.types import KeyPose, RunSummary
+
+    world = dataclasses.replace(_world({}), bounds_hi=np.array([14.0, 10.0, 6.0]), floor_heights=(0.0, 3.0))
+    # a short flight: a few metres along the first floor, nothing seen upstairs but one wall
+    path = [(1.0 + 0.1 * i, 5.0, 1.2) for i in range(40)]
+    wall = np.array([[x, 4.0, 1.0] for x in np.arange(0.125, 5, 0.25)] + [[13.0, 9.0, 4.0]])
+    summary = RunSummary(
+        mission=SimpleNamespace(name="short"),
+        run_dir=tmp_path,
+        verdict="completed",
+        truth=tuple((0.1 * i, _pose(*p)) for i, p in enumerate(path)),
+        vio=tuple((0.1 * i, _pose(p[0], p[1] + 0.1, p[2])) for i, p in enumerate(path)),
+        keyposes=tuple(
+            KeyPose(i, 0.5 * i, _pose(p[0], p[1] - 0.05, p[2]), 0.5 * i) for i, p in enumerate(path[::5])
+        ),
+        landmarks=(_lm(0, "chair", [2, 6, 0.4]), _lm(1, "table", [4, 6, 0.5]), _lm(2, "table", [3, 3, 3.5])),
+        world=world,
+        mapping=_Map(wall),
+    )
+    fig = top_view_figure(summary)
+    floor0, floor1 = fig.axes
+    slam = [line for line in floor0.get_lines() if line.get_label() == "SLAM"]
+    assert len(slam) == 1 and np.isfinite(slam[0].get_xydata()).all(axis=1).sum() == 8  # every key pose
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert legend == ["occupied voxels", "ground truth", "VIO", "SLAM", "chair ×1", "table ×2"]
+    # one colour per class, the same on every floor
+    colours = {
+        line.get_markerfacecolor() for ax in fig.axes for line in ax.get_lines() if line.get_marker() == "o"
+    }
+    assert len(colours) == 2
+    # both floors show the whole building, though only a corridor of the first was flown
+    for ax in (floor0, floor1):
+        assert ax.get_xlim()[0] < 0 and ax.get_xlim()[1] > 14
+        assert ax.get_ylim()[0] < 0 and ax.get_ylim()[1] > 10
+    assert floor0.get_position().bounds[2:] == pytest.approx(floor1.get_position().bounds[2:])
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
