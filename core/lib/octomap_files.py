@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from amslam.errors import AmslamError
+from amslam.lib.voxel_grid import decode, encode
 
 #: the first line of every ``.bt`` (OctoMap checks it too, but prints its complaint to stderr)
 BT_MAGIC = b"# Octomap OcTree binary file"
@@ -96,34 +97,37 @@ def read_bt(path: Path, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     tree = pyoctomap.OcTree(float(voxel))
     if not tree.readBinary(os.fspath(path)):
         raise OctomapFileError(f"{path}: OctoMap could not read this .bt (truncated or not an OcTree)")
-    voxel = float(voxel)
-    chunks: list[np.ndarray] = []
-    states: list[np.ndarray] = []
+    centres, sizes, occupied = [], [], []
     if tree.size() > 0:
-        for leaf in tree.begin_leafs():
-            centre, size = np.asarray(leaf.getCoordinate(), dtype=float), float(leaf.getSize())
-            cells = _cells_of_cube(centre, size, voxel)
-            chunks.append(cells)
-            states.append(np.full(len(cells), bool(tree.isNodeOccupied(leaf))))
-    if not chunks:
+        for leaf in tree.begin_leafs():  # the only per-leaf Python loop: ~0.2 s per 45 000 leaves
+            centres.append(leaf.getCoordinate())
+            sizes.append(leaf.getSize())
+            occupied.append(tree.isNodeOccupied(leaf))
+    if not sizes:
         return np.zeros((0, 3), np.int64), np.zeros(0, bool)
-    return _occupied_wins(np.vstack(chunks), np.concatenate(states))
+    index, leaf_of = _cells_of_cubes(np.asarray(centres, float), np.asarray(sizes, float), float(voxel))
+    keys = encode(index)
+    unique = np.unique(keys)
+    # occupied wins: a voxel is occupied if any leaf covering it is
+    return decode(unique), np.isin(unique, keys[np.asarray(occupied, bool)[leaf_of]])
 
 
-def _cells_of_cube(centre: np.ndarray, size: float, voxel: float) -> np.ndarray:
-    """Lattice indices of the voxels whose centres lie in the cube (centre, edge ``size``); the
-    voxel holding the centre when the cube is smaller than a voxel and holds none."""
-    lo = np.ceil((centre - 0.5 * size) / voxel - 0.5 - 1e-9).astype(np.int64)
-    hi = np.ceil((centre + 0.5 * size) / voxel - 0.5 - 1e-9).astype(np.int64)  # exclusive
-    if np.any(hi <= lo):
-        return np.floor(centre / voxel).astype(np.int64).reshape(1, 3)
-    axes = [np.arange(a, b) for a, b in zip(lo, hi, strict=True)]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-
-
-def _occupied_wins(index: np.ndarray, occupied: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One row per distinct voxel; occupied where any of its rows is."""
-    unique, inverse = np.unique(index, axis=0, return_inverse=True)
-    merged = np.zeros(len(unique), bool)
-    np.logical_or.at(merged, inverse.reshape(-1), occupied)
-    return unique, merged
+def _cells_of_cubes(centres: np.ndarray, sizes: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lattice indices of the voxels whose centres lie in each cube (centre, edge), and the cube
+    each index comes from; a cube smaller than a voxel that holds no voxel centre gives the voxel
+    holding its own centre."""
+    lo = np.ceil((centres - 0.5 * sizes[:, None]) / voxel - 0.5 - 1e-9).astype(np.int64)
+    hi = np.ceil((centres + 0.5 * sizes[:, None]) / voxel - 0.5 - 1e-9).astype(np.int64)  # exclusive
+    empty = np.any(hi <= lo, axis=1)
+    lo[empty] = np.floor(centres[empty] / voxel).astype(np.int64)
+    hi[empty] = lo[empty] + 1
+    extent = hi - lo
+    cells, owners = [], []
+    for n in np.unique(extent.max(axis=1)):  # cubes of one size together: a few groups, not one per leaf
+        group = np.nonzero(extent.max(axis=1) == n)[0]
+        offsets = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        inside = np.all(offsets[None, :, :] < extent[group][:, None, :], axis=2)  # G × n³
+        leaf, cell = np.nonzero(inside)
+        cells.append(lo[group][leaf] + offsets[cell])
+        owners.append(group[leaf])
+    return np.vstack(cells), np.concatenate(owners)
