@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -67,9 +66,9 @@ def write_bt(path: Path, index: np.ndarray, occupied: np.ndarray, voxel: float) 
         raise OctomapFileError(f"{path}: no such folder {path.parent}")
     if not os.access(path.parent, os.W_OK):
         raise OctomapFileError(f"{path}: cannot write in {path.parent}: permission denied")
-    # through a temporary file and a rename: a reader never sees half a tree
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
+    # through a temporary file and a rename: a reader never sees half a tree (OctoMap creates it,
+    # so it gets the usual permissions of the umask, not mkstemp's owner-only ones)
+    tmp = os.fspath(path.with_name(f".{path.name}.{os.getpid()}.tmp"))
     try:
         if not tree.writeBinary(tmp):
             raise OctomapFileError(f"{path}: OctoMap could not write the file")
