@@ -180,3 +180,37 @@ def test_a_bt_loads_as_the_global_map(backend, tmp_path):
     ).reshape(-1, 3)
     np.testing.assert_array_equal(prior.states(grid), seen.states(grid))  # free space too
     assert len(prior.viewpoints()) > 0  # frontiers recomputed from the loaded map
+
+
+def test_amslam_map_refuses_bad_input_in_one_line(tmp_path, capsys):
+    from amslam.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    cases = [
+        (["map", str(tmp_path / "nope"), "--bt", "x.bt"], f"error: {tmp_path}/nope: no such run folder"),
+        (["map", str(run), "--bt", "x.ot"], "error: --bt x.ot: the file name must end in .bt"),
+        (["map", str(run), "--bt", "x.bt"], f"error: {run}: no map.ply (is it a finished run folder?)"),
+    ]
+    for argv, line in cases:
+        assert main(argv) == 2
+        assert capsys.readouterr().err.splitlines() == [line]
+
+
+def test_amslam_map_writes_the_runs_map_as_a_bt(tmp_path, capsys):
+    from amslam.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    write_map_ply(run / "map.ply", _cloud())
+    np.savez(
+        run / "map.npz",
+        global_index=np.vstack([np.floor(_cloud().points / VOXEL).astype(int), [[9, 9, 9], [9, 9, 8]]]),
+        global_logodds=np.zeros(6, np.float32),
+        global_voxel=np.array(VOXEL),
+    )
+    assert main(["map", str(run), "--bt", str(tmp_path / "map.bt")]) == 0
+    assert capsys.readouterr().out.startswith(f"{tmp_path}/map.bt: 4 occupied and 2 free voxels")
+    index, occupied = read_bt(tmp_path / "map.bt", VOXEL)
+    assert _as_set(index[occupied]) == _as_set(np.floor(_cloud().points / VOXEL).astype(int))
+    assert _as_set(index[~occupied]) == {(9, 9, 9), (9, 9, 8)}
