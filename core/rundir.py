@@ -45,6 +45,17 @@ def jsonable(value: Any) -> Any:
     return value
 
 
+def _read_umask() -> int:
+    # os.umask can only be read by setting it; done once, at import, before any thread runs
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
+
+
+#: the process's file-creation mask, for files made by mkstemp (see write_atomically)
+_UMASK = _read_umask()
+
+
 def write_atomically(path: Path, data: str | bytes) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder and a rename.
 
@@ -56,6 +67,10 @@ def write_atomically(path: Path, data: str | bytes) -> Path:
     mode = "wb" if isinstance(data, bytes) else "w"
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        # mkstemp makes the file owner-only (0600), and the rename keeps that: a run's summary files
+        # came out unreadable to the other users of a shared machine while its streams were not.
+        # Give it the mode an ordinary open() would: 0666 less the umask.
+        os.chmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, mode) as f:
             f.write(data)
             f.flush()

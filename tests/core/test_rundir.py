@@ -6,6 +6,7 @@ import errno
 import json
 import multiprocessing
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -72,3 +73,14 @@ def test_processes_starting_in_the_same_second_get_distinct_folders(tmp_path: Pa
         "demo-20261124-120000-10",
         "demo-20261124-120000-11",
     ]
+
+
+def test_atomically_written_files_get_the_mode_an_ordinary_open_gives(tmp_path: Path):
+    # mkstemp's 0600 survived the rename: metrics.json, landmarks.json, map.ply … came out
+    # unreadable to the other users of a shared machine, while the streams were not.
+    from amslam.rundir import write_atomically
+
+    written = write_atomically(tmp_path / "metrics.json", "{}")
+    opened = tmp_path / "events.jsonl"
+    opened.write_text("")
+    assert stat.S_IMODE(written.stat().st_mode) == stat.S_IMODE(opened.stat().st_mode)
