@@ -1,0 +1,437 @@
+"""A finished run folder read strictly for export: every record checked, every problem located.
+
+The viewer reads run folders leniently (a run in progress, bad lines skipped); an export is a
+file handed to other tools, so here a malformed record is an :class:`ExportError` naming the
+file and line. Only a partial *last* line of a stream is forgiven (a run killed mid-write leaves
+one): it is dropped with a warning. A missing optional file (``landmarks.json``, ``map.npz``, ...)
+is a warning; its topics are left out.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from amslam.errors import AmslamError
+from amslam.types import CameraModel
+
+TRAJECTORIES = ("ground_truth", "vio", "slam")
+#: the voxel map format ``VoxelMap.save`` writes (``core/lib/voxel_map.py``)
+MAP_FORMAT = "amslam-voxels-1"
+#: the occupancy threshold when the run folder's mission.yaml does not give ``mapping.p_occ``
+#: (the mapping plugins' default, ``core/lib/voxel_map.py``)
+DEFAULT_P_OCC = 0.8
+
+
+class ExportError(AmslamError):
+    """A run folder that cannot be exported; the message names the file (and line)."""
+
+
+@dataclass
+class Trajectory:
+    """A TUM trajectory: N stamps (s) and N×7 poses ``x y z qx qy qz qw``."""
+
+    stamps: np.ndarray
+    poses: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+
+@dataclass
+class VoxelCloud:
+    """Occupied voxels: N×3 centres and named per-voxel values (e.g. occupancy probability)."""
+
+    points: np.ndarray
+    voxel: float | None
+    values: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class CameraMount:
+    """``T_body_cam`` (4×4) and where it came from, for the user to see what was assumed."""
+
+    T_body_cam: np.ndarray
+    source: str
+
+
+@dataclass
+class RunFolder:
+    """What an export needs of a run folder; None / empty where the run folder did not have it."""
+
+    path: Path
+    mission_name: str
+    trajectories: dict[str, Trajectory]
+    events: list[dict[str, Any]]
+    tree_structure: list[dict[str, Any]] | None
+    tree_records: list[dict[str, Any]]
+    landmarks: list[dict[str, Any]] | None
+    global_map: VoxelCloud | None
+    local_map: VoxelCloud | None
+    camera: CameraMount
+    metrics: dict[str, Any] | None
+    warnings: list[str]
+
+    @property
+    def start(self) -> float:
+        """The first simulated (or vehicle) time any stream recorded, s."""
+        times = [float(t.stamps[0]) for t in self.trajectories.values() if len(t)]
+        times += [float(e["t"]) for e in self.events[:1]]
+        times += [float(r["t"]) for r in self.tree_records[:1]]
+        return min(times) if times else 0.0
+
+    @property
+    def end(self) -> float:
+        times = [float(t.stamps[-1]) for t in self.trajectories.values() if len(t)]
+        times += [float(e["t"]) for e in self.events[-1:]]
+        times += [float(r["t"]) for r in self.tree_records[-1:]]
+        return max(times) if times else 0.0
+
+
+def read_run_folder(path: Path) -> RunFolder:
+    """Read ``path`` for export.
+
+    Raises:
+        ExportError: the folder is missing or not a run folder, or one of its files is malformed.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise ExportError(f"{path}: no such run folder")
+    if not (path / "events.jsonl").is_file() and not any((path / f"{n}.tum").is_file() for n in TRAJECTORIES):
+        raise ExportError(f"{path}: not a run folder (no events.jsonl, no ground_truth/vio/slam .tum)")
+    warnings: list[str] = []
+
+    def missing(name: str, skipped: str) -> None:
+        warnings.append(f"{path / name} missing: {skipped} left out")
+
+    trajectories = {}
+    for name in TRAJECTORIES:
+        file = path / f"{name}.tum"
+        if file.is_file():
+            trajectories[name] = read_tum(file, warnings)
+        else:
+            missing(f"{name}.tum", f"the {name} path, odometry and frames")
+    events = (
+        _read_jsonl(path / "events.jsonl", warnings, _check_event)
+        if (path / "events.jsonl").is_file()
+        else []
+    )
+    if not (path / "events.jsonl").is_file():
+        missing("events.jsonl", "events, the tour and SLC viewpoints")
+    structure, records = None, []
+    if (path / "tree.jsonl").is_file():
+        structure, records = read_tree(path / "tree.jsonl", warnings)
+    else:
+        missing("tree.jsonl", "the behaviour-tree status")
+    mission = _read_mission(path / "mission.yaml", warnings)
+    landmarks = None
+    if (path / "landmarks.json").is_file():
+        landmarks = read_landmarks(path / "landmarks.json")
+    else:
+        missing("landmarks.json", "the landmarks")
+    p_occ = _nested(mission, "mapping", "p_occ", default=DEFAULT_P_OCC)
+    global_map = local_map = None
+    if (path / "map.npz").is_file():
+        global_map, local_map = read_voxel_maps(path / "map.npz", float(p_occ))
+    elif (path / "map.ply").is_file():
+        global_map = read_ply_cloud(path / "map.ply")
+        missing("map.npz", "the occupancy probabilities and the final local map")
+    else:
+        missing("map.npz (and map.ply)", "the map")
+    metrics = None
+    if (path / "metrics.json").is_file():
+        metrics = _read_json(path / "metrics.json")
+        if not isinstance(metrics, dict):
+            raise ExportError(f"{path / 'metrics.json'}: not a JSON object")
+    name = (metrics or {}).get("mission") or (mission or {}).get("name") or path.name
+    return RunFolder(
+        path=path,
+        mission_name=str(name),
+        trajectories=trajectories,
+        events=events,
+        tree_structure=structure,
+        tree_records=records,
+        landmarks=landmarks,
+        global_map=global_map,
+        local_map=local_map,
+        camera=camera_mount(path, mission, warnings),
+        metrics=metrics,
+        warnings=warnings,
+    )
+
+
+# -- streams ----------------------------------------------------------------------------------------
+
+
+def _lines(file: Path) -> list[str]:
+    try:
+        return file.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ExportError(f"{file}: cannot be read ({exc})") from None
+
+
+def _last_line_cut(file: Path, number: int, total: int, what: str, warnings: list[str]) -> bool:
+    """A malformed last line of a stream is a run stopped mid-write: warn and drop it."""
+    if number == total:
+        warnings.append(f"{file}:{number}: {what} (a run stopped mid-write?): line dropped")
+        return True
+    return False
+
+
+def read_tum(file: Path, warnings: list[str]) -> Trajectory:
+    """``t x y z qx qy qz qw`` per line (``#`` comments allowed), in time order."""
+    lines = _lines(file)
+    stamps, poses = [], []
+    for number, line in enumerate(lines, 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        try:
+            values = [float(v) for v in text.split()]
+            if len(values) != 8 or not all(math.isfinite(v) for v in values):
+                raise ValueError
+        except ValueError:
+            if _last_line_cut(file, number, len(lines), "not 8 numbers", warnings):
+                break
+            raise ExportError(
+                f"{file}:{number}: expected 8 numbers 't x y z qx qy qz qw', got {text[:60]!r}"
+            ) from None
+        if stamps and values[0] < stamps[-1]:
+            raise ExportError(f"{file}:{number}: time {values[0]} goes back (previous {stamps[-1]})")
+        norm = math.sqrt(sum(q * q for q in values[4:]))
+        if norm < 1e-6:
+            raise ExportError(f"{file}:{number}: quaternion is zero")
+        stamps.append(values[0])
+        poses.append([*values[1:4], *(q / norm for q in values[4:])])
+    return Trajectory(np.asarray(stamps, float), np.asarray(poses, float).reshape(-1, 7))
+
+
+def _check_event(record: dict[str, Any]) -> str | None:
+    if not isinstance(record.get("t"), int | float) or not isinstance(record.get("event"), str):
+        return "an event needs a number 't' and a string 'event'"
+    if record["event"] == "replan":
+        tour = record.get("tour")
+        ok = isinstance(tour, list) and all(
+            isinstance(s, list) and len(s) == 4 and all(isinstance(v, int | float) for v in s[1:])
+            for s in tour
+        )
+        if not ok:
+            return "a replan event's 'tour' must be a list of [kind, x, y, z]"
+    return None
+
+
+def _read_jsonl(
+    file: Path, warnings: list[str], check: Callable[[dict[str, Any]], str | None]
+) -> list[dict[str, Any]]:
+    lines = _lines(file)
+    records = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            if _last_line_cut(file, number, len(lines), "not JSON", warnings):
+                break
+            raise ExportError(f"{file}:{number}: not JSON ({exc.msg})") from None
+        problem = "not a JSON object" if not isinstance(record, dict) else check(record)
+        if problem:
+            raise ExportError(f"{file}:{number}: {problem}")
+        records.append(record)
+    return records
+
+
+def _check_tree_record(record: dict[str, Any]) -> str | None:
+    if "structure" in record:
+        nodes = record["structure"]
+        ok = isinstance(nodes, list) and all(isinstance(n, dict) and "id" in n and "name" in n for n in nodes)
+        return None if ok else "'structure' must be a list of nodes with 'id' and 'name'"
+    if not isinstance(record.get("t"), int | float):
+        return "a tree record needs a number 't'"
+    if not isinstance(record.get("nodes", {}), dict) or not isinstance(record.get("blackboard", {}), dict):
+        return "'nodes' and 'blackboard' must be JSON objects"
+    return None
+
+
+def read_tree(file: Path, warnings: list[str]) -> tuple[list[dict[str, Any]] | None, list[dict[str, Any]]]:
+    """``tree.jsonl``: the structure (first record) and the change records after it."""
+    structure = None
+    records = []
+    for record in _read_jsonl(file, warnings, _check_tree_record):
+        if "structure" in record:
+            structure = record["structure"]
+        else:
+            records.append(record)
+    return structure, records
+
+
+# -- summaries --------------------------------------------------------------------------------------
+
+
+def _read_json(file: Path) -> Any:
+    try:
+        return json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ExportError(f"{file}: cannot be read ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ExportError(f"{file}:{exc.lineno}: not JSON ({exc.msg})") from None
+
+
+def _is_vector(value: Any, n: int) -> bool:
+    return (
+        isinstance(value, list)
+        and len(value) == n
+        and all(isinstance(v, int | float) and math.isfinite(v) for v in value)
+    )
+
+
+def _is_row(value: Any) -> bool:
+    return isinstance(value, list) and len(value) == 3 and all(v is None or _is_vector([v], 1) for v in value)
+
+
+def read_landmarks(file: Path) -> list[dict[str, Any]]:
+    """``landmarks.json``: ``[{id, class, position, covariance?, shape?}, ...]``."""
+    landmarks = _read_json(file)
+    if not isinstance(landmarks, list):
+        raise ExportError(f"{file}: expected a JSON list of landmarks")
+    for i, lm in enumerate(landmarks):
+        where = f"{file}: landmark {i}"
+        if (
+            not isinstance(lm, dict)
+            or not isinstance(lm.get("class"), str)
+            or not _is_vector(lm.get("position"), 3)
+        ):
+            raise ExportError(f"{where}: needs a 'class' string and a 'position' [x, y, z]")
+        cov = lm.get("covariance")
+        if cov is not None and not (isinstance(cov, list) and len(cov) == 3 and all(_is_row(r) for r in cov)):
+            raise ExportError(f"{where}: 'covariance' must be a 3×3 list of numbers (or nulls: unknown)")
+        if cov is not None and any(v is None for row in cov for v in row):
+            lm["covariance"] = None  # a backend without uncertainty (odometry SLAM) writes nulls
+        shape = lm.get("shape")
+        if shape is not None and not (isinstance(shape, dict) and isinstance(shape.get("model"), str)):
+            raise ExportError(f"{where}: 'shape' must be an object with a 'model'")
+    return landmarks
+
+
+def read_voxel_maps(file: Path, p_occ: float) -> tuple[VoxelCloud, VoxelCloud]:
+    """The global and local maps of ``map.npz``: occupied voxels with their occupancy probability.
+
+    A voxel is occupied when its log-odds exceed ``logit(p_occ)``, the rule of the mapping
+    plugins (``core/lib/voxel_grid.py``), so the global cloud is exactly ``map.ply``'s points.
+    """
+    try:
+        with np.load(file, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError) as exc:
+        raise ExportError(f"{file}: not a readable .npz ({exc})") from None
+    if str(arrays.get("format", "")) != MAP_FORMAT:
+        raise ExportError(f"{file}: not an amslam voxel map (format {MAP_FORMAT!r} expected)")
+    threshold = math.log(p_occ / (1.0 - p_occ))
+    maps = []
+    for name in ("global", "local"):
+        try:
+            index = np.asarray(arrays[f"{name}_index"], np.int64).reshape(-1, 3)
+            logodds = np.asarray(arrays[f"{name}_logodds"], np.float64).reshape(-1)
+            voxel = float(arrays[f"{name}_voxel"])
+        except (KeyError, ValueError) as exc:
+            raise ExportError(f"{file}: the {name} map is incomplete ({exc})") from None
+        if len(index) != len(logodds) or not voxel > 0:
+            raise ExportError(f"{file}: the {name} map's index, log-odds and voxel size do not agree")
+        occupied = logodds > threshold
+        centres = (index[occupied] + 0.5) * voxel  # as core/lib/voxel_grid.py `centres`
+        probability = 1.0 / (1.0 + np.exp(-logodds[occupied]))
+        maps.append(VoxelCloud(centres, voxel, {"probability": probability}))
+    return maps[0], maps[1]
+
+
+def read_ply_cloud(file: Path) -> VoxelCloud:
+    """Points of ``map.ply`` (ASCII or binary, through trimesh) with any extra numeric vertex values."""
+    import trimesh
+
+    try:
+        cloud = trimesh.load(file, file_type="ply", process=False)
+    except Exception as exc:  # trimesh raises many kinds on a bad file
+        raise ExportError(f"{file}: not a readable PLY ({exc})") from None
+    points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
+    values: dict[str, np.ndarray] = {}
+    raw = (
+        cloud.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+        if hasattr(cloud, "metadata")
+        else None
+    )
+    if raw is not None and raw.dtype.names:
+        for name in raw.dtype.names:
+            if (
+                name not in ("x", "y", "z")
+                and np.issubdtype(raw[name].dtype, np.number)
+                and raw[name].ndim == 1
+            ):
+                values[name] = np.asarray(raw[name], float).reshape(-1)
+    return VoxelCloud(points, None, values)
+
+
+# -- mission and camera -----------------------------------------------------------------------------
+
+
+def _read_mission(file: Path, warnings: list[str]) -> dict[str, Any] | None:
+    if not file.is_file():
+        warnings.append(f"{file} missing: occupancy threshold p_occ = {DEFAULT_P_OCC} assumed")
+        return None
+    try:
+        mission = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ExportError(f"{file}: not readable YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(mission, dict):
+        raise ExportError(f"{file}: not a mission (a YAML mapping expected)")
+    return mission
+
+
+def _nested(data: dict[str, Any] | None, *keys: str, default: Any = None) -> Any:
+    for key in keys:
+        if not isinstance(data, dict) or key not in data:
+            return default
+        data = data[key]
+    return data if data is not None else default
+
+
+def camera_mount(path: Path, mission: dict[str, Any] | None, warnings: list[str]) -> CameraMount:
+    """The camera mount the run used: the one recorded in ``measurements.jsonl``'s header, else
+    the mission's (the simulator's ``platform.camera.pitch_deg``, a MAVSDK camera's
+    ``mount_pitch_deg`` and ``mount_xyz``), else a forward-looking camera at the body origin."""
+    file = path / "measurements.jsonl"
+    if file.is_file():
+        with open(file, encoding="utf-8", errors="replace") as f:
+            first = f.readline()
+        try:
+            header = json.loads(first)
+            T = np.asarray(header["T_body_cam"], float)
+            if T.shape == (4, 4) and np.all(np.isfinite(T)):
+                return CameraMount(T, f"{file.name} header")
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+            pass
+        warnings.append(f"{file}:1: no T_body_cam in the header; camera mount taken from the mission")
+    camera = _nested(mission, "platform", "camera", default={})
+    if isinstance(camera, dict):
+        if isinstance(camera.get("pitch_deg"), int | float):
+            return CameraMount(
+                CameraModel.forward_mount(float(camera["pitch_deg"])), "mission.yaml pitch_deg"
+            )
+        if isinstance(camera.get("mount_pitch_deg"), int | float):
+            xyz = camera.get("mount_xyz")
+            offset = tuple(float(v) for v in xyz) if _is_vector(xyz, 3) else (0.0, 0.0, 0.0)
+            return CameraMount(
+                CameraModel.forward_mount(float(camera["mount_pitch_deg"]), offset),  # type: ignore[arg-type]
+                "mission.yaml mount_pitch_deg/mount_xyz",
+            )
+    warnings.append(
+        "the run folder does not state the camera mount: a level, forward-looking camera at the body "
+        "origin assumed for base_link → camera_optical"
+    )
+    return CameraMount(CameraModel.forward_mount(), "assumed: level, forward, at the body origin")
