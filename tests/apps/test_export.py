@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -210,3 +212,14 @@ def test_reading_a_run_folder_locates_problems(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ExportError, match="not a run folder"):
         read_run_folder(tmp_path / "empty")
+
+
+def test_the_command_line_does_not_load_the_interop_libraries():
+    # `amslam --help` builds every command's parser: mcap and rosbags must wait for `export` to run
+    code = (
+        "import sys; from amslam.cli import build_parser; from amslam.registry import build_plugin_manager; "
+        "build_parser(build_plugin_manager()); "
+        "print(sorted(m for m in ('mcap', 'mcap_ros2', 'rosbags') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

@@ -142,7 +142,7 @@ def test_a_corrupt_file_is_one_line_naming_it(small_run, tmp_path, capsys):
     assert not (tmp_path / "out.mcap").exists() and not list(tmp_path.glob("*.part"))
 
     assert main(["export", str(tmp_path / "nowhere"), "--mcap", str(tmp_path / "out.mcap")]) == 2
-    assert "no such run folder" in capsys.readouterr().err
+    assert "no such folder" in capsys.readouterr().err
     assert main(["export", str(run), "--mcap", str(tmp_path / "out.bag")]) == 2
     assert "must end in .mcap" in capsys.readouterr().err
 

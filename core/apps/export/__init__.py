@@ -22,7 +22,7 @@ DISTRIBUTIONS = {"mcap": "mcap", "mcap_ros2": "mcap-ros2-support", "rosbags": "r
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", help="run folder (written by `amslam run`)")
+    parser.add_argument("run", help="run folder (written by `amslam run`), or a folder of them: the newest")
     parser.add_argument(
         "--mcap",
         metavar="FILE",
@@ -52,8 +52,12 @@ def _run(args: argparse.Namespace, registry) -> int:
         raise AmslamError(f"export --mcap needs {package}, which is not installed: {INTEROP_HINT}") from None
     from amslam.apps.export.mcap_file import write_mcap
     from amslam.apps.export.runfolder import read_run_folder
+    from amslam.apps.viewer import resolve_run_folder
 
-    run = read_run_folder(Path(args.run))
+    folder, newest = resolve_run_folder(Path(args.run))  # a folder of runs: its newest, as `amslam view`
+    if newest:
+        print(f"newest run in {args.run}: {folder}")
+    run = read_run_folder(folder)
     try:
         summary = write_mcap(run, out, ros_only=args.ros_only)
     except OSError as exc:

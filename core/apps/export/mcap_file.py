@@ -57,7 +57,7 @@ TREE_SCHEMA = {
                     "id": {"type": "integer"},
                     "name": {"type": "string"},
                     "type": {"type": "string"},
-                    "parent": {"type": ["integer", "null"]},
+                    "parent": {"type": "integer", "description": "the parent's id; null for the root"},
                     "status": {"type": "string"},
                     "feedback": {"type": "string"},
                 },
