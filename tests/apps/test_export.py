@@ -223,3 +223,27 @@ def test_the_command_line_does_not_load_the_interop_libraries():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_an_export_that_fails_midway_leaves_no_file(tmp_path, monkeypatch):
+    pytest.importorskip("mcap_ros2", reason="the interop extra (pip install amslam[interop])")
+    from amslam.apps.export import mcap_file
+
+    stamps = np.arange(0.0, 2.0, 0.1)
+    run = run_folder(
+        trajectories={"vio": trajectory(stamps, np.zeros((len(stamps), 3)), np.zeros(len(stamps)))}
+    )
+    summary = mcap_file.write_mcap(run, tmp_path / "ok.mcap")
+    assert summary.counts["/vio/odometry"] == len(stamps) and (tmp_path / "ok.mcap").is_file()
+
+    written = []
+
+    def full_disk(self, *args):
+        if len(written) == 5:
+            raise OSError(28, "No space left on device")
+        written.append(args)
+
+    monkeypatch.setattr(mcap_file._Channels, "write", full_disk)
+    with pytest.raises(OSError):
+        mcap_file.write_mcap(run, tmp_path / "out.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.mcap"]

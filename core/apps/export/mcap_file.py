@@ -164,6 +164,60 @@ def gather(run: RunFolder) -> _Messages:
     return out
 
 
+#: JSON channels: message kind → (schema name, JSON Schema)
+JSON_SCHEMAS = {
+    "json:event": ("amslam/Event", EVENT_SCHEMA),
+    "json:tree": ("amslam/TreeStatus", TREE_SCHEMA),
+    "json:metrics": ("amslam/Metrics", METRICS_SCHEMA),
+}
+
+
+class _Channels:
+    """Schemas and channels of an MCAP writer, registered the first time a topic is written."""
+
+    def __init__(self, writer, summary: ExportSummary):
+        from mcap_ros2._dynamic import serialize_dynamic
+        from rosbags.typesys import Stores, get_typestore
+
+        self.writer, self.summary = writer, summary
+        self.typestore = get_typestore(getattr(Stores, ROS_DISTRO))
+        self.serialize_dynamic = serialize_dynamic
+        self.schemas: dict[str, tuple[int, Any]] = {}  # kind → (schema id, CDR encoder; None for JSON)
+        self.channels: dict[str, int] = {}
+
+    def _schema(self, kind: str) -> tuple[int, Any]:
+        from mcap.well_known import SchemaEncoding
+
+        if kind not in self.schemas:
+            if kind in JSON_SCHEMAS:
+                name, schema = JSON_SCHEMAS[kind]
+                data = json.dumps(schema).encode()
+                self.schemas[kind] = (
+                    self.writer.register_schema(name, SchemaEncoding.JSONSchema, data),
+                    None,
+                )
+            else:
+                # named pkg/msg/Type as rosbag2 names its schemas (rosbags looks types up so)
+                text, _ = self.typestore.generate_msgdef(kind, ros_version=2)
+                schema_id = self.writer.register_schema(kind, SchemaEncoding.ROS2, text.encode())
+                self.schemas[kind] = (schema_id, self.serialize_dynamic(kind, text)[kind])
+        return self.schemas[kind]
+
+    def write(self, log_time: int, topic: str, kind: str, message: Any) -> None:
+        from mcap.well_known import MessageEncoding
+
+        schema_id, encode = self._schema(kind)
+        if topic not in self.channels:
+            encoding = MessageEncoding.JSON if encode is None else MessageEncoding.CDR
+            metadata = {"offered_qos_profiles": LATCHED_QOS} if topic == "/tf_static" else {}
+            self.channels[topic] = self.writer.register_channel(topic, encoding, schema_id, metadata)
+            self.summary.types[topic] = JSON_SCHEMAS[kind][0] if encode is None else kind
+        data = json.dumps(jsonable(message), allow_nan=False).encode() if encode is None else encode(message)
+        sequence = self.summary.counts[topic]
+        self.writer.add_message(self.channels[topic], log_time, data, log_time, sequence)
+        self.summary.counts[topic] += 1
+
+
 def write_mcap(run: RunFolder, file: Path, *, ros_only: bool = False) -> ExportSummary:
     """Write ``run`` to ``file`` (replaced if it exists); what was written per topic.
 
@@ -171,70 +225,32 @@ def write_mcap(run: RunFolder, file: Path, *, ros_only: bool = False) -> ExportS
     rosbags (0.11) stops at a JSON Schema (``KeyError: 'jsonschema'``), and ``ros2 bag play``
     has no message type for them.
     """
-    from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
+    from mcap.well_known import Profile
     from mcap.writer import CompressionType, Writer
-    from mcap_ros2._dynamic import serialize_dynamic
-    from rosbags.typesys import Stores, get_typestore
 
-    typestore = get_typestore(getattr(Stores, ROS_DISTRO))
-    messages = gather(run)
+    messages = sorted(gather(run).items, key=lambda m: (m[0], m[1]))  # in time, then as gathered
     summary = ExportSummary(file, warnings=list(run.warnings))
     file.parent.mkdir(parents=True, exist_ok=True)
     partial = file.with_name(file.name + ".part")
-    with open(partial, "wb") as stream:
-        writer = Writer(stream, compression=CompressionType.ZSTD)
-        writer.start(profile=Profile.ROS2, library=f"amslam {amslam.__version__}")
-        schemas: dict[str, tuple[int, Any]] = {}  # kind → (schema id, encoder or None for JSON)
-        channels: dict[str, int] = {}
-        json_schemas = {
-            "json:event": ("amslam/Event", EVENT_SCHEMA),
-            "json:tree": ("amslam/TreeStatus", TREE_SCHEMA),
-            "json:metrics": ("amslam/Metrics", METRICS_SCHEMA),
-        }
-
-        def channel(topic: str, kind: str) -> tuple[int, Any]:
-            if kind not in schemas:
-                if kind.startswith("json:"):
-                    name, schema = json_schemas[kind]
-                    data = json.dumps(schema).encode()
-                    schemas[kind] = (writer.register_schema(name, SchemaEncoding.JSONSchema, data), None)
-                else:
-                    # named pkg/msg/Type as rosbag2 names its schemas (rosbags looks types up so)
-                    text, _ = typestore.generate_msgdef(kind, ros_version=2)
-                    schema_id = writer.register_schema(kind, SchemaEncoding.ROS2, text.encode())
-                    schemas[kind] = (schema_id, serialize_dynamic(kind, text)[kind])
-            if topic not in channels:
-                encoding = MessageEncoding.JSON if kind.startswith("json:") else MessageEncoding.CDR
-                metadata = {"offered_qos_profiles": LATCHED_QOS} if topic == "/tf_static" else {}
-                channels[topic] = writer.register_channel(topic, encoding, schemas[kind][0], metadata)
-                summary.types[topic] = json_schemas[kind][0] if kind.startswith("json:") else kind
-            return channels[topic], schemas[kind][1]
-
-        for log_time, _, topic, kind, message in sorted(messages.items, key=lambda m: (m[0], m[1])):
-            if ros_only and kind.startswith("json:"):
-                continue
-            channel_id, encode = channel(topic, kind)
-            data = (
-                json.dumps(jsonable(message), allow_nan=False).encode() if encode is None else encode(message)
-            )
-            writer.add_message(
-                channel_id,
-                log_time=log_time,
-                data=data,
-                publish_time=log_time,
-                sequence=summary.counts[topic],
-            )
-            summary.counts[topic] += 1
-        writer.add_metadata(
-            "amslam",
-            {
+    try:
+        with open(partial, "wb") as stream:
+            writer = Writer(stream, compression=CompressionType.ZSTD)
+            writer.start(profile=Profile.ROS2, library=f"amslam {amslam.__version__}")
+            channels = _Channels(writer, summary)
+            for log_time, _, topic, kind, message in messages:
+                if not (ros_only and kind in JSON_SCHEMAS):
+                    channels.write(log_time, topic, kind, message)
+            metadata = {
                 "mission": run.mission_name,
                 "run_folder": str(run.path),
                 "camera_mount": run.camera.source,
                 "ros_distro": ROS_DISTRO,
                 "amslam": amslam.__version__,
-            },
-        )
-        writer.finish()
-    partial.replace(file)  # a failed export leaves no half-written file under the asked name
+            }
+            writer.add_metadata("amslam", metadata)
+            writer.finish()
+    except BaseException:  # a full disk, Ctrl-C: no half-written .part left behind
+        partial.unlink(missing_ok=True)
+        raise
+    partial.replace(file)  # the file appears under its name only once complete
     return summary
