@@ -12,7 +12,14 @@ from scipy.spatial.transform import Rotation
 
 from amslam.apps.export import ros_messages as ros
 from amslam.apps.export.mcap_file import gather
-from amslam.apps.export.runfolder import CameraMount, ExportError, RunFolder, Trajectory, read_run_folder
+from amslam.apps.export.runfolder import (
+    CameraMount,
+    ExportError,
+    RunFolder,
+    Trajectory,
+    read_ply_cloud,
+    read_run_folder,
+)
 
 
 def trajectory(stamps, xyz, yaws) -> Trajectory:
@@ -247,3 +254,23 @@ def test_an_export_that_fails_midway_leaves_no_file(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         mcap_file.write_mcap(run, tmp_path / "out.mcap")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.mcap"]
+
+
+def test_a_binary_ply_map_keeps_its_extra_vertex_values(tmp_path):
+    # the map of a run without map.npz: x, y, z and whatever else each vertex carries
+    vertices = np.zeros(
+        3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("probability", "<f4"), ("class", "u1")]
+    )
+    vertices["x"], vertices["probability"], vertices["class"] = [1, 2, 3], [0.9, 0.95, 0.99], [1, 2, 3]
+    header = "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+    header += "".join(
+        f"property {t} {n}\n"
+        for t, n in [("float", c) for c in "xyz"] + [("float", "probability"), ("uchar", "class")]
+    )
+    (tmp_path / "map.ply").write_bytes((header + "end_header\n").encode() + vertices.tobytes())
+    cloud = read_ply_cloud(tmp_path / "map.ply")
+    assert cloud.points[:, 0].tolist() == [1, 2, 3]
+    assert set(cloud.values) == {"probability", "class"} and cloud.values["class"].tolist() == [1, 2, 3]
+    message = ros.point_cloud(cloud, "world", 0.0)
+    assert [f["name"] for f in message["fields"]] == ["x", "y", "z", "probability", "class"]
+    assert message["point_step"] == 20 and len(message["data"]) == 60

@@ -151,11 +151,17 @@ def test_a_missing_file_leaves_its_topic_out_with_a_warning(small_run, tmp_path,
     run = tmp_path / "run"
     shutil.copytree(small_run.run_dir, run)
     (run / "landmarks.json").unlink()
+    (run / "map.npz").unlink()
     assert main(["export", str(run), "--mcap", str(tmp_path / "out.mcap")]) == 0
     captured = capsys.readouterr()
     assert f"warning: {run / 'landmarks.json'} missing: the landmarks left out" in captured.err
-    counts, _, _ = read_mcap(tmp_path / "out.mcap")
+    assert f"warning: {run / 'map.npz'} missing: the occupancy probabilities" in captured.err
+    counts, messages, _ = read_mcap(tmp_path / "out.mcap")
     assert "/landmarks" not in counts and counts["/vio/odometry"] == tum_lines(run / "vio.tum")
+    # the map from map.ply instead: the same points, no probability
+    cloud = messages["/map/global"][0][1]
+    assert cloud.width == ply_vertices(run / "map.ply") and [f.name for f in cloud.fields] == ["x", "y", "z"]
+    assert "/map/local" not in counts
 
 
 def test_without_the_interop_extra_the_error_names_it(small_run, tmp_path, capsys, monkeypatch):

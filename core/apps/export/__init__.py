@@ -58,12 +58,12 @@ def _run(args: argparse.Namespace, registry) -> int:
     if newest:
         print(f"newest run in {args.run}: {folder}")
     run = read_run_folder(folder)
+    for warning in run.warnings:  # what is left out, before the wait for the writing
+        print(f"warning: {warning}", file=sys.stderr)
     try:
         summary = write_mcap(run, out, ros_only=args.ros_only)
     except OSError as exc:
         raise AmslamError(f"--mcap {out}: cannot be written ({exc.strerror or exc})") from None
-    for warning in summary.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
     total = sum(summary.counts.values())
     size = out.stat().st_size / 1e6
     print(f"wrote {out}: {total} messages on {len(summary.counts)} topics, {size:.1f} MB")

@@ -118,12 +118,10 @@ def read_run_folder(path: Path) -> RunFolder:
             trajectories[name] = read_tum(file, warnings)
         else:
             missing(f"{name}.tum", f"the {name} path, odometry and frames")
-    events = (
-        _read_jsonl(path / "events.jsonl", warnings, _check_event)
-        if (path / "events.jsonl").is_file()
-        else []
-    )
-    if not (path / "events.jsonl").is_file():
+    events = []
+    if (path / "events.jsonl").is_file():
+        events = _read_jsonl(path / "events.jsonl", warnings, _check_event)
+    else:
         missing("events.jsonl", "events, the tour and SLC viewpoints")
     structure, records = None, []
     if (path / "tree.jsonl").is_file():
@@ -137,6 +135,8 @@ def read_run_folder(path: Path) -> RunFolder:
     else:
         missing("landmarks.json", "the landmarks")
     p_occ = _nested(mission, "mapping", "p_occ", default=DEFAULT_P_OCC)
+    if not isinstance(p_occ, int | float) or not 0.0 < p_occ < 1.0:
+        raise ExportError(f"{path / 'mission.yaml'}: mapping.p_occ must be a probability, got {p_occ!r}")
     global_map = local_map = None
     if (path / "map.npz").is_file():
         global_map, local_map = read_voxel_maps(path / "map.npz", float(p_occ))
@@ -361,19 +361,18 @@ def read_ply_cloud(file: Path) -> VoxelCloud:
         raise ExportError(f"{file}: not a readable PLY ({exc})") from None
     points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
     values: dict[str, np.ndarray] = {}
-    raw = (
-        cloud.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
-        if hasattr(cloud, "metadata")
-        else None
+    vertex = getattr(cloud, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+    # trimesh gives an ASCII file's columns as a dict, a binary file's as a structured array
+    columns = (
+        vertex
+        if isinstance(vertex, dict)
+        else {n: vertex[n] for n in getattr(vertex, "dtype", np.dtype([])).names or ()}
     )
-    if raw is not None and raw.dtype.names:
-        for name in raw.dtype.names:
-            if (
-                name not in ("x", "y", "z")
-                and np.issubdtype(raw[name].dtype, np.number)
-                and raw[name].ndim == 1
-            ):
-                values[name] = np.asarray(raw[name], float).reshape(-1)
+    for name, column in columns.items():
+        column = np.asarray(column)
+        numeric = column.ndim == 1 and len(column) == len(points) and np.issubdtype(column.dtype, np.number)
+        if name not in ("x", "y", "z") and numeric:
+            values[name] = column.astype(float)
     return VoxelCloud(points, None, values)
 
 
@@ -407,14 +406,13 @@ def camera_mount(path: Path, mission: dict[str, Any] | None, warnings: list[str]
     ``mount_pitch_deg`` and ``mount_xyz``), else a forward-looking camera at the body origin."""
     file = path / "measurements.jsonl"
     if file.is_file():
-        with open(file, encoding="utf-8", errors="replace") as f:
-            first = f.readline()
         try:
-            header = json.loads(first)
+            with open(file, encoding="utf-8", errors="replace") as f:
+                header = json.loads(f.readline())
             T = np.asarray(header["T_body_cam"], float)
             if T.shape == (4, 4) and np.all(np.isfinite(T)):
                 return CameraMount(T, f"{file.name} header")
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError):
             pass
         warnings.append(f"{file}:1: no T_body_cam in the header; camera mount taken from the mission")
     camera = _nested(mission, "platform", "camera", default={})
