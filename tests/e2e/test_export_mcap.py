@@ -23,7 +23,8 @@ def tum_lines(path: Path) -> int:
 
 
 def ply_vertices(path: Path) -> int:
-    header = path.read_text().partition("end_header")[0]
+    # map.ply is binary since the class and probability columns: only its header is text
+    header = path.read_bytes().partition(b"end_header")[0].decode("ascii")
     return next(int(line.split()[2]) for line in header.splitlines() if line.startswith("element vertex"))
 
 
@@ -155,12 +156,14 @@ def test_a_missing_file_leaves_its_topic_out_with_a_warning(small_run, tmp_path,
     assert main(["export", str(run), "--mcap", str(tmp_path / "out.mcap")]) == 0
     captured = capsys.readouterr()
     assert f"warning: {run / 'landmarks.json'} missing: the landmarks left out" in captured.err
-    assert f"warning: {run / 'map.npz'} missing: the occupancy probabilities" in captured.err
+    assert f"warning: {run / 'map.npz'} missing: the final local map" in captured.err
     counts, messages, _ = read_mcap(tmp_path / "out.mcap")
     assert "/landmarks" not in counts and counts["/vio/odometry"] == tum_lines(run / "vio.tum")
-    # the map from map.ply instead: the same points, no probability
+    # the map from map.ply instead: the same points, with its class and probability columns
     cloud = messages["/map/global"][0][1]
-    assert cloud.width == ply_vertices(run / "map.ply") and [f.name for f in cloud.fields] == ["x", "y", "z"]
+    names = [f.name for f in cloud.fields]
+    assert cloud.width == ply_vertices(run / "map.ply")
+    assert names[:3] == ["x", "y", "z"] and {"class", "probability"} <= set(names)
     assert "/map/local" not in counts
 
 

@@ -142,7 +142,11 @@ def read_run_folder(path: Path) -> RunFolder:
         global_map, local_map = read_voxel_maps(path / "map.npz", float(p_occ))
     elif (path / "map.ply").is_file():
         global_map = read_ply_cloud(path / "map.ply")
-        missing("map.npz", "the occupancy probabilities and the final local map")
+        # map.ply carries each voxel's probability since it became binary; older ones do not
+        lost = "the final local map"
+        if "probability" not in global_map.values:
+            lost = "the occupancy probabilities and " + lost
+        missing("map.npz", lost)
     else:
         missing("map.npz (and map.ply)", "the map")
     metrics = None
