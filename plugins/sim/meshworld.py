@@ -22,12 +22,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, ValidationInfo, model_validator
 from scipy.spatial import cKDTree
 
 from amslam.errors import PlatformError
-from amslam.interfaces import BackendParams, Coordinate, MissionFile
+from amslam.interfaces import BackendParams, Coordinate, FieldError, mission_file_path
 from amslam.plugins.sim.world import MeshPart, World, WorldObject, WorldSpec, class_colour, survey_floors
+from amslam.plugins.sim.worldpath import WorldFile, find_world_file
 
 #: classes treated as building structure (instance 0) unless the mission says otherwise
 DEFAULT_STRUCTURE = (
@@ -39,8 +40,11 @@ class MeshWorldParams(BackendParams):
     """A world loaded from a mesh file and an objects file."""
 
     kind: Literal["mesh"] = "mesh"
-    mesh: MissionFile = Field(description="world mesh (PLY/OBJ/STL/GLB), relative to the mission file")
-    objects: MissionFile | None = Field(None, description="objects JSON, relative to the mission file")
+    mesh: WorldFile = Field(
+        description="world mesh (PLY/OBJ/STL/GLB): relative to the mission file, else found in the "
+        "folders of AMSLAM_WORLDS, else a shipped world (small_house/world.ply); see docs/missions.md"
+    )
+    objects: WorldFile | None = Field(None, description="objects JSON, found like the mesh")
     name: str | None = Field(None, description="name in reports (default: the mesh's folder name)")
     up_axis: Literal["z", "y"] = Field("z", description="'y' for y-up files such as glTF/GLB exports")
     scale: float = Field(
@@ -64,6 +68,41 @@ class MeshWorldParams(BackendParams):
     match_tolerance: float = Field(
         1e-3, gt=0.0, le=10.0, description="centroid distance (m) that matches triangles"
     )
+
+    @model_validator(mode="after")
+    def _object_meshes_present(self, info: ValidationInfo) -> MeshWorldParams:
+        # every mesh the objects file lists is read when the world is built: a missing one is named
+        # now, with the objects file's field, rather than ending the run
+        if self.objects is None or "mission_dir" not in (info.context or {}):
+            return self
+        path = mission_file_path(self.objects, info)
+        try:
+            entries = _object_entries(path)
+        except PlatformError as exc:
+            raise FieldError("objects", str(exc)) from None
+        missing = [
+            (k, e.get("name"), path.parent / e["mesh"])
+            for k, e in enumerate(entries)
+            if isinstance(e.get("mesh"), str) and not (path.parent / e["mesh"]).is_file()
+        ]
+        if missing:
+            k, name, mesh = missing[0]
+            more = f" ({len(missing)} object meshes missing)" if len(missing) > 1 else ""
+            raise FieldError("objects", f"object #{k} {name!r}: no such mesh file: {mesh}{more}")
+        return self
+
+
+def _object_entries(path: Path) -> list[dict]:
+    """The object entries of an objects file (a list, or ``{"objects": [...]}``); PlatformError
+    naming the file when it is not one."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise PlatformError(f"not a JSON objects file ({type(exc).__name__}: {exc}): {path}") from None
+    entries = data.get("objects") if isinstance(data, dict) else data
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise PlatformError(f"not an objects file (a list of objects, or {{objects: [...]}}): {path}")
+    return entries
 
 
 _SNAKE = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])")
@@ -116,7 +155,7 @@ def _mesh_xy_extent(
 
 def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
     """Load a mesh world; relative paths are resolved against ``base_dir`` (the mission folder)."""
-    mesh_path = (base_dir / p.mesh).resolve()
+    mesh_path = (find_world_file(p.mesh, base_dir) or base_dir / p.mesh).resolve()
     V, T, C = _read_mesh(mesh_path, p)
     n = len(T)
     tri_inst = np.zeros(n, dtype=np.int32)
@@ -127,11 +166,10 @@ def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
     entries: list[dict] = []
     obj_dir = base_dir
     if p.objects is not None:
-        obj_path = (base_dir / p.objects).resolve()
+        obj_path = (find_world_file(p.objects, base_dir) or base_dir / p.objects).resolve()
         if not obj_path.is_file():
             raise PlatformError(f"mesh world: objects file not found: {obj_path}")
-        data = json.loads(obj_path.read_text())
-        entries = data["objects"] if isinstance(data, dict) else data
+        entries = _object_entries(obj_path)
         obj_dir = obj_path.parent
 
     objects: list[WorldObject] = []

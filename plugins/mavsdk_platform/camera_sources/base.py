@@ -9,9 +9,10 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, model_validator
 
 from amslam.errors import PlatformError
+from amslam.interfaces import FieldError, mission_file_path
 from amslam.types import CameraModel
 
 
@@ -58,6 +59,28 @@ class CameraSourceParams(BaseModel):
     mount_pitch_deg: float = Field(0.0, ge=-90, le=90, description="downward tilt of the camera, degrees")
     serial: str | None = Field(None, description="realsense: the device serial number (default: the first)")
     folder: str | None = Field(None, description="replay: folder of .npz frames (relative to the mission)")
+
+    @model_validator(mode="after")
+    def _replay_folder(self, info: ValidationInfo) -> CameraSourceParams:
+        # the frames are read when the vehicle is already connected: a missing folder is named by
+        # `amslam validate` and the pre-flight check instead
+        if self.source != "replay":
+            return self
+        if not self.folder:
+            raise FieldError("folder", "camera.source replay needs camera.folder: a folder of .npz frames")
+        path = mission_file_path(self.folder, info)
+        if not path.is_absolute() and "mission_dir" not in (info.context or {}):
+            return self  # no mission folder to resolve against: checked when the source opens
+        if not path.is_dir():
+            what = "not a folder" if path.exists() else "no such folder"
+            raise FieldError("folder", f"{what}: {path}")
+        try:
+            has_frames = any(path.glob("*.npz"))
+        except OSError as exc:
+            raise FieldError("folder", f"cannot read {path}: {exc.strerror or exc}") from None
+        if not has_frames:
+            raise FieldError("folder", f"no .npz frames in {path}")
+        return self
 
     def T_body_cam(self) -> np.ndarray:
         """Pose of the optical frame in the body: forward-looking, tilted down by the pitch."""

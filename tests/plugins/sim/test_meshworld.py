@@ -12,10 +12,9 @@ import pytest
 from amslam.errors import PlatformError
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world, normalize_class
 from amslam.plugins.sim.world import World, box_mesh, boxes_mesh
+from amslam.plugins.sim.worldpath import unpacked_world
 
 from .conftest import make_platform
-
-SMALL_HOUSE = Path("/work/shared/worlds/small_house")
 
 
 def _write_mesh(path: Path, v: np.ndarray, t: np.ndarray) -> None:
@@ -120,12 +119,11 @@ def test_platform_flies_in_a_mesh_world_from_the_mission_folder(tmp_path, tiny_w
     assert f is not None and f.depth.shape == (120, 160)
 
 
-@pytest.mark.skipif(not SMALL_HOUSE.is_dir(), reason="small_house world not available")
 def test_small_house_loads_with_its_chairs(tmp_path):
     plat = make_platform(
         tmp_path,
         world={"kind": "mesh", "mesh": "world.ply", "objects": "objects.json"},
-        mission_dir=SMALL_HOUSE,
+        mission_dir=unpacked_world("small_house"),
     )
     s = plat.world_summary()
     assert s.objects_by_class["chair"] == 8
