@@ -7,7 +7,11 @@
 The schema is pydantic's ``model_json_schema()`` of :class:`amslam.mission.MissionModel` with each
 backend section (``platform``, ``mapping``, ...) replaced by the choice of the installed backends'
 ``Params`` models, each told apart by its ``plugin`` value; so it describes what ``amslam
-validate`` accepts with the plugins installed where it is generated.
+validate`` accepts with the plugins installed where it is generated. It is written as JSON Schema
+draft-07, the draft yaml-language-server (VS Code's YAML extension, Neovim, Helix) validates fully:
+pydantic writes draft 2020-12, which differs in what a mission's schema uses only by ``$defs``
+(draft-07: ``definitions``) and ``prefixItems`` for tuples (draft-07: ``items`` as a list);
+pydantic has no draft-07 mode, so :func:`_as_draft7` renames those two.
 """
 
 from __future__ import annotations
@@ -22,8 +26,8 @@ import amslam
 from amslam.cli import Command
 from amslam.errors import AmslamError
 
-#: the draft of JSON Schema pydantic writes (``$defs``, ``prefixItems`` for tuples)
-SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+#: the draft of JSON Schema ``amslam schema`` writes (see the module's doc)
+SCHEMA_DIALECT = "http://json-schema.org/draft-07/schema#"
 #: the top-level ``name:`` line of a mission file, replaced in a copy by the copy's name
 _NAME_LINE = re.compile(r"^name:[^\n]*$", re.MULTILINE)
 #: what a mission name may be (``MissionModel.name``): it names the run folders
@@ -113,8 +117,24 @@ def mission_schema(registry) -> dict[str, Any]:
             choice = Union[tuple(variants)]  # noqa: UP007 — a union built at run time
             sections[kind] = (choice, Field(default_factory=dict, description=f"the {kind} backend"))
     model = create_model("Mission", __base__=MissionModel, __doc__=MissionModel.__doc__, **sections)
-    schema = model.model_json_schema()
+    schema = _as_draft7(model.model_json_schema(ref_template="#/definitions/{model}"))
+    schema["definitions"] = schema.pop("$defs", {})
     return {"$schema": SCHEMA_DIALECT, **schema, "title": "amslam mission"}
+
+
+def _as_draft7(node: Any) -> Any:
+    """A pydantic (draft 2020-12) schema node with tuples in draft-07's form: ``prefixItems``
+    becomes ``items`` as a list, and a 2020-12 ``items`` beside it (the rest) ``additionalItems``."""
+    if isinstance(node, list):
+        return [_as_draft7(item) for item in node]
+    if not isinstance(node, dict):
+        return node
+    out = {key: _as_draft7(value) for key, value in node.items()}
+    if isinstance(out.get("prefixItems"), list):
+        if "items" in out:
+            out["additionalItems"] = out.pop("items")
+        out["items"] = out.pop("prefixItems")
+    return out
 
 
 def cmd_schema(args, registry) -> int:
