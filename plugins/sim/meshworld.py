@@ -15,9 +15,12 @@ are objects whose class is listed in ``structure_classes`` (walls, floors, ceili
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
+import os
 import re
+import sys
 from pathlib import Path
 from typing import Literal
 
@@ -70,10 +73,17 @@ class MeshWorldParams(BackendParams):
     )
 
     @model_validator(mode="after")
-    def _object_meshes_present(self, info: ValidationInfo) -> MeshWorldParams:
-        # every mesh the objects file lists is read when the world is built: a missing one is named
-        # now, with the objects file's field, rather than ending the run
-        if self.objects is None or "mission_dir" not in (info.context or {}):
+    def _files_readable(self, info: ValidationInfo) -> MeshWorldParams:
+        # the world is built when the run starts: a mesh file without triangles, or a mesh the
+        # objects file lists that is not there, is named now with its field rather than ending the run
+        if "mission_dir" not in (info.context or {}):
+            return self
+        mesh = mission_file_path(self.mesh, info)
+        try:
+            mesh_xy_extent(mesh, self)  # cached: the start check and the run read it once more at most
+        except PlatformError:
+            raise FieldError("mesh", f"no triangles in {mesh}: not a mesh file") from None
+        if self.objects is None:
             return self
         path = mission_file_path(self.objects, info)
         try:
@@ -132,6 +142,20 @@ def _read_mesh(path: Path, p: MeshWorldParams) -> tuple[np.ndarray, np.ndarray, 
     return v, t, colours
 
 
+@contextlib.contextmanager
+def _c_stderr_silenced():
+    """File descriptor 2 pointed at /dev/null meanwhile (what C libraries print there is dropped)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def mesh_xy_extent(path: Path, p: MeshWorldParams) -> tuple[float, float, float, float]:
     """(x0, x1, y0, y1) of the world mesh at ``path`` as the world will place it (scale, up axis),
     for validating a start before the run; PlatformError if the file holds no triangles. Cached
@@ -146,8 +170,9 @@ def _mesh_xy_extent(
 ) -> tuple[float, float, float, float]:
     import open3d as o3d
 
-    # a file that is no mesh is the caller's error line, not also open3d's warning on stdout
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+    # a file that is no mesh is the caller's error line, not also open3d's warning on stdout, nor
+    # its PLY reader's (RPly: "Unable to read magic number"), printed on the C stderr directly
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), _c_stderr_silenced():
         v, _, _ = _read_mesh(Path(path), MeshWorldParams.model_construct(scale=scale, up_axis=up_axis))
     lo, hi = v.min(axis=0), v.max(axis=0)
     return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])

@@ -128,3 +128,13 @@ def test_validate_names_a_missing_replay_camera_folder(tmp_path, capsys):
     assert capsys.readouterr().err.splitlines()[0].endswith(f"no .npz frames in {tmp_path}/frames")
     (tmp_path / "frames" / "000.npz").write_bytes(b"")
     assert main(["validate", str(path)]) == 0
+
+
+def test_a_mesh_file_without_triangles_is_one_error_line(tmp_path, capfd):
+    (tmp_path / "empty.ply").write_bytes(b"")
+    path = mission_file(tmp_path, "empty.ply")
+    assert main(["validate", str(path)]) == 2
+    out, err = capfd.readouterr()  # at the descriptors: open3d's and its PLY reader's messages would show
+    assert out == ""
+    expected = f"platform.world.mesh: no triangles in {tmp_path}/empty.ply: not a mesh file"
+    assert err == f"error: {path}:1: {expected}\n"
