@@ -23,3 +23,28 @@ def test_every_package_folder_is_listed_in_pyproject():
             found.add(".".join([package, *parts]))
     assert found - listed == set(), "packages missing from pyproject.toml's [tool.setuptools] packages"
     assert listed - found == set(), "packages listed in pyproject.toml that do not exist"
+
+
+def test_every_data_file_of_a_package_is_in_its_package_data():
+    # a file the package reads (a mission, a model, a shipped world) that no package-data pattern
+    # matches is in a checkout and missing from the wheel: `amslam run small_house` from a wheel
+    # once failed on a world that lived beside the checkout
+    import fnmatch
+
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {package: ROOT / folder for folder, package in PACKAGE_DIRS.items()}
+    folders["amslam.missions"] = ROOT / "missions"
+    files = [p for base in folders.values() for p in base.rglob("*") if p.is_file()]
+    unshipped = []
+    for path in files:
+        if path.suffix in (".py", ".pyc") or "__pycache__" in path.parts:
+            continue
+        package_dir = path.parent
+        while not (package_dir / "__init__.py").is_file():  # a data folder inside a package
+            package_dir = package_dir.parent
+        root, base = next((p, f) for p, f in folders.items() if package_dir.is_relative_to(f))
+        package = ".".join([root, *package_dir.relative_to(base).parts])
+        inside = path.relative_to(package_dir).as_posix()
+        if not any(fnmatch.fnmatch(inside, glob) for glob in setuptools["package-data"].get(package, [])):
+            unshipped.append(str(path.relative_to(ROOT)))
+    assert unshipped == [], "files no [tool.setuptools.package-data] pattern ships"
