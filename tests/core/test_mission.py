@@ -91,8 +91,13 @@ def test_the_run_folders_mission_names_its_files_absolutely(tmp_path, registry):
     # written from resolved()) is read from elsewhere (--reuse, a team's world): it must stand alone
     source = tmp_path / "site"
     (source / "meshes").mkdir(parents=True)
-    for name in ("world.ply", "objects.json", "map.npz"):
-        (source / "meshes" / name).write_text("x")
+    for name in ("objects.json", "map.npz"):
+        (source / "meshes" / name).write_text("[]")
+    # validation reads the world mesh (a file without triangles is refused): one triangle
+    (source / "meshes" / "world.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
     mission = write(
         source,
         """\
