@@ -551,27 +551,41 @@ def write_report(summary: RunSummary, metrics: dict[str, Any], plots: list[str])
     ]
     lines += ["", "## Plots", ""]
     lines += [f"![{p}]({p})" for p in plots]
-    lines += FILES_SECTION
+    lines += files_section(summary.run_dir)
     (summary.run_dir / "report.md").write_text("\n".join(lines))
 
 
-#: the end of every ``report.md``: what each file of the run folder holds
-FILES_SECTION = [
-    "",
-    "## Files",
-    "",
-    "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in",
-    "- [metrics.json](metrics.json) — the figures above, machine-readable",
-    "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order",
-    "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick",
-    "- [ground_truth.tum](ground_truth.tum), [vio.tum](vio.tum), [slam.tum](slam.tum) — trajectories "
-    "(TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
-    "- [landmarks.json](landmarks.json) — the semantic map",
-    "- [map.ply](map.ply) — occupied voxels of the global map (binary PLY: class and occupancy probability "
-    "per voxel, the voxel size in its header; `amslam map RUN --bt FILE` makes an OctoMap of it)",
-    "- [map.npz](map.npz) — the whole map with its log-odds, a later mission's `prior_map`",
-    "",
+#: what each file of a run folder holds: (its files, the line about them); ``report.md`` ends with
+#: the lines whose files the run wrote
+FILES = [
+    (("mission.yaml",), "- [mission.yaml](mission.yaml) — the mission as flown, every default filled in"),
+    (("metrics.json",), "- [metrics.json](metrics.json) — the figures above, machine-readable"),
+    (("events.jsonl",), "- [events.jsonl](events.jsonl) — replans, loop closures, errors, in time order"),
+    (("tree.jsonl",), "- [tree.jsonl](tree.jsonl) — behaviour-tree changes per tick"),
+    (
+        ("ground_truth.tum", "vio.tum", "slam.tum"),
+        "- {links} — trajectories (TUM format, e.g. `evo_ape tum ground_truth.tum slam.tum`)",
+    ),
+    (("landmarks.json",), "- [landmarks.json](landmarks.json) — the semantic map"),
+    (
+        ("map.ply",),
+        "- [map.ply](map.ply) — occupied voxels of the global map (binary PLY: class and occupancy"
+        " probability per voxel, the voxel size in its header; `amslam map RUN --bt FILE` makes an"
+        " OctoMap of it)",
+    ),
+    (("map.npz",), "- [map.npz](map.npz) — the whole map with its log-odds, a later mission's `prior_map`"),
 ]
+
+
+def files_section(run_dir: Path) -> list[str]:
+    """The ``## Files`` section: a line per file (or group) the run folder holds, none for files a
+    run that failed early never wrote (its report linked to them)."""
+    lines = ["", "## Files", ""]
+    for names, text in FILES:
+        present = [n for n in names if (run_dir / n).is_file()]
+        if present:
+            lines.append(text.format(links=", ".join(f"[{n}]({n})" for n in present)))
+    return [*lines, ""]
 
 
 def _figure_rows(m: dict[str, Any]) -> list[str]:

@@ -141,3 +141,17 @@ def test_top_view_shows_slam_classes_and_floors_sized_to_the_building(tmp_path):
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_the_reports_file_list_names_only_files_the_run_wrote(tmp_path):
+    # a run that failed before take-off has no trajectories, landmarks or map: its report.md
+    # linked to them all the same
+    from amslam.apps.report import files_section
+
+    for name in ("mission.yaml", "metrics.json", "events.jsonl", "vio.tum"):
+        (tmp_path / name).write_text("")
+    text = "\n".join(files_section(tmp_path))
+    for name in ("mission.yaml", "metrics.json", "events.jsonl", "[vio.tum](vio.tum)"):
+        assert name in text
+    for name in ("tree.jsonl", "ground_truth.tum)", "slam.tum)", "landmarks.json", "map.ply", "map.npz"):
+        assert name not in text
