@@ -7,7 +7,11 @@ MISSION ...``). Every other one — ``run``, ``fly``, ``validate``, ``plugins``,
 as a :class:`Command`. The built-ins live in ``amslam.apps`` and register exactly as a third-party
 distribution would.
 
-``amslam --help`` lists what is installed. Exit statuses, for every subcommand:
+``amslam --help`` lists what is installed; ``amslam --version`` (or ``python -m amslam
+--version``) prints the installed version. What reaches stderr — a run's progress bar or status
+line, warnings (Python's too, through ``logging``), errors — is chosen by ``--quiet`` (errors
+only), ``--verbose`` (debug too) or ``--log-level LEVEL``, given before or after the subcommand;
+stdout, a command's own output, is the same at every level. Exit statuses, for every subcommand:
 
 ====  ===========================================================================================
 0     done (a run: its verdict is ``completed``)
@@ -23,6 +27,7 @@ distribution would.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import signal
 import sys
@@ -97,25 +102,100 @@ def experiment_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override for every run")
 
 
+def log_level(text: str) -> str:
+    """An argparse type: a ``--log-level`` name (any case), refused in one line otherwise."""
+    if text.lower() not in console.LEVELS:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a level; levels are {', '.join(console.LEVELS)}")
+    return text.lower()
+
+
+def output_options(parser: argparse.ArgumentParser, *, on_subcommand: bool) -> None:
+    """``--quiet``, ``--verbose``, ``--log-level``: accepted before the subcommand and after it.
+
+    On a subcommand's parser their defaults are suppressed, so that one given before the
+    subcommand is not reset by the subcommand's parser (argparse's sub-parsers write their
+    defaults over the main parser's).
+    """
+
+    def default(value: object) -> object:
+        return argparse.SUPPRESS if on_subcommand else value
+
+    group = parser.add_argument_group("output (also accepted before the subcommand)")
+    group.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=default(False),
+        help="on stderr, errors only: no progress bar or status line, no warnings",
+    )
+    group.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        default=default(False),
+        help="also debug messages, and warnings with their source line",
+    )
+    group.add_argument(
+        "--log-level",
+        type=log_level,
+        metavar="LEVEL",
+        default=default(None),
+        help=f"what reaches stderr: {', '.join(console.LEVELS)} (default info; overrides -q and -v)",
+    )
+
+
+def _version() -> str:
+    """``amslam X.Y.Z`` from the installed distribution's metadata (the source's when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from amslam import __version__
+
+    try:
+        return f"amslam {version('amslam')}"
+    except PackageNotFoundError:
+        return f"amslam {__version__}"
+
+
 def build_parser(registry: Registry) -> argparse.ArgumentParser:
     """The argument parser of every installed command."""
     parser = argparse.ArgumentParser(
         prog="amslam", description="Active metric-semantic SLAM for aerial robots: fly missions, replay runs."
     )
+    parser.add_argument("--version", action="version", version=_version())
+    output_options(parser, on_subcommand=False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def add_parser(on: argparse._SubParsersAction, name: str, help_: str) -> argparse.ArgumentParser:
+        # "resolve": a third party's command that declares its own --quiet or -v keeps it
+        one = on.add_parser(name, help=help_, description=help_, conflict_handler="resolve")
+        output_options(one, on_subcommand=True)
+        return one
+
     for name in sorted(registry.commands):
         command = registry.commands[name]
-        command.add_arguments(sub.add_parser(name, help=command.help, description=command.help))
+        command.add_arguments(add_parser(sub, name, command.help))
     if registry.experiments:
-        help_ = "fly a mission several ways over several seeds and compare"
-        experiments = sub.add_parser("experiment", help=help_, description=help_)
+        experiments = add_parser(
+            sub, "experiment", "fly a mission several ways over several seeds and compare"
+        )
         names = experiments.add_subparsers(dest="experiment", required=True, metavar="NAME")
         for name in sorted(registry.experiments):
             experiment = registry.experiments[name]
-            one = names.add_parser(name, help=experiment.help, description=experiment.help)
+            one = add_parser(names, name, experiment.help)
             experiment_arguments(one)
             experiment.add_arguments(one)
     return parser
+
+
+def chosen_level(args: argparse.Namespace) -> str:
+    """The level the output options ask for: ``--log-level``, else ``--verbose`` (debug) or
+    ``--quiet`` (error), else info (a run's status line, warnings)."""
+    if args.log_level:
+        return args.log_level
+    quiet, verbose = args.quiet is True, args.verbose is True  # a command's own --quiet may be no flag
+    if quiet and verbose:
+        raise AmslamError("--quiet and --verbose contradict each other: give one (or --log-level)")
+    return "error" if quiet else "debug" if verbose else "info"
 
 
 def run_experiment(args: argparse.Namespace, registry: Registry) -> int:
@@ -191,16 +271,30 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signum, handler)
 
 
+def _log_start(registry: Registry) -> None:
+    """With ``--verbose``: what runs, and which plugins loaded from where."""
+    log = logging.getLogger("amslam.cli")
+    if not log.isEnabledFor(logging.DEBUG):
+        return
+    log.debug(f"{_version()} on Python {sys.version.split()[0]} ({sys.executable})")
+    for name, dist in sorted(registry.distributions.items()):
+        log.debug(f"plugin {name} from {dist}")
+    for name in sorted(registry.load_errors):
+        log.debug(registry.load_errors[name])
+
+
 def _main(argv: list[str] | None) -> int:
     from amslam.registry import build_plugin_manager
 
     try:
         registry = build_plugin_manager()
         args = build_parser(registry).parse_args(argv)
-        if args.command == "experiment":
-            status = run_experiment(args, registry)
-        else:
-            status = registry.commands[args.command].run(args, registry)
+        with console.logging_to_stderr(chosen_level(args)):
+            _log_start(registry)
+            if args.command == "experiment":
+                status = run_experiment(args, registry)
+            else:
+                status = registry.commands[args.command].run(args, registry)
         sys.stdout.flush()  # a closed pipe shows here (console.closed)
         if received_signal is not None:  # the command caught it and finished cleanly (a run landed)
             print(f"stopped by {signal.Signals(received_signal).name}", file=sys.stderr)

@@ -7,11 +7,16 @@ stdout fails (EPIPE). A robot in the air must not fall for that, nor a run lose 
 the command carries on to its normal end — a flight to its verdict, an experiment through all its
 runs to its summary — printing nothing more there. Every :func:`when_closed` listener is told (a
 run records ``stdout_closed`` in ``events.jsonl``), and the command line then exits 141.
+
+:func:`logging_to_stderr` sends log records — a run's status line, warnings, Python's warnings
+(``logging.captureWarnings``) — to the guarded stderr at the level ``--quiet``, ``--verbose`` or
+``--log-level`` chose.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 import threading
@@ -92,3 +97,57 @@ def guarded() -> Iterator[None]:
         yield
     finally:
         sys.stdout, sys.stderr = saved
+
+
+#: ``--log-level`` names, quietest last
+LEVELS = ("debug", "info", "warning", "error", "critical")
+
+
+class _Formatter(logging.Formatter):
+    """Informational lines (a run's status line) as they are; other levels prefixed like the
+    command line's own ``error:`` lines. A warning from Python's ``warnings`` (numpy's
+    RuntimeWarning, say) keeps its first line — ``file:line: Category: message`` — unless
+    ``verbose``, which adds the source line below it."""
+
+    def __init__(self, verbose: bool):
+        super().__init__()
+        self.verbose = verbose
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = record.getMessage()
+        if record.name == "py.warnings" and not self.verbose:
+            text = text.strip().splitlines()[0]
+        if record.levelno == logging.INFO:
+            return text
+        prefix = record.levelname.lower()
+        if self.verbose and record.name not in ("root", "py.warnings"):
+            prefix += f": {record.name}"
+        if record.exc_info and self.verbose:
+            text += "\n" + self.formatException(record.exc_info)
+        return f"{prefix}: {text.rstrip()}"
+
+
+@contextlib.contextmanager
+def logging_to_stderr(level: str) -> Iterator[None]:
+    """For the ``with`` block: log records of ``level`` and above (a name of :data:`LEVELS`) to
+    ``sys.stderr`` as it is now (the guarded stream), Python warnings among them.
+
+    amslam's own loggers (``amslam.*``) follow ``level`` all the way down; other libraries' only
+    from ``warning`` up, so that ``info`` does not print what a dependency chats about.
+    """
+    number = getattr(logging, level.upper())
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Formatter(verbose=number <= logging.DEBUG))
+    root, ours = logging.getLogger(), logging.getLogger("amslam")
+    saved = root.level, ours.level
+    root.addHandler(handler)
+    root.setLevel(max(number, logging.WARNING))
+    ours.setLevel(number)
+    logging.captureWarnings(True)  # numpy's RuntimeWarning & co: --quiet silences them
+    try:
+        yield
+    finally:
+        logging.captureWarnings(False)
+        root.removeHandler(handler)
+        root.setLevel(saved[0])
+        ours.setLevel(saved[1])

@@ -30,7 +30,8 @@ if TYPE_CHECKING:
 
     from amslam.cli import Command, Experiment
     from amslam.interfaces import Detector, Mapping, Planner, Platform, Slam
-    from amslam.types import KeyPose, LoopClosureResult, RunSummary, TourItem
+    from amslam.perception import Snapshot
+    from amslam.types import KeyPose, LoopClosureResult, RunSummary, TourItem, WorldSummary
 
 hookspec = pluggy.HookspecMarker("amslam")
 
@@ -117,16 +118,25 @@ def amslam_behaviours() -> dict[str, Callable[..., py_trees.behaviour.Behaviour]
 
 
 @hookspec
-def amslam_run_start(run_dir: Path, mission: dict[str, Any]) -> None:
+def amslam_run_start(run_dir: Path, mission: dict[str, Any], world: WorldSummary | None) -> None:
     """The run folder exists and the backends are configured; nothing has flown yet.
+
+    ``world`` (since 0.2) is the simulated world's ground truth (None on a real vehicle): what a
+    live view measures the map against, e.g. the explored share of its reachable free cells.
 
     Since: 0.1
     """
 
 
 @hookspec
-def amslam_tick(t: float, tree: py_trees.trees.BehaviourTree) -> None:
+def amslam_tick(t: float, tree: py_trees.trees.BehaviourTree, snapshot: Snapshot, mapping: Mapping) -> None:
     """After every behaviour-tree tick, with the simulated (or wall-clock) time.
+
+    ``snapshot`` (since 0.2) is what perception knew at the end of the tick
+    (:class:`amslam.perception.Snapshot`: pose, distance travelled, explored volume). ``mapping``
+    (since 0.2) is the run's mapping backend behind its lock (the thread rule): an observer may
+    query it (``states``, ``explored_volume``) on the control thread it is called on, and must not
+    change it or keep it past the run.
 
     Since: 0.1
     """

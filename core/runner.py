@@ -33,11 +33,11 @@ from amslam import __version__, console
 from amslam.boundary import BackendError, Boundary
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import pose_from
-from amslam.interfaces import BACKEND_KINDS, Backend, Platform, RunContext
+from amslam.interfaces import BACKEND_KINDS, Backend, Mapping, Platform, RunContext
 from amslam.measurements import FILENAME as MEASUREMENTS
 from amslam.measurements import MeasurementLog
 from amslam.mission import Mission
-from amslam.perception import Perception, Snapshot
+from amslam.perception import Perception
 from amslam.planning import PlanningService
 from amslam.recording import TreeRecorder
 from amslam.registry import Registry
@@ -93,13 +93,11 @@ class Runner:
         mission: Mission,
         registry: Registry,
         out_root: Path = Path("runs"),
-        progress: bool = False,
         on_start: Callable[[Path], None] = lambda run_dir: None,
     ):
         self.mission = mission
         self.registry = registry
         self.out_root = Path(out_root)
-        self.progress = progress
         self.on_start = on_start
         self.backends: dict[str, Backend] = {}
         self.context: RunContext | None = None  # once the backends are configured
@@ -230,8 +228,12 @@ class Runner:
         limits = self.mission.model.limits
         dt = 1.0 / self.mission.model.exploration.control_rate_hz
         hard_stop = limits.max_time * 1.5 + 300.0
-        bar = self._progress_bar(limits.max_time)
-        self._hook("amslam_run_start", run_dir=self.rundir.path, mission=self.mission.resolved())
+        self._hook(
+            "amslam_run_start",
+            run_dir=self.rundir.path,
+            mission=self.mission.resolved(),
+            world=self.context.world,
+        )
         self.rundir.event(0.0, "run_start", mission=self.mission.name, amslam=__version__)
         try:
             while True:
@@ -246,8 +248,9 @@ class Runner:
                     self._safe_land()
                     return f"failed: {runtime.planning.fault}"
                 runtime.recorder.record(snapshot.t)
-                self._hook("amslam_tick", t=snapshot.t, tree=runtime.tree)
-                self._show_progress(bar, snapshot)
+                self._hook(
+                    "amslam_tick", t=snapshot.t, tree=runtime.tree, snapshot=snapshot, mapping=runtime.mapping
+                )
                 verdict = self._tree_verdict(snapshot.t)
                 if verdict is None and snapshot.t > hard_stop:
                     self._safe_land()
@@ -257,8 +260,6 @@ class Runner:
                 if verdict is not None:
                     return verdict
         finally:
-            if bar is not None:
-                bar.close()
             runtime.close()
 
     def _start_runtime(self) -> Runtime:
@@ -322,7 +323,15 @@ class Runner:
             build(model, self.registry.behaviours, failsafe=not platform.simulated)
         )
         tree.setup(flight=robot, navigation=robot, planning=planning, events=events)
-        return Runtime(perception, planning, robot, tree, TreeRecorder(tree, self.rundir), measurements)
+        return Runtime(
+            perception,
+            planning,
+            robot,
+            tree,
+            TreeRecorder(tree, self.rundir),
+            measurements,
+            shared["mapping"],
+        )
 
     def _ceiling(self) -> float:
         """The highest a setpoint may go, world frame: the flight area's top less the radius."""
@@ -350,24 +359,6 @@ class Runner:
             self._safe_land()
             return f"failed: {why}"
         return None
-
-    def _show_progress(self, bar, snapshot: Snapshot) -> None:
-        if bar is None:
-            return
-        bar.n = min(snapshot.t, bar.total)
-        bar.set_postfix_str(
-            f"dist {snapshot.distance:5.1f} m, explored {snapshot.explored_volume:6.1f} m³", refresh=False
-        )
-        bar.update(0)
-
-    def _progress_bar(self, total: float):
-        if not self.progress:
-            return None
-        from tqdm import tqdm
-
-        return tqdm(
-            total=total, unit="s", desc=f"{self.mission.name} (sim time)", mininterval=0.5, leave=False
-        )
 
     def _safe_land(self) -> None:
         platform = self.backends.get("platform")
@@ -559,6 +550,8 @@ class Runtime:
     tree: py_trees.trees.BehaviourTree
     recorder: TreeRecorder
     measurements: MeasurementLog
+    #: the mapping backend behind its lock, as the run-event observers may query it
+    mapping: Mapping
 
     def close(self) -> None:
         """Stop the detector and planner threads, close the streams."""

@@ -64,8 +64,8 @@ def cmd_run(args, registry) -> int:
     def announce(run_dir: Path) -> None:
         print(f"run folder: {run_dir}  (watch it live: amslam view {run_dir} --serve)", flush=True)
 
-    progress = not args.quiet and sys.stderr.isatty()  # a bar in a log file is noise
-    result = Runner(mission, registry, Path(args.out), progress=progress, on_start=announce).run()
+    # the progress bar on a terminal, a status line elsewhere: amslam.apps.status, a run observer
+    result = Runner(mission, registry, Path(args.out), on_start=announce).run()
     m = result.metrics
     print(f"verdict: {result.verdict}")
     if "explored_percent" in m:
@@ -315,7 +315,6 @@ def _mission_arguments(
 def _flight_arguments(parser) -> None:
     _mission_arguments(parser)
     parser.add_argument("--out", default="runs", help="folder that receives the run folder (default: runs)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _dump_config_arguments(parser) -> None:
