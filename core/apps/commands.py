@@ -14,6 +14,7 @@ MISSION is a YAML file or the name of a packaged mission (``demo``).
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
@@ -21,6 +22,8 @@ import amslam
 from amslam.cli import Command, whole_number
 from amslam.errors import AmslamError
 from amslam.registry import build_plugin_manager
+
+log = logging.getLogger(__name__)
 
 
 def load_with_registry(args):
@@ -51,7 +54,7 @@ def load_with_registry(args):
     mission = load_mission(args.mission, registry, getattr(args, "set", None) or [])
     for name in mission.model.plugins.optional:  # load_mission refused every other load error
         if name in registry.load_errors:
-            print(f"warning: optional {registry.load_errors[name]}; going on without it", file=sys.stderr)
+            log.warning(f"optional {registry.load_errors[name]}; going on without it")
     return mission, registry
 
 
