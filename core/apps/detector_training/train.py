@@ -25,7 +25,7 @@ prototype resolution, inside the box, normalised by the box area.
 Re-train (about 20 minutes on one core, plus 2.5 minutes to render the frames; torch is needed
 for training only)::
 
-    pip install torch==2.13.0
+    pip install 'amslam[train]'        # torch 2.13.0 and onnx
     python -m amslam.apps.detector_training.train --out plugins/onnx_detector/models/sim_yolov8seg.onnx
 
 then measure it on held-out buildings with ``python -m amslam.apps.detector_training.evaluate``.
@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import argparse
 import ast
+import importlib.util
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -79,9 +81,7 @@ def _torch():
     try:
         import torch
     except ImportError as exc:  # pragma: no cover — depends on the environment
-        raise ImportError(
-            "training the detector needs PyTorch (CPU build): pip install torch==2.13.0"
-        ) from exc
+        raise ImportError("training the detector needs PyTorch: pip install 'amslam[train]'") from exc
     return torch
 
 
@@ -555,6 +555,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument("--p2", action="store_true", help="add the stride-4 detection level (small, far objects)")
     args = ap.parse_args(argv)
+    # before minutes of rendering, not at the first use
+    missing = [name for name in ("torch", "onnx") if importlib.util.find_spec(name) is None]
+    if missing:
+        print(
+            f"error: training the detector needs {' and '.join(missing)}: pip install 'amslam[train]'",
+            file=sys.stderr,
+        )
+        raise SystemExit(2)
     seeds = list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + args.seeds))
     if args.data is None:
         args.data = Path(f"runs/onnx_detector/train-{args.seeds}x{args.frames}.npz")

@@ -17,7 +17,8 @@ def _import_pyrealsense2():
     except ImportError as exc:
         raise PlatformError(
             "camera.source realsense needs the RealSense SDK's Python binding: "
-            "pip install pyrealsense2 (or amslam[realsense]); or set camera.source: none"
+            "pip install 'amslam[realsense]' (x86-64; on ARM build librealsense with its Python binding), "
+            "or set camera.source: none"
         ) from exc
     return rs
 

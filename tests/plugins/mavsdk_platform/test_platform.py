@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -127,5 +128,5 @@ def test_realsense_without_its_sdk_says_what_to_install(tmp_path, monkeypatch):
 
     monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # not installed
     source = make_camera_source(CameraSourceParams(source="realsense"), tmp_path)
-    with pytest.raises(PlatformError, match="pip install pyrealsense2"):
+    with pytest.raises(PlatformError, match=re.escape("pip install 'amslam[realsense]'")):
         source.open()
