@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import traceback
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,6 +104,7 @@ class Runner:
         self.context: RunContext | None = None  # once the backends are configured
         self.runtime: Runtime | None = None  # once the services are built
         self._write_errors: list[str] = []  # outputs that could not be written (a full disk)
+        self._closed_outputs: deque[str] = deque()  # stdout/stderr lost their reader (any thread)
         # each backend's outputs are checked where they enter the runtime, and named in verdicts
         self.boundary = Boundary(
             {kind: registry.origin(kind, choice.plugin) for kind, choice in mission.backends.items()}
@@ -189,11 +191,20 @@ class Runner:
             stop_watching()
 
     def _output_closed(self, name: str) -> None:
-        self.rundir.event(
-            self._now(),
-            f"{name}_closed",
-            reason=f"{name}'s reader went away; the run goes on to its end, printing nothing more there",
-        )
+        # Called on the thread that met the closed pipe, which may be another than the control
+        # thread (a run observer's, like the status line's heartbeat): only noted here, and
+        # recorded by the control thread (thread rule: the run folder and the platform are its).
+        self._closed_outputs.append(name)
+
+    def _record_closed_outputs(self) -> None:
+        """The outputs whose reader went away since the last call, as events (control thread)."""
+        while self._closed_outputs:
+            name = self._closed_outputs.popleft()
+            self.rundir.event(
+                self._now(),
+                f"{name}_closed",
+                reason=f"{name}'s reader went away; the run goes on to its end, printing nothing more there",
+            )
 
     def _run(self) -> RunResult:
         try:
@@ -251,6 +262,7 @@ class Runner:
                 self._hook(
                     "amslam_tick", t=snapshot.t, tree=runtime.tree, snapshot=snapshot, mapping=runtime.mapping
                 )
+                self._record_closed_outputs()
                 verdict = self._tree_verdict(snapshot.t)
                 if verdict is None and snapshot.t > hard_stop:
                     self._safe_land()
@@ -373,6 +385,7 @@ class Runner:
 
     def _finish(self, verdict: str) -> RunResult:
         """The verdict in ``metrics.json``, the run-end observers, the backends closed."""
+        self._record_closed_outputs()
         metrics = self._write_metrics(self._identity(verdict))  # first: whatever fails below, it is there
         summary = RunSummary(self.mission, self.rundir.path, verdict)
         try:
@@ -400,6 +413,7 @@ class Runner:
             metrics["outputs_error"] = "; ".join(dict.fromkeys(self._write_errors))  # each once
             self.rundir.event(self._now(), "outputs_error", error=metrics["outputs_error"])
             self._keep_what_can_be_kept(verdict, metrics)
+        self._record_closed_outputs()  # a pipe closed while the observers wrote
         self.rundir.event(self._now(), "run_end", verdict=verdict)  # the last event of every run
         for backend in reversed(list(self.backends.values())):
             try:

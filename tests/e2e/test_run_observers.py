@@ -7,6 +7,7 @@ file at the end of a run, not how well it explored.
 from __future__ import annotations
 
 import json
+import threading
 
 import amslam
 from amslam.mission import load_mission
@@ -81,3 +82,39 @@ def test_a_raising_observer_is_named_and_changes_nothing_else(tmp_path):
         ("amslam_run_metrics", "extra_figures"): "metrics verdict already given; the earlier kept",
     }
     assert _events(result.run_dir, "run_end")[-1]["verdict"] == "completed"
+
+
+class LosesStderrOnItsThread:
+    """Meets a closed stderr on a thread of its own, as the status line's heartbeat can."""
+
+    __name__ = "loses_stderr"
+
+    @amslam.hookimpl
+    def amslam_run_start(self, run_dir):
+        from amslam import console
+
+        def lost() -> None:
+            for listener in list(console._listeners):  # what console._gone tells them
+                listener("stderr")
+
+        thread = threading.Thread(target=lost, name="observer-thread")
+        thread.start()
+        thread.join()
+
+
+def test_an_output_closed_on_another_thread_is_recorded_by_the_control_thread(tmp_path, monkeypatch):
+    """The run folder is the control thread's (thread rule): the listener only takes note."""
+    from amslam.rundir import RunDir
+
+    written_on: dict[str, str] = {}
+    event = RunDir.event
+
+    def recording(self, t, name, /, **fields):
+        written_on[name] = threading.current_thread().name
+        event(self, t, name, **fields)
+
+    monkeypatch.setattr(RunDir, "event", recording)
+    result = _fly(tmp_path, extra_plugins=[LosesStderrOnItsThread()])
+    assert result.verdict == "completed"
+    assert [e["event"] for e in _events(result.run_dir, "stderr_closed")] == ["stderr_closed"]
+    assert written_on["stderr_closed"] == threading.main_thread().name
