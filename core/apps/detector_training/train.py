@@ -555,6 +555,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument("--p2", action="store_true", help="add the stride-4 detection level (small, far objects)")
     args = ap.parse_args(argv)
+    seeds = list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + args.seeds))
+    if args.data is None:
+        args.data = Path(f"runs/onnx_detector/train-{args.seeds}x{args.frames}.npz")
+    data = Dataset.load(args.data) if args.data.exists() else None
+    if data is not None and (
+        sorted(set(data.seeds.tolist())) != seeds or len(data) != len(seeds) * args.frames
+    ):
+        raise SystemExit(f"{args.data} holds other buildings or frames than --seeds/--frames ask for")
     # before minutes of rendering, not at the first use
     missing = [name for name in ("torch", "onnx") if importlib.util.find_spec(name) is None]
     if missing:
@@ -563,13 +571,7 @@ def main(argv: list[str] | None = None) -> None:
             file=sys.stderr,
         )
         raise SystemExit(2)
-    seeds = list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + args.seeds))
-    if args.data is None:
-        args.data = Path(f"runs/onnx_detector/train-{args.seeds}x{args.frames}.npz")
-    if args.data.exists():
-        data = Dataset.load(args.data)
-        if sorted(set(data.seeds.tolist())) != seeds or len(data) != len(seeds) * args.frames:
-            raise SystemExit(f"{args.data} holds other buildings or frames than --seeds/--frames ask for")
+    if data is not None:
         print(f"loaded {args.data}: {len(data)} frames", flush=True)
     else:
         t = time.time()
