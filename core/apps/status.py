@@ -154,8 +154,7 @@ class ProgressBar(StatusLines):
     """On a terminal: a tqdm bar of the time budget used, redrawn at most twice a second."""
 
     def __init__(self, progress: Progress, every: float, stream: Any):
-        # nothing to write: the bar redraws itself at every update; "due" still paces the
-        # explored share, which queries the map
+        # no line to write: the bar redraws itself at every update (tqdm paces the drawing)
         super().__init__(progress, every, write=lambda line: None)
         from tqdm import tqdm
 
