@@ -288,3 +288,15 @@ def test_duplicate_fusion_leaves_two_tentative_landmarks_to_the_front_end() -> N
     slam._graph.fuse_duplicates(lc.fuse_ratio * lc.tolerance, slam.params.association.chi2)
     assert all(lm.alias_of is None for lm in slam._graph.landmarks.values())
     assert slam.landmarks() == []  # both still tentative; nothing reaches the graph
+
+
+def test_vio_odometry_is_trusted_more_in_height_than_across():
+    # A gravity- and barometer-aided VIO drifts ~4x less in height; with one sigma for all axes
+    # the landmarks' heights pulled the chain (the PAL home: the estimate 1.0 m low, VIO 0.05 m).
+    from amslam.plugins.gtsam_slam.graph import GraphParams, NoiseModels
+
+    sigmas = NoiseModels(GraphParams()).odometry(4.0, 0.0).sigmas()
+    assert sigmas[3] == pytest.approx(0.05 * 2) and sigmas[4] == pytest.approx(0.05 * 2)
+    assert sigmas[5] == pytest.approx(0.012 * 2)
+    tight = NoiseModels(GraphParams(odometry_sigma_vertical=0.003)).odometry(4.0, 0.0).sigmas()
+    assert tight[5] == pytest.approx(0.006)
