@@ -36,6 +36,7 @@ and the probability show as scalar fields. :func:`read_map_ply` also reads the A
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -239,7 +240,11 @@ def _rows_in(rows: np.ndarray, among: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------ `amslam map`
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", help="a finished run folder (holding map.ply, and map.npz for free space)")
+    parser.add_argument(
+        "run",
+        help="a finished run folder (holding map.ply, and map.npz for free space), or a folder of them:"
+        " the newest",
+    )
     parser.add_argument(
         "--bt",
         metavar="FILE",
@@ -255,6 +260,14 @@ def _run(args: argparse.Namespace, registry) -> int:
         raise AmslamError(f"{run_dir}: no such run folder")
     if out.suffix.lower() != ".bt":
         raise AmslamError(f"--bt {out}: the file name must end in .bt")
+    if not (run_dir / "map.ply").is_file():  # a folder of runs: its newest, as `amslam view` and `export`
+        from amslam.apps.viewer import resolve_run_folder
+
+        with contextlib.suppress(AmslamError):
+            found, newest = resolve_run_folder(run_dir)
+            if newest:
+                print(f"newest run in {run_dir}: {found}")
+                run_dir = found
     occupied, free = write_run_octomap(run_dir, out)
     print(f"{out}: {occupied} occupied and {free} free voxels ({out.stat().st_size} bytes)")
     return 0

@@ -214,3 +214,8 @@ def test_amslam_map_writes_the_runs_map_as_a_bt(tmp_path, capsys):
     index, occupied = read_bt(tmp_path / "map.bt", VOXEL)
     assert _as_set(index[occupied]) == _as_set(np.floor(_cloud().points / VOXEL).astype(int))
     assert _as_set(index[~occupied]) == {(9, 9, 9), (9, 9, 8)}
+    # a folder of runs, as `amslam view` and `amslam export` take it: its newest
+    (run / "events.jsonl").write_text("")
+    assert main(["map", str(tmp_path), "--bt", str(tmp_path / "newest.bt")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"newest run in {tmp_path}: {run}\n{tmp_path}/newest.bt: 4 occupied")
