@@ -1,13 +1,14 @@
 """The built-in ``amslam`` subcommands, registered through ``amslam_cli_commands`` exactly as a
 third party's would be (see :mod:`amslam.cli`).
 
-    amslam run MISSION [--out DIR] [--set key.path=value ...]
+    amslam run MISSION [--out DIR] [--set key.path=value ...] [--rerun [--rrd [FILE]]]
     amslam fly MISSION [--out DIR] [--set key.path=value ...]   (a real vehicle, after a pre-flight check)
     amslam validate MISSION
     amslam plugins
     amslam dump-config KIND PLUGIN
     amslam tree MISSION [--format ascii|unicode|dot|svg|png] [--out FILE]
     amslam view RUN_DIR [--out FILE] [--screenshot PNG [--time T]] [--serve [--port N]] [--at T]
+                        [--rerun [--rrd [FILE] | --web]]
 
 MISSION is a YAML file or the name of a packaged mission (``demo``).
 """
@@ -58,10 +59,28 @@ def load_with_registry(args):
     return mission, registry
 
 
+def _live_rerun(args, registry) -> None:
+    """``--rerun``: a live rerun view of this run only, registered in-process as its observer."""
+    if args.rrd is not None and not args.rerun:
+        raise AmslamError("--rrd needs --rerun")
+    if not args.rerun:
+        return
+    from amslam.apps.rerun_view import LiveRerun, import_rerun
+    from amslam.apps.rerun_view.sink import writable_file
+
+    import_rerun()  # before flying: a missing rerun-sdk is one error line, not a run without its view
+    if args.rrd:
+        writable_file(Path(args.rrd))
+    registry.pm.register(
+        LiveRerun(args.rrd, announce=lambda line: print(line, flush=True)), name="rerun_live"
+    )
+
+
 def cmd_run(args, registry) -> int:
     from amslam.runner import Runner
 
     mission, registry = load_with_registry(args)
+    _live_rerun(args, registry)
     print(f"flying mission {mission.name!r} ({mission.source})", flush=True)
 
     def announce(run_dir: Path) -> None:
@@ -248,10 +267,11 @@ DEFAULT_PORT = 8765
 VIEW_MODES = {
     "--at": ("prints the tree's state at a time and writes no page", ()),
     "--serve": ("serves the page live and writes none", ("--port",)),
+    "--rerun": ("replays the run into rerun and writes no page", ("--rrd", "--web")),
     "": ("", ("--out", "--screenshot", "--time")),
 }
-#: an option of the page mode that needs another
-VIEW_NEEDS = {"--time": "--screenshot", "--port": "--serve"}
+#: an option that needs another
+VIEW_NEEDS = {"--time": "--screenshot", "--port": "--serve", "--rrd": "--rerun", "--web": "--rerun"}
 
 
 def _check_view_options(args) -> None:
@@ -262,8 +282,11 @@ def _check_view_options(args) -> None:
         "--time": args.time is not None,
         "--port": args.port is not None,
         "--serve": args.serve,
+        "--rerun": args.rerun,
+        "--rrd": args.rrd is not None,
+        "--web": args.web,
     }
-    mode = "--at" if args.at is not None else "--serve" if args.serve else ""
+    mode = "--at" if args.at is not None else "--serve" if args.serve else "--rerun" if args.rerun else ""
     what, uses = VIEW_MODES[mode]
     for option, is_given in given.items():
         if not is_given or option == mode:
@@ -273,6 +296,8 @@ def _check_view_options(args) -> None:
         need = VIEW_NEEDS.get(option)
         if need is not None and need != mode and not given[need]:
             raise AmslamError(f"{option} needs {need}")
+    if given["--rrd"] and given["--web"]:
+        raise AmslamError("--rrd does not go with --web, which serves the recording and saves none")
 
 
 def cmd_view(args, registry) -> int:
@@ -289,6 +314,8 @@ def cmd_view(args, registry) -> int:
         delta = poll_run(run_dir)
         print(render_text(delta.structure or [], tree_state_at(delta.tree, args.at)))
         return 0
+    if args.rerun:
+        return _view_rerun(run_dir, args)
     if not args.serve:
         page = build_page(run_dir, Path(args.out) if args.out else None)
         print(f"replay page: {page}")
@@ -308,6 +335,31 @@ def cmd_view(args, registry) -> int:
     return 0
 
 
+def _view_rerun(run_dir: Path, args) -> int:
+    """``amslam view RUN --rerun``: the run replayed into a rerun recording (see docs/viewer.md)."""
+    import time
+
+    from amslam.apps.rerun_view import open_recording, replay_run
+
+    rec, where = open_recording(run_dir.name, run_dir, args.rrd, args.web)
+    counts = replay_run(run_dir, rec)
+    rec.flush()
+    shapes = counts["landmarks_cuboid"] + counts["landmarks_cylinder"]
+    print(
+        f"replayed {run_dir} into rerun: {counts['events']} events, {counts['tree']} tree changes, "
+        f"poses {counts['ground_truth']} true / {counts['vio']} VIO / {counts['slam']} SLAM, "
+        f"{counts['map']} map voxels, {shapes + counts['landmarks_point']} landmarks ({shapes} with a shape)"
+    )
+    print(where, flush=True)
+    if args.web:  # the web viewer lives as long as this process
+        try:
+            while True:
+                time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
 def _mission_arguments(
     parser, what: str = "mission file, or the name of a packaged mission (e.g. demo)"
 ) -> None:
@@ -318,6 +370,19 @@ def _mission_arguments(
 def _flight_arguments(parser) -> None:
     _mission_arguments(parser)
     parser.add_argument("--out", default="runs", help="folder that receives the run folder (default: runs)")
+    _rerun_arguments(parser, "stream the flight live into rerun (pip install amslam[interop])")
+
+
+def _rerun_arguments(parser, what: str) -> None:
+    parser.add_argument("--rerun", action="store_true", help=what)
+    parser.add_argument(
+        "--rrd",
+        nargs="?",
+        const="",
+        metavar="FILE",
+        help="with --rerun: save the recording instead of spawning rerun's viewer (FILE, default "
+        "RUN/recording.rrd; the default anyway when there is no display)",
+    )
 
 
 def _dump_config_arguments(parser) -> None:
@@ -354,6 +419,12 @@ def _view_arguments(parser) -> None:
     )
     parser.add_argument(
         "--time", type=float, metavar="T", help="the page's initial time (s), for --screenshot"
+    )
+    _rerun_arguments(parser, "replay the run in rerun's 3-D viewer instead (pip install amslam[interop])")
+    parser.add_argument(
+        "--web",
+        action="store_true",
+        help="with --rerun: serve rerun's web viewer on localhost (Ctrl-C to stop)",
     )
 
 

@@ -1,0 +1,117 @@
+"""A run folder into a rerun recording: what ``amslam view RUN --rerun`` shows."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amslam.apps.rerun_view.scene import SOURCES, Scene, parse_tum
+from amslam.apps.viewer.runfiles import FILES, parse_json_line, read_lines
+
+
+class StreamTail:
+    """The complete lines each stream of a run folder gained since the last call (a live run is
+    read as it is written; a finished one in one call)."""
+
+    def __init__(self, run_dir: Path):
+        self.run_dir = Path(run_dir)
+        self.offsets: dict[str, int] = {}
+
+    def lines(self, stream: str) -> list[str]:
+        chunk = read_lines(self.run_dir / FILES[stream], self.offsets.get(stream, 0))
+        self.offsets[stream] = chunk.offset
+        return chunk.lines
+
+    def records(self, stream: str) -> list[dict[str, Any]]:
+        return [r for r in map(parse_json_line, self.lines(stream)) if r is not None]
+
+
+def log_events(scene: Scene, records: list[dict[str, Any]], *, tours: bool = True) -> None:
+    """Events as text; with ``tours``, the tour of each ``replan`` and each loop closure too (the
+    live view gets those from their hooks instead)."""
+    for record in records:
+        scene.at(float(record.get("t", 0.0)))
+        scene.event(record)
+        if not tours:
+            continue
+        if record.get("event") == "replan":
+            scene.tour([(str(s[0]), s[1:4]) for s in record.get("tour") or [] if len(s) >= 4])
+        elif record.get("event") == "loop_closure":
+            scene.loop_closure(
+                bool(record.get("accepted")), str(record.get("reason", "")), record.get("matched", 0)
+            )
+
+
+def log_tree(scene: Scene, names: dict[int, str], records: list[dict[str, Any]]) -> int:
+    """The tree's changes as text lines; ``names`` (node id → name) is filled from the structure
+    record. Returns the number of lines logged."""
+    logged = 0
+    for record in records:
+        if "structure" in record:
+            names.update({int(n["id"]): str(n["name"]) for n in record["structure"]})
+            continue
+        scene.at(float(record.get("t", 0.0)))
+        logged += scene.tree(names, record.get("nodes") or {})
+    return logged
+
+
+def read_map(run_dir: Path) -> tuple[np.ndarray, float | None, list[str] | None]:
+    """Occupied voxel centres of the run's map, its voxel size and, when the file has them, the
+    voxels' classes: ``map.ply`` (ASCII or binary, through trimesh), else ``map.npz`` (voxels at
+    or above the default occupancy probability, 0.8)."""
+    ply, npz = run_dir / "map.ply", run_dir / "map.npz"
+    if ply.exists():
+        import trimesh
+
+        cloud = trimesh.load(ply, file_type="ply", process=False)
+        points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
+        raw = (cloud.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data") or {}
+        classes = next((raw[k] for k in ("class", "class_name", "label") if k in raw), None)
+        if classes is not None:
+            classes = [c.decode() if isinstance(c, bytes) else str(c) for c in np.asarray(classes).tolist()]
+        voxel = next(
+            (float(np.asarray(raw[k]).ravel()[0]) for k in ("voxel_size", "voxel") if k in raw), None
+        )
+        from amslam.apps.viewer.runfiles import voxel_size
+
+        return points, voxel or (voxel_size(points) if len(points) else None), classes
+    if npz.exists():
+        with np.load(npz) as f:
+            voxel = float(f["global_voxel"])
+            occupied = f["global_logodds"] >= math.log(0.8 / 0.2)
+            return (f["global_index"][occupied] + 0.5) * voxel, voxel, None
+    return np.zeros((0, 3)), None, None
+
+
+def read_landmarks(run_dir: Path) -> list[dict[str, Any]]:
+    try:
+        raw = json.loads((run_dir / "landmarks.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return []
+    return [lm for lm in raw if isinstance(lm, dict) and "position" in lm] if isinstance(raw, list) else []
+
+
+def replay_run(run_dir: Path, rec: Any) -> dict[str, int]:
+    """Log everything of ``run_dir`` into the recording stream ``rec``; what was logged, counted."""
+    run_dir = Path(run_dir)
+    scene = Scene(rec)
+    tail = StreamTail(run_dir)
+    counts: dict[str, int] = {}
+    events = tail.records("events")
+    log_events(scene, events)
+    counts["events"] = len(events)
+    counts["tree"] = log_tree(scene, {}, tail.records("tree"))
+    for source in SOURCES:
+        rows = parse_tum(tail.lines(source))
+        scene.poses(source, rows)
+        scene.path(source, rows[:, 1:4], static=True)
+        counts[source] = len(rows)
+    points, voxel, classes = read_map(run_dir)
+    scene.map(points, voxel, classes)
+    counts["map"] = len(points)
+    counts.update({f"landmarks_{k}": n for k, n in scene.landmarks(read_landmarks(run_dir)).items()})
+    return counts
