@@ -143,6 +143,7 @@ def test_view_out_where_no_page_can_be(tmp_path, out, why):
 
 
 AT = "which prints the tree's state at a time and writes no page"
+RERUN = "which replays the run into rerun and writes no page"
 
 
 @pytest.mark.parametrize(
@@ -158,6 +159,21 @@ AT = "which prints the tree's state at a time and writes no page"
             ("--serve", "--out", "page.html"),
             "error: --out does not go with --serve, which serves the page live and writes none",
         ),
+        (("--rrd", "x.rrd"), "error: --rrd needs --rerun"),
+        (("--rrd",), "error: --rrd needs --rerun"),
+        (("--web",), "error: --web needs --rerun"),
+        (("--rerun", "--out", "page.html"), f"error: --out does not go with --rerun, {RERUN}"),
+        (("--rerun", "--port", "9000"), f"error: --port does not go with --rerun, {RERUN}"),
+        (
+            ("--rerun", "--serve"),
+            "error: --rerun does not go with --serve, which serves the page live and writes none",
+        ),
+        (("--at", "5", "--rerun"), f"error: --rerun does not go with --at, {AT}"),
+        (
+            ("--rerun", "--rrd", "x.rrd", "--web"),
+            "error: --rrd does not go with --web, which serves the recording and saves none",
+        ),
+        (("--rerun", "--rrd", "/proc/x.rrd"), "error: cannot write /proc/x.rrd: No such file or directory"),
     ],
 )
 def test_view_options_of_another_mode_are_refused(tmp_path, args, expected):
@@ -165,6 +181,15 @@ def test_view_options_of_another_mode_are_refused(tmp_path, args, expected):
     run = _a_run_folder(tmp_path)
     assert one_error(amslam("view", str(run), *args, cwd=tmp_path)) == expected
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["events.jsonl", "run"]
+
+
+def test_run_rerun_options_are_checked_before_flying(tmp_path):
+    """--rrd without --rerun, or an .rrd that cannot be written, is refused before take-off."""
+    mission = str(small_mission(tmp_path))
+    assert one_error(amslam("run", mission, "--rrd", "x.rrd", cwd=tmp_path)) == "error: --rrd needs --rerun"
+    line = one_error(amslam("run", mission, "--rerun", "--rrd", "/proc/x.rrd", cwd=tmp_path))
+    assert line == "error: cannot write /proc/x.rrd: No such file or directory"
+    assert not (tmp_path / "runs").exists()
 
 
 def test_tree_out_where_no_file_can_be(tmp_path):
