@@ -444,6 +444,6 @@ def amslam_cli_commands():
         ),
         "tree": Command("print or draw the behaviour tree a mission would run", _tree_arguments, cmd_tree),
         "view": Command(
-            "replay a run folder in the browser: tree, map, trajectories, events", _view_arguments, cmd_view
+            "replay a run folder in the browser (tree, map, trajectories, events) or in rerun", _view_arguments, cmd_view
         ),
     }

@@ -69,7 +69,10 @@ def read_map(run_dir: Path) -> tuple[np.ndarray, float | None, list[str] | None]
 
         cloud = trimesh.load(ply, file_type="ply", process=False)
         points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
-        raw = (cloud.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data") or {}
+        data = (cloud.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data")
+        # trimesh hands the vertex properties over as a dict (ASCII) or a structured array (binary)
+        names = data.dtype.names or () if isinstance(data, np.ndarray) else tuple(data or ())
+        raw = {name: data[name] for name in names}
         classes = next((raw[k] for k in ("class", "class_name", "label") if k in raw), None)
         if classes is not None:
             classes = [c.decode() if isinstance(c, bytes) else str(c) for c in np.asarray(classes).tolist()]

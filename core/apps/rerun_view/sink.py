@@ -62,7 +62,9 @@ def open_recording(
         url = rec.serve_grpc()
         rr.serve_web_viewer(connect_to=url, open_browser=False, web_port=web_port)
         port = 9090 if web_port is None else web_port
-        return rec, f"rerun web viewer: http://localhost:{port}/?url={url}"
+        from urllib.parse import quote
+
+        return rec, f"rerun web viewer: http://localhost:{port}/?url={quote(url, safe='')} (Ctrl-C to stop)"
     if rrd is None and has_display():
         rec.spawn()
         return rec, "rerun viewer spawned"
