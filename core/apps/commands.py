@@ -341,7 +341,7 @@ def _view_rerun(run_dir: Path, args) -> int:
 
     from amslam.apps.rerun_view import open_recording, replay_run
 
-    rec, where = open_recording(run_dir.name, run_dir, args.rrd, args.web)
+    rec, where = open_recording(run_dir, args.rrd, args.web)
     counts = replay_run(run_dir, rec)
     rec.flush()
     shapes = counts["landmarks_cuboid"] + counts["landmarks_cylinder"]
@@ -444,6 +444,8 @@ def amslam_cli_commands():
         ),
         "tree": Command("print or draw the behaviour tree a mission would run", _tree_arguments, cmd_tree),
         "view": Command(
-            "replay a run folder in the browser (tree, map, trajectories, events) or in rerun", _view_arguments, cmd_view
+            "replay a run folder in the browser (tree, map, trajectories, events) or in rerun",
+            _view_arguments,
+            cmd_view,
         ),
     }

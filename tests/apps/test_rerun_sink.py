@@ -22,7 +22,7 @@ def test_without_a_display_the_recording_is_saved_in_the_run_folder_and_that_is_
     monkeypatch.setattr(sys, "platform", "linux")
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    rec, where = open_recording("small", tmp_path, None)
+    rec, where = open_recording(tmp_path, None)
     rec.log("x", __import__("rerun").TextLog("hello"))
     rec.flush()
     assert (tmp_path / "recording.rrd").stat().st_size > 0
@@ -31,7 +31,7 @@ def test_without_a_display_the_recording_is_saved_in_the_run_folder_and_that_is_
 
 def test_rrd_alone_means_the_run_folder_and_a_path_is_taken_as_given(tmp_path):
     pytest.importorskip("rerun")
-    _, where = open_recording("small", tmp_path, "")
+    _, where = open_recording(tmp_path, "")
     assert where.startswith(f"rerun recording: {tmp_path / 'recording.rrd'}; open it with: rerun ")
-    _, where = open_recording("small", tmp_path, str(tmp_path / "elsewhere.rrd"))
+    _, where = open_recording(tmp_path, str(tmp_path / "elsewhere.rrd"))
     assert (tmp_path / "elsewhere.rrd").exists()

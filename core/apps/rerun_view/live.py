@@ -51,10 +51,10 @@ class LiveRerun:
         self.last_path = -np.inf
 
     @amslam.hookimpl
-    def amslam_run_start(self, run_dir: Path, mission: dict[str, Any]) -> None:
+    def amslam_run_start(self, run_dir: Path) -> None:
         rec = self.recording
         if rec is None:
-            rec, where = open_recording(str(mission.get("name", "run")), run_dir, self.rrd)
+            rec, where = open_recording(run_dir, self.rrd)
             self.announce(where)
             self.recording = rec
         self.scene = Scene(rec)

@@ -48,7 +48,7 @@ def writable_file(path: Path) -> Path:
 
 
 def open_recording(
-    name: str, run_dir: Path, rrd: str | None, web: bool = False, *, web_port: int | None = None
+    run_dir: Path, rrd: str | None, web: bool = False, *, web_port: int | None = None
 ) -> tuple[Any, str]:
     """A recording stream for the run in ``run_dir`` and a line telling the user where it goes.
 
@@ -57,7 +57,8 @@ def open_recording(
     recording and rerun's web viewer on localhost instead (the caller keeps the process alive).
     """
     rr = import_rerun()
-    rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{name}-{Path(run_dir).resolve().name}")
+    # the run folder's name (mission and start time) tells recordings apart in the viewer
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=Path(run_dir).resolve().name)
     if web:
         url = rec.serve_grpc()
         rr.serve_web_viewer(connect_to=url, open_browser=False, web_port=web_port)
