@@ -370,7 +370,7 @@ def _mission_arguments(
 def _flight_arguments(parser) -> None:
     _mission_arguments(parser)
     parser.add_argument("--out", default="runs", help="folder that receives the run folder (default: runs)")
-    _rerun_arguments(parser, "stream the flight live into rerun (pip install amslam[interop])")
+    _rerun_arguments(parser, "stream the flight live into rerun (pip install 'amslam[interop]')")
 
 
 def _rerun_arguments(parser, what: str) -> None:
@@ -420,7 +420,7 @@ def _view_arguments(parser) -> None:
     parser.add_argument(
         "--time", type=float, metavar="T", help="the page's initial time (s), for --screenshot"
     )
-    _rerun_arguments(parser, "replay the run in rerun's 3-D viewer instead (pip install amslam[interop])")
+    _rerun_arguments(parser, "replay the run in rerun's 3-D viewer instead (pip install 'amslam[interop]')")
     parser.add_argument(
         "--web",
         action="store_true",

@@ -28,8 +28,9 @@ def test_a_binary_ply_with_a_class_per_voxel_gives_the_classes(tmp_path):
         dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("class", "u1")],
     )
     header = (
-        "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
-        "property float x\nproperty float y\nproperty float z\nproperty uchar class\nend_header\n"
+        "ply\nformat binary_little_endian 1.0\nobj_info class 0 none\nobj_info class 2 chair\n"
+        "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar class\nend_header\n"
     )
     (tmp_path / "map.ply").write_bytes(header.encode() + vertices.tobytes())
     points, voxel, classes = read_map(tmp_path)
@@ -37,7 +38,7 @@ def test_a_binary_ply_with_a_class_per_voxel_gives_the_classes(tmp_path):
         np.array([[0.125, 0.125, 0.125], [0.375, 0.125, 0.125], [1.125, 0.625, 0.375]])
     )
     assert voxel == 0.25
-    assert classes == ["2", "2", "5"]
+    assert classes == ["chair", "chair", "class 5"]  # a class the file does not name
 
 
 def test_no_map_file_is_an_empty_map(tmp_path):

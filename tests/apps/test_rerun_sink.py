@@ -13,7 +13,7 @@ from amslam.errors import AmslamError
 
 def test_without_rerun_sdk_the_error_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun", None)  # an import of it now fails
-    with pytest.raises(AmslamError, match=r"--rerun needs rerun-sdk.*: pip install amslam\[interop\]$"):
+    with pytest.raises(AmslamError, match=r"--rerun needs rerun-sdk.*: pip install 'amslam\[interop\]'$"):
         import_rerun()
 
 

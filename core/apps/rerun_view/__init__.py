@@ -6,7 +6,7 @@
   --rerun``); the command registers it for that run only;
 - :mod:`amslam.apps.rerun_view.scene` is what both log, entity by entity (see docs/viewer.md).
 
-``rerun-sdk`` is an optional dependency (``pip install amslam[interop]``): it is imported inside the
+``rerun-sdk`` is an optional dependency (``pip install 'amslam[interop]'``): it is imported inside the
 functions that need it, so amslam works without it.
 """
 

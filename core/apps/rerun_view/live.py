@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 import amslam
-from amslam.apps.rerun_view.replay import StreamTail, log_events, log_tree, read_landmarks
+from amslam.apps.rerun_view.replay import StreamTail, log_events, log_tree, read_landmarks, read_map
 from amslam.apps.rerun_view.scene import SOURCES, Scene, parse_tum
 from amslam.apps.rerun_view.sink import open_recording
 
@@ -109,9 +109,11 @@ class LiveRerun:
         self._poll(self.last_poll)
         for source in SOURCES:  # the whole paths as flown (slam: as optimised), static like a replay's
             scene.path(source, parse_tum(StreamTail(run_dir).lines(source))[:, 1:4], static=True)
+        points, voxel, classes = read_map(Path(run_dir))  # the report's map.ply has the classes
         mapping = summary.mapping
-        if mapping is not None:
-            scene.map(np.asarray(mapping.occupied_points(), float), float(mapping.voxel_size()))
+        if len(points) == 0 and mapping is not None:  # no report: the mapping backend's voxels
+            points, voxel, classes = np.asarray(mapping.occupied_points(), float), mapping.voxel_size(), None
+        scene.map(points, voxel, classes)
         landmarks = [
             {
                 "id": lm.id,

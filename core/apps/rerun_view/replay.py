@@ -11,6 +11,7 @@ import numpy as np
 
 from amslam.apps.rerun_view.scene import SOURCES, Scene, parse_tum
 from amslam.apps.viewer.runfiles import FILES, parse_json_line, read_lines
+from amslam.errors import AmslamError
 
 
 class StreamTail:
@@ -60,28 +61,27 @@ def log_tree(scene: Scene, names: dict[int, str], records: list[dict[str, Any]])
 
 
 def read_map(run_dir: Path) -> tuple[np.ndarray, float | None, list[str] | None]:
-    """Occupied voxel centres of the run's map, its voxel size and, when the file has them, the
-    voxels' classes: ``map.ply`` (ASCII or binary, through trimesh), else ``map.npz`` (voxels at
-    or above the default occupancy probability, 0.8)."""
+    """Occupied voxel centres of the run's map, its voxel size and, when the file names any, the
+    voxels' classes (None when every voxel is ``none``): ``map.ply`` (binary with class per voxel,
+    or the ASCII one of older runs, read by :func:`amslam.apps.mapformats.read_map_ply`), else
+    ``map.npz`` (voxels at or above the default occupancy probability, 0.8)."""
     ply, npz = run_dir / "map.ply", run_dir / "map.npz"
     if ply.exists():
-        import trimesh
-
-        cloud = trimesh.load(ply, file_type="ply", process=False)
-        points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
-        data = (cloud.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data")
-        # trimesh hands the vertex properties over as a dict (ASCII) or a structured array (binary)
-        names = data.dtype.names or () if isinstance(data, np.ndarray) else tuple(data or ())
-        raw = {name: data[name] for name in names}
-        classes = next((raw[k] for k in ("class", "class_name", "label") if k in raw), None)
-        if classes is not None:
-            classes = [c.decode() if isinstance(c, bytes) else str(c) for c in np.asarray(classes).tolist()]
-        voxel = next(
-            (float(np.asarray(raw[k]).ravel()[0]) for k in ("voxel_size", "voxel") if k in raw), None
-        )
+        from amslam.apps.mapformats import NO_CLASS, read_map_ply
         from amslam.apps.viewer.runfiles import voxel_size
 
-        return points, voxel or (voxel_size(points) if len(points) else None), classes
+        try:
+            cloud = read_map_ply(ply)
+        except (OSError, ValueError) as exc:
+            # read_map_ply's ValueError names the file already
+            raise AmslamError(
+                str(exc) if isinstance(exc, ValueError) else f"cannot read {ply}: {exc}"
+            ) from None
+        known = cloud.class_names
+        names = [known[i] if i < len(known) else f"class {i}" for i in cloud.classes.tolist()]
+        classes = names if any(n != NO_CLASS for n in names) else None
+        guess = voxel_size(cloud.points) if len(cloud.points) else None
+        return cloud.points, cloud.voxel_size or guess, classes
     if npz.exists():
         with np.load(npz) as f:
             voxel = float(f["global_voxel"])

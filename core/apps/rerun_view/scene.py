@@ -59,7 +59,10 @@ def parse_tum(lines: Iterable[str]) -> np.ndarray:
 
 
 def rgb(name: str) -> tuple[int, int, int]:
-    """A class's colour as the simulator renders it (a stable hashed colour for other classes)."""
+    """A class's colour as the simulator renders it (a stable hashed colour for other classes);
+    map voxels of no landmark (``none``) grey."""
+    if name == "none":
+        return 150, 150, 150
     r, g, b = (int(round(255 * c)) for c in class_colour(name))
     return r, g, b
 

@@ -9,7 +9,7 @@ from typing import Any
 
 from amslam.errors import AmslamError
 
-INSTALL_HINT = "pip install amslam[interop]"
+INSTALL_HINT = "pip install 'amslam[interop]'"
 #: the recording's file in the run folder when none is named (``--rrd`` alone, or no display)
 DEFAULT_RRD = "recording.rrd"
 #: rerun's application id: recordings of amslam runs share one, so the viewer keeps their layout
