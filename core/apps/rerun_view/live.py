@@ -5,11 +5,12 @@ in-process plugin, as ``build_plugin_manager(extra_plugins=...)`` documents for 
 embed amslam), so it observes that run only and costs nothing to runs that did not ask for it.
 
 What it logs comes from the run hooks and from the run folder's streams, which the runner flushes
-line by line: ``amslam_tick`` gives the time and the tree; the poses, the events and the tree's
-changes are tailed from ``*.tum``, ``events.jsonl`` and ``tree.jsonl`` every ``period`` seconds of
-the run's clock; ``amslam_keyframe``, ``amslam_replan`` and ``amslam_loop_closure`` give key poses,
-tours and loop closures as they happen; ``amslam_run_end`` gives the map and the landmarks. The
-camera's depth and RGB images and the detections are in no hook, so they are not shown.
+line by line: ``amslam_tick`` gives the time and the mapping backend, whose occupied voxels are
+logged every ``map_period`` s; the poses, the events and the tree's changes are tailed from
+``*.tum``, ``events.jsonl`` and ``tree.jsonl`` every ``period`` seconds of the run's clock;
+``amslam_keyframe``, ``amslam_replan`` and ``amslam_loop_closure`` give key poses, tours and loop
+closures as they happen; ``amslam_run_end`` the final map and the landmarks. The camera's depth
+and RGB images and the detections are in no hook, so they are not shown.
 """
 
 from __future__ import annotations
@@ -36,12 +37,14 @@ class LiveRerun:
         announce: Callable[[str], None] = print,
         period: float = 0.5,
         path_period: float = 5.0,
+        map_period: float = 10.0,
         recording: Any = None,
     ):
         self.rrd = rrd
         self.announce = announce
         self.period = period  # s of the run's clock between two reads of the streams
         self.path_period = path_period  # s between two redraws of the whole paths (each costs all points)
+        self.map_period = map_period  # s between two copies of the global map's occupied voxels
         self.recording = recording  # a stream opened by the caller (tests: an in-memory one)
         self.scene: Scene | None = None
         self.paths: dict[str, list[np.ndarray]] = {s: [] for s in SOURCES}
@@ -49,6 +52,7 @@ class LiveRerun:
         self.names: dict[int, str] = {}
         self.last_poll = -np.inf
         self.last_path = -np.inf
+        self.last_map = -np.inf
 
     @amslam.hookimpl
     def amslam_run_start(self, run_dir: Path) -> None:
@@ -61,9 +65,15 @@ class LiveRerun:
         self.tail = StreamTail(run_dir)
 
     @amslam.hookimpl
-    def amslam_tick(self, t: float) -> None:
-        if self.scene is not None and t - self.last_poll >= self.period:
+    def amslam_tick(self, t: float, mapping) -> None:
+        if self.scene is None:
+            return
+        if t - self.last_poll >= self.period:
             self._poll(t)
+        if mapping is not None and t - self.last_map >= self.map_period:  # the map as it grows
+            self.last_map = t
+            self.scene.at(t)
+            self.scene.map(np.asarray(mapping.occupied_points(), float), mapping.voxel_size(), static=False)
 
     def _poll(self, t: float) -> None:
         scene = self.scene
@@ -113,7 +123,8 @@ class LiveRerun:
         mapping = summary.mapping
         if len(points) == 0 and mapping is not None:  # no report: the mapping backend's voxels
             points, voxel, classes = np.asarray(mapping.occupied_points(), float), mapping.voxel_size(), None
-        scene.map(points, voxel, classes)
+        scene.at(self.last_poll)  # timed like the growing map (a static one would hide it at every time)
+        scene.map(points, voxel, classes, static=False)
         landmarks = [
             {
                 "id": lm.id,

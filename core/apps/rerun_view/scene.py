@@ -5,7 +5,7 @@ Entity paths (world frame, z up; timeline ``sim_time`` in seconds of the run's c
 ===============================  ==================  ==============================================
 ``world``                        static              z-up view coordinates; the landmark classes'
                                                      labels and colours (annotation context)
-``world/map``                    static              occupied voxel centres (``Points3D``)
+``world/map``                    static or timed     occupied voxel centres (``Points3D``)
 ``world/trajectory/<source>``    static or timed     ground_truth, vio, slam paths (``LineStrips3D``)
 ``world/robot/<source>``         timed               the pose at each trajectory stamp
                                                      (``Transform3D`` with axes)
@@ -121,7 +121,14 @@ class Scene:
 
     # -- map and landmarks -------------------------------------------------------------------
 
-    def map(self, points: np.ndarray, voxel: float | None, classes: Sequence[str] | None = None) -> None:
+    def map(
+        self,
+        points: np.ndarray,
+        voxel: float | None,
+        classes: Sequence[str] | None = None,
+        *,
+        static: bool = True,
+    ) -> None:
         """Occupied voxel centres: coloured by class where the map knows it, else by height."""
         if len(points) == 0:
             return
@@ -135,7 +142,7 @@ class Scene:
             span = float(np.ptp(z)) or 1.0
             colours = (colormaps["viridis"]((z - z.min()) / span)[:, :3] * 255).astype(np.uint8)
             cloud = self.rr.Points3D(points, radii=radius, colors=colours)
-        self.rec.log("world/map", cloud, static=True)
+        self.rec.log("world/map", cloud, static=static)
 
     def landmarks(self, landmarks: Sequence[dict[str, Any]]) -> dict[str, int]:
         """Landmarks as ``landmarks.json`` holds them: cuboids as boxes turned by their yaw,
