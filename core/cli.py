@@ -31,6 +31,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -210,7 +211,21 @@ def run_experiment(args: argparse.Namespace, registry: Registry) -> int:
         raise AmslamError(f"experiment {args.experiment} flies one mission; also given: {extra}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     print(f"experiment {args.experiment} on {args.mission}, seeds {seeds}", flush=True)
-    folder = experiment.run(args, registry)
+    started = time.time()
+    try:
+        folder = experiment.run(args, registry)
+    except OSError as exc:
+        # Flown runs are already whole run folders on disk; what failed is the summary (a full
+        # disk): one line naming the file, exit 1 as for a run whose outputs could not all be
+        # written, never a traceback. A write that fails on a full disk names no file: name the
+        # experiment folder this call made.
+        where = exc.filename or _newest_folder(Path(args.out), since=started) or args.out
+        print(
+            f"warning: experiment {args.experiment}: cannot write {where}: {exc.strerror or exc};"
+            f" the runs flown so far are kept under {args.out}",
+            file=sys.stderr,
+        )
+        return 1
     print((folder / "table.md").read_text())
     print(f"experiment folder: {folder}")
     verdicts = [_verdict(m) for m in sorted(folder.glob("runs/*/metrics.json"))]
@@ -218,6 +233,15 @@ def run_experiment(args: argparse.Namespace, registry: Registry) -> int:
         print(f"error: none of the {len(verdicts)} runs completed ({verdicts[0]}, ...)", file=sys.stderr)
         return 1
     return 0
+
+
+def _newest_folder(parent: Path, since: float) -> Path | None:
+    """The newest folder in ``parent`` made at ``since`` or later (None if none)."""
+    try:
+        made = [p for p in parent.iterdir() if p.is_dir() and p.stat().st_mtime >= since - 1]
+    except OSError:
+        return None
+    return max(made, key=lambda p: p.stat().st_mtime, default=None)
 
 
 def _verdict(metrics_file: Path) -> str:

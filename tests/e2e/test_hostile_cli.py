@@ -328,3 +328,46 @@ def test_view_port_out_of_range_or_taken_is_one_error(tmp_path: Path) -> None:
         port = str(taken.getsockname()[1])
         line = one_error(amslam("view", str(run), "--serve", "--port", port))
     assert line.startswith(f"error: cannot serve on 127.0.0.1:{port}:"), line
+
+
+def test_an_experiment_whose_summary_cannot_be_written_is_one_warning_line(tmp_path, capsys):
+    # a full disk after the flights: the table and plots fail, the flown run folders stay
+    import errno
+    from types import SimpleNamespace
+
+    from amslam.cli import run_experiment
+
+    def run(args, registry):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "exp" / "results.json"))
+
+    registry = SimpleNamespace(experiments={"full": SimpleNamespace(several_missions=False, run=run)})
+    args = SimpleNamespace(
+        experiment="full", more=[], mission="demo", first_seed=1, seeds=1, out=str(tmp_path)
+    )
+    assert run_experiment(args, registry) == 1
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line == (
+        f"warning: experiment full: cannot write {tmp_path}/exp/results.json: No space left on device;"
+        f" the runs flown so far are kept under {tmp_path}"
+    )
+
+
+def test_a_full_disk_names_the_experiment_folder_when_the_error_names_no_file(tmp_path, capsys):
+    import errno
+    from types import SimpleNamespace
+
+    from amslam.cli import run_experiment
+
+    def run(args, registry):
+        (tmp_path / "planners-demo-1").mkdir()
+        raise OSError(errno.ENOSPC, "No space left on device")  # as a write on a full disk raises it
+
+    registry = SimpleNamespace(experiments={"full": SimpleNamespace(several_missions=False, run=run)})
+    args = SimpleNamespace(
+        experiment="full", more=[], mission="demo", first_seed=1, seeds=1, out=str(tmp_path)
+    )
+    assert run_experiment(args, registry) == 1
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"warning: experiment full: cannot write {tmp_path}/planners-demo-1: No space"), (
+        line
+    )
