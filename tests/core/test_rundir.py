@@ -78,8 +78,6 @@ def test_processes_starting_in_the_same_second_get_distinct_folders(tmp_path: Pa
 def test_atomically_written_files_get_the_mode_an_ordinary_open_gives(tmp_path: Path):
     # mkstemp's 0600 survived the rename: metrics.json, landmarks.json, map.ply … came out
     # unreadable to the other users of a shared machine, while the streams were not.
-    from amslam.rundir import write_atomically
-
     written = write_atomically(tmp_path / "metrics.json", "{}")
     opened = tmp_path / "events.jsonl"
     opened.write_text("")
