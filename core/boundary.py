@@ -60,6 +60,18 @@ def pose_problem(T: Any, name: str) -> str | None:
     return None
 
 
+def _viewpoint_problem(vp: Any) -> str | None:
+    """What is wrong with one viewpoint (its alternatives aside), or None."""
+    if not isinstance(vp, Viewpoint):
+        return f"is a {type(vp).__name__}, expected Viewpoint"
+    problem = _array_problem(vp.position, "position", (3,))
+    if problem is None and not (_finite_number(vp.yaw) and _finite_number(vp.gain)):
+        problem = f"yaw {vp.yaw!r} or gain {vp.gain!r} is not a finite number"
+    if problem is None and not isinstance(vp.alternatives, tuple):
+        problem = f"alternatives is a {type(vp.alternatives).__name__}, expected a tuple"
+    return problem
+
+
 def _finite_number(value: Any) -> bool:
     return isinstance(value, int | float | np.integer | np.floating) and math.isfinite(float(value))
 
@@ -152,12 +164,12 @@ class Boundary:
                 "mapping", f"viewpoints() returned {type(viewpoints).__name__}, expected a list"
             ) from None
         for i, vp in enumerate(items):
-            if not isinstance(vp, Viewpoint):
-                problem = f"is a {type(vp).__name__}, expected Viewpoint"
-            else:
-                problem = _array_problem(vp.position, "position", (3,))
-                if problem is None and not (_finite_number(vp.yaw) and _finite_number(vp.gain)):
-                    problem = f"yaw {vp.yaw!r} or gain {vp.gain!r} is not a finite number"
+            problem = _viewpoint_problem(vp)
+            if problem is None:
+                for j, alt in enumerate(vp.alternatives):
+                    if problem := _viewpoint_problem(alt):
+                        problem = f"alternative {j}: {problem}"
+                        break
             if problem:
                 raise self.fault("mapping", f"viewpoints(): viewpoint {i}: {problem}")
         return items

@@ -174,7 +174,7 @@ class Perception:
             self.rates.viewpoints = frame.stamp + self.exploration.viewpoint_period
             with check.calling("mapping", "viewpoints()"):
                 self._viewpoints = tuple(
-                    self._within_band(vp) for vp in check.viewpoints(self.mapping.viewpoints())
+                    self._options_within_band(vp) for vp in check.viewpoints(self.mapping.viewpoints())
                 )
         if frame.stamp >= self.rates.detect and self._detecting is None:
             self.rates.detect = frame.stamp + self.detect_period
@@ -220,6 +220,11 @@ class Perception:
             viewpoints=self._viewpoints,
             explored_volume=explored[-1][2] if explored else 0.0,
         )
+
+    def _options_within_band(self, vp: Viewpoint) -> Viewpoint:
+        """:meth:`_within_band` for a viewpoint and each of its alternatives."""
+        alternatives = tuple(self._within_band(a) for a in vp.alternatives)
+        return dataclasses.replace(self._within_band(vp), alternatives=alternatives)
 
     def _within_band(self, vp: Viewpoint) -> Viewpoint:
         """Move a viewpoint vertically into the band between floor and ceiling the tree flies in.

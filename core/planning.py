@@ -169,17 +169,32 @@ class PlanningService:
         self.refresh_viewpoints()
 
     def candidate_viewpoints(self) -> list[Viewpoint]:
-        """Viewpoints worth visiting: enough gain, not known to be unreachable, at a safe height."""
+        """Viewpoints worth visiting: enough gain, not known to be unreachable, not visited.
+
+        Each cluster's viewpoint and its alternatives are judged alike; the first that passes
+        stands for the cluster, carrying the others that pass as its alternatives.
+        """
         out = []
         for vp in self.snapshot.viewpoints if self.snapshot else ():
-            if vp.gain < self.exploration.min_viewpoint_gain:
-                continue
-            if any(np.linalg.norm(vp.position - u) < 0.75 for u in self.unreachable):
-                continue
-            if any(np.linalg.norm(vp.position - u) < 0.5 for u in self.visited):
-                continue
-            out.append(vp)
+            options = [o for o in vp.options() if self._worth_visiting(o)]
+            if options:
+                out.append(dataclasses.replace(options[0], alternatives=tuple(options[1:])))
         return out
+
+    def _worth_visiting(self, vp: Viewpoint) -> bool:
+        if vp.gain < self.exploration.min_viewpoint_gain:
+            return False
+        if any(np.linalg.norm(vp.position - u) < 0.75 for u in self.unreachable):
+            return False
+        return not any(np.linalg.norm(vp.position - u) < 0.5 for u in self.visited)
+
+    def wants_view_near(self, position: np.ndarray, within: float) -> bool:
+        """Whether some candidate viewpoint, or an alternative of one, lies within ``within`` m."""
+        return any(
+            np.linalg.norm(o.position - position) < within
+            for vp in self.candidate_viewpoints()
+            for o in vp.options()
+        )
 
     def frontier_change(self) -> float:
         """Share of viewpoints that appeared or vanished (by position) since the last plan."""
@@ -234,6 +249,7 @@ class PlanningService:
         if not vps and self.plans_frontiers:
             return Plan([], planned, MappingProxyType({}))
         start = inputs.snapshot.position_world
+        vps = self._reachable_options(start, vps)
         nodes = np.vstack([start[None], np.array([v.position for v in vps]).reshape(-1, 3)])
         costs = self.mapping.path_costs(nodes, nodes) if vps else np.zeros((1, 1))
         offered = self._slc_candidates(inputs) if inputs.slc is not None else ()
@@ -255,6 +271,24 @@ class PlanningService:
         with self.boundary.calling("planner", "plan()"):
             tour = self.boundary.tour(self.planner.plan(request), request, self.plans_frontiers)
         return Plan(tour, planned, MappingProxyType({c.keypose_id: c for c in offered}))
+
+    def _reachable_options(self, start: np.ndarray, vps: tuple[Viewpoint, ...]) -> tuple[Viewpoint, ...]:
+        """Each viewpoint, or its best alternative with a path from ``start`` when it has none.
+
+        One search from ``start`` to every option. A cluster none of whose options is reachable
+        keeps its viewpoint (the planner leaves it out: its path cost is infinite).
+        """
+        if not any(vp.alternatives for vp in vps):
+            return vps
+        options = [vp.options() for vp in vps]
+        flat = np.array([o.position for opts in options for o in opts])
+        reach = np.isfinite(self.mapping.path_costs(start[None], flat)[0])
+        out, k = [], 0
+        for vp, opts in zip(vps, options, strict=True):
+            ok = [o for o, r in zip(opts, reach[k : k + len(opts)], strict=True) if r]
+            k += len(opts)
+            out.append(ok[0] if ok else vp)
+        return tuple(out)
 
     def _slc_candidates(self, inputs: PlanInputs) -> tuple[SlcCandidate, ...]:
         # A key pose from the take-off climb is still a fine place to look from, in the air.

@@ -198,6 +198,11 @@ class Viewpoint:
         gain: information gain — unknown volume (m³) expected to be seen.
         cluster_centroid: centroid of the frontier cluster it covers.
         cluster_size: number of frontier voxels in that cluster.
+        alternatives: other places to look at the same cluster from (same id), best gain first,
+            each without alternatives of its own. The best view of a cluster may be out of reach
+            (the camera looks level, so a cluster above a shaft is best seen from the floor above,
+            which the robot reaches only once the way up was seen free); a planner then looks from
+            the best alternative it can reach.
     """
 
     id: int
@@ -206,6 +211,11 @@ class Viewpoint:
     gain: float
     cluster_centroid: np.ndarray
     cluster_size: int
+    alternatives: tuple[Viewpoint, ...] = ()
+
+    def options(self) -> tuple[Viewpoint, ...]:
+        """This viewpoint, then its alternatives."""
+        return (self, *self.alternatives)
 
 
 @dataclass(frozen=True)

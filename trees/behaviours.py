@@ -364,8 +364,7 @@ class GoTo(RobotBehaviour):
             return None
         # Clusters are re-made as the map grows, so their ids change; the goal is still
         # worth reaching while some viewpoint remains near it.
-        remaining = self.planning.candidate_viewpoints()
-        if not any(np.linalg.norm(vp.position - self.goal.position) < self.SAME_GOAL for vp in remaining):
+        if not self.planning.wants_view_near(self.goal.position, self.SAME_GOAL):
             return "frontier seen on the way"
         if self.flight.time() - self.bb.get("/tour_time") > self.replan_period:
             return "tour stale: replan"

@@ -19,6 +19,13 @@ Backend-independent: the tracker reads voxel states through a :class:`StateSourc
   rays from the position reach before their first occupied voxel (see :class:`RayFan`); the best
   (position, yaw) is kept. A cluster whose best gain is below ``min_gain`` gets no viewpoint and is
   dropped.
+* The viewpoint carries up to ``n_alternatives`` **alternatives**: the best candidate of each
+  candidate height, then the best of each (height, quadrant around the centroid) by gain, each with
+  at least ``min_gain``. The best view is chosen without knowing what the robot can reach: with a
+  level camera a cluster above a shaft is best seen from the floor above, which the robot reaches
+  only after seeing the way up free — from a lower alternative inside the shaft (the demo, seed 11,
+  ended at 60 % explored with the upper floor's every viewpoint out of reach). The planning service
+  takes the best alternative it has a path to.
 * A kept viewpoint within sensing range of the touched box is re-checked at its position (clearance,
   gain of every yaw, best yaw taken); it is resampled when it lost its clearance or its gain fell
   below ``resample_ratio`` of the gain it was sampled with (or below ``min_gain``).
@@ -26,6 +33,7 @@ Backend-independent: the tracker reads voxel states through a :class:`StateSourc
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -68,6 +76,7 @@ class FrontierConfig:
     n_rays_elevation: int = 8
     min_gain: float = 0.5
     resample_ratio: float = 0.5
+    n_alternatives: int = 6
 
 
 @dataclass
@@ -454,14 +463,41 @@ class FrontierTracker:
             if safe.any():
                 gains[safe] = self.fan.gains(self.block, self.block.flat_index(here[safe]))
             yaws = self._yaws()
+            kept_near = []
             for c, ok, g in zip(near, safe, gains, strict=True):
                 best = int(np.argmax(g))
                 if not ok or g[best] < max(cfg.resample_ratio * c.sampled_gain, cfg.min_gain):
                     del self.clusters[c.id]
                     resample.append(c)
                 else:
+                    alternatives = c.viewpoint.alternatives
                     c.viewpoint = self._make_viewpoint(c, c.viewpoint.position, yaws[best], g[best])
+                    c.viewpoint = dataclasses.replace(c.viewpoint, alternatives=alternatives)
+                    kept_near.append(c)
+            self._refresh_alternatives(kept_near)
         self._sample_viewpoints(fresh + resample)
+
+    def _refresh_alternatives(self, clusters: list[Cluster]) -> None:
+        """Re-check the alternatives of viewpoints kept in place: the best yaw again, and those that
+        lost their clearance or fell below ``min_gain`` dropped."""
+        alts = [(c, a) for c in clusters for a in c.viewpoint.alternatives]
+        if not alts:
+            return
+        v = self.cfg.voxel
+        here = np.floor(np.array([a.position for _, a in alts]) / v).astype(np.int64)
+        safe = self._safe(here)
+        gains = np.zeros((len(alts), len(self.fan.yaw_share)))
+        if safe.any():
+            gains[safe] = self.fan.gains(self.block, self.block.flat_index(here[safe]))
+        yaws = self._yaws()
+        fresh: dict[int, list[Viewpoint]] = {c.id: [] for c in clusters}
+        for (c, a), ok, g in zip(alts, safe, gains, strict=True):
+            best = int(np.argmax(g))
+            if ok and g[best] >= self.cfg.min_gain:
+                fresh[c.id].append(self._make_viewpoint(c, a.position, yaws[best], g[best]))
+        for c in clusters:
+            kept = sorted(fresh[c.id], key=lambda a: -a.gain)
+            c.viewpoint = dataclasses.replace(c.viewpoint, alternatives=tuple(kept))
 
     def _sample_viewpoints(self, clusters: list[Cluster]) -> None:
         """Pick each cluster's best (candidate, yaw), all candidates in one batch; keep those with one."""
@@ -478,15 +514,52 @@ class FrontierTracker:
         yaws = self._yaws()
         best_p = np.argmax(gains, axis=1)
         best_g = gains[np.arange(len(index)), best_p]
+        pos = centres(index, v)
         for i, c in enumerate(clusters):
             rows = np.nonzero(owner == i)[0]
             if len(rows) == 0:
                 continue
             r = rows[int(np.argmax(best_g[rows]))]  # first best on ties: deterministic
-            c.viewpoint = self._make_viewpoint(c, centres(index[r], v), yaws[best_p[r]], best_g[r])
+            c.viewpoint = self._make_viewpoint(c, pos[r], yaws[best_p[r]], best_g[r])
             if c.viewpoint is not None:
+                alts = self._alternative_rows(c, rows, r, pos, best_g)
+                c.viewpoint = dataclasses.replace(
+                    c.viewpoint,
+                    alternatives=tuple(
+                        self._make_viewpoint(c, pos[a], yaws[best_p[a]], best_g[a]) for a in alts
+                    ),
+                )
                 c.sampled_gain = float(best_g[r])
                 self.clusters[c.id] = c
+
+    def _alternative_rows(
+        self, c: Cluster, rows: np.ndarray, best: int, pos: np.ndarray, gain: np.ndarray
+    ) -> list[int]:
+        """Rows of a cluster's alternative viewpoints (see the module doc), best first.
+
+        Candidates are grouped by height (their voxel layer: one per candidate height) and by
+        quadrant around the centroid; the best of every height comes first, then the best of
+        every (height, quadrant) group by gain, up to ``n_alternatives``.
+        """
+        n = self.cfg.n_alternatives
+        rows = rows[gain[rows] >= self.cfg.min_gain]
+        if n <= 0 or len(rows) < 2:
+            return []
+        rel = pos[rows] - c.centroid
+        level = np.round(pos[rows, 2] / self.cfg.voxel).astype(np.int64)  # one per candidate height
+        quadrant = ((np.arctan2(rel[:, 1], rel[:, 0]) + np.pi) // (np.pi / 2)).astype(np.int64)
+        order = np.argsort(-gain[rows], kind="stable")
+        first_of_level: dict[int, int] = {}
+        first_of_group: dict[tuple[int, int], int] = {}
+        for k in order:
+            first_of_level.setdefault(int(level[k]), int(rows[k]))
+            first_of_group.setdefault((int(level[k]), int(quadrant[k])), int(rows[k]))
+        by_gain = sorted(first_of_group.values(), key=lambda q: -gain[q])
+        out: list[int] = []
+        for q in [*sorted(first_of_level.values(), key=lambda q: -gain[q]), *by_gain]:
+            if q != best and q not in out and len(out) < n:
+                out.append(q)
+        return sorted(out, key=lambda q: -gain[q])
 
     def _make_viewpoint(self, c: Cluster, position: np.ndarray, yaw: float, gain: float) -> Viewpoint | None:
         if gain < self.cfg.min_gain:

@@ -139,6 +139,14 @@ class VoxelMapParams(BackendParams):
         le=1_000_000,
         description="Viewpoints expecting to see less unknown volume (m³) than this are dropped.",
     )
+    viewpoint_alternatives: int = Field(
+        6,
+        ge=0,
+        le=100,
+        description="Alternative viewpoints kept per frontier cluster (the best of each candidate height,"
+        " then of each height and quadrant): the planner looks from the best one it can reach when the"
+        " best view cannot be reached yet (a cluster above a shaft, seen best from the floor above).",
+    )
     viewpoint_resample_ratio: float = Field(
         0.5,
         ge=0,
@@ -356,6 +364,7 @@ class VoxelMapBase(Mapping):
                 n_rays_azimuth=p.gain_rays_azimuth,
                 n_rays_elevation=p.gain_rays_elevation,
                 min_gain=p.min_gain,
+                n_alternatives=p.viewpoint_alternatives,
                 resample_ratio=p.viewpoint_resample_ratio,
             )
         )

@@ -249,6 +249,9 @@ class StuckRobot(FakeRobot):
     def candidate_viewpoints(self):
         return []
 
+    def wants_view_near(self, position, within):
+        return False
+
     def segment_clear_local(self, a, b):
         return True
 

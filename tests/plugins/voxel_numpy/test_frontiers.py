@@ -140,3 +140,42 @@ def test_state_mirror_follows_the_map(tmp_path: Path) -> None:
     fresh.sync(m.global_map)  # everything read at once
     np.testing.assert_array_equal(m.frontiers._mirror, fresh._mirror)
     assert np.any(fresh._mirror == OCCUPIED)
+
+
+def test_alternatives_hold_the_best_view_of_every_candidate_height(room_map: NumpyVoxelMap) -> None:
+    """Each viewpoint carries alternatives: same cluster, safe, enough gain, best first, and the
+    best candidate of every candidate height among the options (the one a planner can reach may
+    be the lower one: a cluster above a shaft is seen best from the floor above)."""
+    tracker = room_map.frontiers
+    cfg = tracker.cfg
+    vps = room_map.viewpoints()
+    assert any(vp.alternatives for vp in vps)
+    for vp in vps:
+        options = vp.options()
+        assert [o.gain for o in vp.alternatives] == sorted((o.gain for o in vp.alternatives), reverse=True)
+        assert all(o.gain >= cfg.min_gain and o.id == vp.id and not o.alternatives for o in vp.alternatives)
+        assert all(o.gain <= vp.gain + 1e-9 for o in vp.alternatives)
+        index = np.floor(np.array([o.position for o in options]) / cfg.voxel).astype(np.int64)
+        assert tracker._safe(index).all()
+        assert len({tuple(i) for i in index}) == len(options)
+        # brute force: the best candidate of each height is an option
+        cand = tracker._candidates(tracker.clusters[vp.id])
+        cand = cand[tracker._safe(cand)]
+        gains = tracker.fan.gains(tracker.block, tracker.block.flat_index(cand)).max(axis=1)
+        for z in np.unique(cand[:, 2]):
+            at = np.flatnonzero((cand[:, 2] == z) & (gains >= cfg.min_gain))
+            if len(at):
+                best = cand[at[np.argmax(gains[at])]]
+                assert any(np.array_equal(best, i) for i in index), f"best view at layer {z} missing"
+
+
+def test_no_alternatives_when_switched_off(tmp_path: Path) -> None:
+    m = NumpyVoxelMap()
+    m.configure(
+        NumpyVoxelMap.Params(global_voxel=0.25, viewpoint_alternatives=0),
+        make_context(tmp_path, camera=ROOM_CAMERA, area=ROOM_AREA),
+    )
+    scene = room_scene()
+    m.integrate_global(render_depth(scene, ROOM_CAMERA, ROOM_POSE), ROOM_CAMERA.K, ROOM_POSE)
+    vps = m.viewpoints()
+    assert vps and not any(vp.alternatives for vp in vps)

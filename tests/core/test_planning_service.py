@@ -1,0 +1,89 @@
+"""The planning service picks, for each frontier cluster, a view the robot can reach."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from amslam.mission import ExplorationSection
+from amslam.perception import Snapshot
+from amslam.planning import PlanningService
+from amslam.types import CameraModel, Odometry, TourItem, TourItemKind, Viewpoint
+
+UPSTAIRS = np.array([5.0, 0.0, 4.2])  # the cluster's best view, on a floor not reached yet
+IN_SHAFT = np.array([5.0, 0.0, 2.6])  # a lower view of it, from where the robot can fly
+
+
+def viewpoint(position, gain, alternatives=()) -> Viewpoint:
+    return Viewpoint(7, np.asarray(position, float), 0.0, gain, np.array([5.0, 0.0, 3.4]), 30, alternatives)
+
+
+class UpperFloorOutOfReach:
+    """A mapping whose free-space graph reaches everything below z = 3 m."""
+
+    def path_costs(self, sources, targets):
+        s, t = np.atleast_2d(sources), np.atleast_2d(targets)
+        cost = np.linalg.norm(s[:, None] - t[None], axis=2)
+        up = (s[:, None, 2] > 3.0) != (t[None, :, 2] > 3.0)
+        return np.where(up, np.inf, cost)
+
+
+class Recorder:
+    needs_frontiers = True
+
+    def __init__(self):
+        self.requests = []
+
+    def plan(self, request):
+        self.requests.append(request)
+        ok = np.isfinite(request.costs[0, 1:])
+        return [
+            TourItem(TourItemKind.EXPLORE, vp.position, vp.yaw, vp.gain, vp.id)
+            for vp, r in zip(request.viewpoints, ok, strict=True)
+            if r
+        ]
+
+
+class NoSlam:
+    def landmarks(self):
+        return []
+
+
+def service(vps) -> tuple[PlanningService, Recorder]:
+    planner = Recorder()
+    snap = Snapshot(0.0, Odometry(0.0, np.eye(4)), np.eye(4), 0.0, tuple(vps), 0.0)
+    snap.odometry.T_odom_body[:3, 3] = [0.0, 0.0, 1.2]
+    s = PlanningService(
+        planner=planner,
+        slam=NoSlam(),
+        mapping=UpperFloorOutOfReach(),
+        exploration=ExplorationSection(slc=False),
+        camera=CameraModel.from_fov(64, 48, 87.0, 58.0),
+        threaded=False,
+        snapshot=snap,
+    )
+    return s, planner
+
+
+def test_an_unreachable_view_is_replaced_by_a_reachable_alternative() -> None:
+    s, planner = service([viewpoint(UPSTAIRS, 30.0, (viewpoint(IN_SHAFT, 4.0),))])
+    tour = s.plan_async(1.2).result()
+    assert [item.position.tolist() for item in tour] == [IN_SHAFT.tolist()]
+    assert planner.requests[0].viewpoints[0].gain == 4.0
+    # the goal stays wanted while the cluster's best view is still out of reach
+    assert s.wants_view_near(IN_SHAFT, 0.3)
+
+
+def test_a_reachable_view_is_kept_and_unreachable_alternatives_change_nothing() -> None:
+    s, _ = service([viewpoint(IN_SHAFT, 30.0, (viewpoint(UPSTAIRS, 40.0),))])
+    tour = s.plan_async(1.2).result()
+    assert [item.position.tolist() for item in tour] == [IN_SHAFT.tolist()]
+
+
+def test_visited_and_unreachable_options_are_skipped() -> None:
+    s, _ = service([viewpoint(UPSTAIRS, 30.0, (viewpoint(IN_SHAFT, 4.0),))])
+    s.mark_unreachable(UPSTAIRS)
+    (only,) = s.candidate_viewpoints()
+    assert np.array_equal(only.position, IN_SHAFT) and only.alternatives == ()
+    s.mark_visited(IN_SHAFT)
+    assert s.candidate_viewpoints() == []
+    assert not s.wants_view_near(IN_SHAFT, 0.3)
