@@ -239,6 +239,17 @@ class Mapping(Backend):
     def plan_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Collision-free waypoints (K×3, world frame) from start to goal, or None."""
 
+    def plan_local_path(
+        self, start: np.ndarray, goal: np.ndarray, *, margin: float = 1.0
+    ) -> np.ndarray | None:
+        """Collision-free waypoints (K×3, odometry frame) from start to goal on the fine local map,
+        inside the box spanned by the two ends plus ``margin`` m, or None.
+
+        The runtime flies round what blocks a global path this way (a detour that rejoins the
+        path a few metres on). Optional: the default None makes it plan a new global path instead.
+        """
+        return None
+
     @abc.abstractmethod
     def segment_free(self, a: np.ndarray, b: np.ndarray, *, local: bool = False) -> bool:
         """Whether the straight segment, inflated by the robot radius, avoids occupied voxels."""

@@ -64,6 +64,7 @@ class Navigation(Protocol):
 
     def plan_path(self, goal_world: np.ndarray) -> np.ndarray | None: ...
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool: ...
+    def plan_local_path(self, start_world: np.ndarray, goal_world: np.ndarray) -> np.ndarray | None: ...
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None: ...
 
 
@@ -245,3 +246,14 @@ class Robot:
         T_odom_world = invert(self.slam.T_world_odom())
         a, b = transform_points(T_odom_world, np.stack([a_world, b_world]))
         return self.mapping.segment_free(a, b, local=True)
+
+    #: room around a local path's two ends that it may use, m (a detour round a table or a shelf)
+    LOCAL_MARGIN = 1.5
+
+    def plan_local_path(self, start_world: np.ndarray, goal_world: np.ndarray) -> np.ndarray | None:
+        """Waypoints (world frame) from ``start_world`` to ``goal_world`` on the fine local map,
+        planned in the odometry frame it was built in, or None (see ``Mapping.plan_local_path``)."""
+        T_world_odom = self.slam.T_world_odom()
+        ends = transform_points(invert(T_world_odom), np.stack([start_world, goal_world]))
+        path = self.mapping.plan_local_path(ends[0], ends[1], margin=self.LOCAL_MARGIN)
+        return None if path is None else transform_points(T_world_odom, np.asarray(path, float))

@@ -410,6 +410,9 @@ class GoTo(RobotBehaviour):
         near = here + to_target * min(1.0, self.SKIP_NEAR / length)
         if length > self.SKIP_NEAR and not self.navigation.segment_clear_local(near, ahead):
             self.replanned += 1
+            if self._detour(here):
+                self.feedback_message = f"blocked near {np.round(ahead, 2).tolist()}: detour on the local map"
+                return Status.RUNNING
             self._plan()
             self.feedback_message = f"blocked near {np.round(ahead, 2).tolist()}: new path"
             return Status.RUNNING if self.path is not None else self._fail("blocked, no other path")
@@ -424,6 +427,39 @@ class GoTo(RobotBehaviour):
             self.sent = (self.index, self.flight.send_setpoint_world(target, heading))
             self.feedback_message = f"waypoint {self.index}/{len(self.path) - 1}"
         return Status.RUNNING
+
+    #: how far along the path a detour rejoins it, m: past what blocks the way, inside the local map
+    DETOUR_REJOIN = 2.5
+
+    def _detour(self, here: np.ndarray) -> bool:
+        """Replace the path's next stretch by a way round what blocks it, planned on the fine local
+        map from here to the point ``DETOUR_REJOIN`` metres on along the path (paper 1 plans
+        trajectories on the local map; the global map, 0.25 m voxels carrying old pose errors,
+        misses table legs, chair backs and shelf edges that the local map shows). False when the
+        local map has no such way: the caller plans a new global path."""
+        ahead = np.vstack([here[None], self.path[self.index :]])
+        legs = np.linalg.norm(np.diff(ahead, axis=0), axis=1)
+        along = np.concatenate([[0.0], np.cumsum(legs)])
+        if along[-1] <= self.SKIP_NEAR:
+            return False
+        k = int(np.searchsorted(along, min(self.DETOUR_REJOIN, along[-1]), side="left"))
+        k = max(k, 1)
+        t = (min(self.DETOUR_REJOIN, along[-1]) - along[k - 1]) / max(legs[k - 1], 1e-9)
+        rejoin = ahead[k - 1] + np.clip(t, 0.0, 1.0) * (ahead[k] - ahead[k - 1])
+        local = self.navigation.plan_local_path(here, rejoin)
+        if local is None or len(local) < 2:
+            return False
+        rest = ahead[k + 1 :] if np.linalg.norm(rejoin - ahead[k]) < 1e-6 else ahead[k:]
+        self.path = np.vstack([local, rest])
+        self.index = self.first_index = 1
+        self.events.emit(
+            "detour",
+            at=np.round(here, 2).tolist(),
+            rejoin=np.round(rejoin, 2).tolist(),
+            waypoints=len(local),
+            behaviour=self.name,
+        )
+        return True
 
     def terminate(self, new_status: Status) -> None:
         if new_status == Status.INVALID and getattr(self, "flight", None) is not None:

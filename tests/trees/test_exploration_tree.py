@@ -255,6 +255,9 @@ class StuckRobot(FakeRobot):
     def segment_clear_local(self, a, b):
         return True
 
+    def plan_local_path(self, a, b):
+        return None
+
     def send_setpoint_world(self, position, yaw):
         pass
 
@@ -330,6 +333,52 @@ def test_goto_gives_up_when_the_way_is_blocked_three_times():
     assert statuses == [Status.RUNNING, Status.RUNNING, Status.FAILURE]
     assert go.feedback_message == "the local map showed the way blocked 3 times"
     assert len(robot.unreachable_marked) == 1 and robot.holds == 1
+
+
+class TableRobot(StuckRobot):
+    """A table the global map missed stands across the straight path at x 2 m; the local map
+    shows it (segments within 0.4 m of it are blocked) and has a way round it at y 1 m."""
+
+    TABLE = np.array([2.0, 0.0, 1.0])
+
+    def __init__(self):
+        super().__init__()
+        self.here = np.array([0.0, 0.0, 1.0])
+        self.yaw = 0.0
+        self.local_plans = []
+
+    def position_world(self):
+        return self.here.copy()
+
+    def yaw_world(self):
+        return self.yaw
+
+    def send_setpoint_world(self, position, yaw):
+        step = np.asarray(position) - self.here
+        self.here = self.here + step * min(1.0, 0.2 / max(np.linalg.norm(step), 1e-9))
+        self.yaw = yaw
+
+    def segment_clear_local(self, a, b):
+        t = np.linspace(0.0, 1.0, 50)[:, None]
+        return bool(np.all(np.linalg.norm(a + t * (b - a) - self.TABLE, axis=1) > 0.4))
+
+    def plan_local_path(self, a, b):
+        self.local_plans.append((a.copy(), b.copy()))
+        return np.array([a, [1.0, 1.0, 1.0], [3.0, 1.0, 1.0], b])
+
+    def emit(self, name, **fields):
+        self.events.append((name, fields))
+
+
+def test_goto_flies_round_what_blocks_its_path_on_the_local_map():
+    robot = TableRobot()
+    go = goal_to(robot)
+    statuses = fly(robot, go, 400)
+    assert statuses[-1] == Status.SUCCESS and not robot.unreachable_marked
+    assert robot.paths == 1  # no new global path: the detour rejoined the first one
+    (start, rejoin), *_ = robot.local_plans
+    assert np.isclose(np.linalg.norm(rejoin - start), go.decorated.DETOUR_REJOIN)  # 2.5 m on along it
+    assert [name for name, _ in robot.events].count("detour") == 1
 
 
 class CeilingRobot(StuckRobot):
