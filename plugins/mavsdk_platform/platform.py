@@ -694,6 +694,15 @@ class MavsdkPlatform(Platform):
         position_odom = np.asarray(position_odom, float)
         if self._handed_over() or self._landing:
             return
+        if not (np.all(np.isfinite(position_odom)) and math.isfinite(yaw)):
+            # A NaN reaching the autopilot is undefined behaviour in offboard mode (PX4 reads a
+            # NaN position as "not controlled"): refused here whatever the geofence, and landed.
+            self._raise(
+                "bad_setpoint",
+                f"setpoint {_fmt(position_odom)}, yaw {yaw!r} is not finite: not sent",
+                "land",
+            )
+            return
         if p.geofence is not None and not p.geofence.contains(position_odom):
             self._raise(
                 "geofence",

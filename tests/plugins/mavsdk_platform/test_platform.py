@@ -130,3 +130,30 @@ def test_realsense_without_its_sdk_says_what_to_install(tmp_path, monkeypatch):
     source = make_camera_source(CameraSourceParams(source="realsense"), tmp_path)
     with pytest.raises(PlatformError, match=re.escape("pip install 'amslam[realsense]'")):
         source.open()
+
+
+@pytest.mark.parametrize(
+    ("position", "yaw"),
+    [([1.0, float("nan"), 1.2], 0.0), ([1.0, 0.0, 1.2], float("nan"))],
+    ids=["nan_position", "nan_yaw"],
+)
+def test_a_setpoint_that_is_not_finite_is_refused_and_lands(make_peer, tmp_path, position, yaw):
+    """No geofence configured: the NaN is still refused at the platform, which raises a landing
+    failsafe (the mission tree's failsafe guard answers it, as here)."""
+    peer, url = make_peer()
+    platform, log = _platform(url, tmp_path)
+    platform.start()
+    try:
+        platform.arm_and_takeoff(1.0)
+        _until(platform, lambda: platform.status().airborne and platform.odometry().T_odom_body[2, 3] > 0.95)
+        platform.set_setpoint(np.array(position), yaw)
+        failsafe = platform.failsafe()
+        assert failsafe is not None and failsafe.kind == "bad_setpoint" and failsafe.action == "land"
+        assert "is not finite: not sent" in failsafe.reason
+        platform.land()
+        _until(platform, lambda: not platform.status().armed)
+        assert all(np.all(np.isfinite(p.position)) for p in peer.trace)
+    finally:
+        platform.close()
+    assert peer.trace[-1].landed and not peer.trace[-1].armed
+    assert [name for name, _ in log].count("failsafe") == 1
