@@ -294,9 +294,11 @@ class GoTo(RobotBehaviour):
         self.bb.register_key("/tour_time", access=Access.READ)
         self.path: np.ndarray | None = None
         self.index = 0
+        self.arrived = False
 
     def initialise(self) -> None:
         self.goal: TourItem = self.bb.get(self.goal_key)
+        self.arrived = False
         self.replanned = 0
         self._plan()
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
@@ -396,6 +398,7 @@ class GoTo(RobotBehaviour):
         if err < self.yaw_tolerance:
             if self.goal.kind == TourItemKind.EXPLORE:
                 self.planning.mark_visited(self.goal.position)
+            self.arrived = True
             return self._done("arrived")
         self.feedback_message = "turning to the viewpoint heading"
         return Status.RUNNING

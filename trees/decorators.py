@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol
 
+import numpy as np
 import py_trees
 from py_trees.common import Access, Status
 from py_trees.decorators import Decorator
@@ -46,6 +47,9 @@ class PathProgress(NamedTuple):
 
 class FollowsPath(Protocol):
     """What :class:`GiveUpGoal` needs of its child (the ``GoTo`` leaf)."""
+
+    #: whether its last run ended at its goal (False: early, e.g. on a stale tour, or not yet)
+    arrived: bool
 
     def progress(self, here) -> PathProgress: ...
 
@@ -83,12 +87,23 @@ class GiveUpGoal(Decorator):
         self.min_gain = min_gain
         #: the best progress so far and since when: ((replanned, passed), distance, time)
         self.best: tuple[tuple[int, int], float, float] | None = None
+        #: where the robot was when the child last made progress, and when; kept across runs
+        #: while the child keeps ending early (see :meth:`terminate`)
+        self.last_progress: tuple[np.ndarray, float] | None = None
 
     def setup(self, **kwargs) -> None:
         require_services(self, self.uses, kwargs)
 
     def initialise(self) -> None:
         self.best = None
+
+    def terminate(self, new_status: Status) -> None:
+        # A run that ended early (the tour went stale, every replan_period) is followed by a new
+        # run towards the same or another goal from the same spot: a robot the guards hold in
+        # place would start a fresh 20 s clock every 6 s and never give up (demo seed 1 hovered
+        # 180 s in the shaft that way). The clock goes on across such runs until the robot moves.
+        if new_status != Status.SUCCESS or self.decorated.arrived:
+            self.last_progress = None
 
     def tick(self):
         if self.status == Status.RUNNING and self.best is not None and self._stalled():
@@ -104,6 +119,7 @@ class GiveUpGoal(Decorator):
         stage, distance, since = self.best
         if progress.stage > stage or progress.to_waypoint < distance - self.min_gain:
             self.best = (progress.stage, progress.to_waypoint, now)
+            self.last_progress = (self.flight.position_world().copy(), now)
             return False
         return now - since > self.no_progress
 
@@ -115,8 +131,18 @@ class GiveUpGoal(Decorator):
         if self.best is None:
             # The child's first tick. The robot does not move within a tick, so this is the
             # distance it started at: exact while the stage is still (0, 0), and a stage already
-            # past it counts as progress at the next check anyway.
-            self.best = ((0, 0), progress.to_waypoint, self.flight.time())
+            # past it counts as progress at the next check anyway. The clock starts now, or goes
+            # on from the last progress of earlier runs that ended early if the robot has not
+            # moved since (see terminate).
+            here, now = self.flight.position_world(), self.flight.time()
+            since = now
+            if self.last_progress is not None:
+                where, when = self.last_progress
+                if float(np.linalg.norm(here - where)) < self.min_gain:
+                    since = when
+            if self.last_progress is None or since == now:
+                self.last_progress = (here.copy(), now)
+            self.best = ((0, 0), progress.to_waypoint, since)
         if progress.replanned >= self.max_blocked:
             self._give_up(f"the local map showed the way blocked {progress.replanned} times")
             return Status.FAILURE

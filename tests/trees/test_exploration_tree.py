@@ -318,6 +318,36 @@ def test_goto_progress_resets_the_no_progress_clock():
     assert 24.9 < robot.t < 25.5  # the last 0.1 m gained just before 5 s, then 20 s
 
 
+class HeldInPlaceRobot(StuckRobot):
+    """Stuck under a goal whose frontier stays (an exploration goal, the tour going stale)."""
+
+    plans_frontiers = True
+
+    def wants_view_near(self, position, within):
+        return True
+
+
+def test_goto_gives_up_a_goal_it_is_held_from_although_the_tour_keeps_going_stale():
+    """The tour goes stale every 6 s and the same goal starts again from the same spot: the
+    no-progress clock goes on across those runs (a fresh clock each time never gave up)."""
+    robot = HeldInPlaceRobot()
+    py_trees.blackboard.Blackboard.set(
+        "/goal", TourItem(TourItemKind.EXPLORE, np.array([5.0, 0.0, 1.0]), 0.0, 1.0, 3)
+    )
+    go = go_to(STOCK, "GoToViewpoint", early_exit=True, replan_period=6.0)
+    for node in go.iterate():
+        node.setup(**robot.services())
+    runs, status = 0, Status.SUCCESS
+    while status == Status.SUCCESS and robot.t < 60.0:
+        py_trees.blackboard.Blackboard.set("/tour_time", robot.t)  # a new plan, the same goal
+        runs += 1
+        statuses = fly(robot, go, 100)
+        status = statuses[-1]
+    assert status == Status.FAILURE and go.feedback_message == "no progress for 20 s"
+    assert 3 <= runs <= 5 and 20.0 < robot.t < 21.0
+    assert len(robot.unreachable_marked) == 1
+
+
 class BlockedRobot(StuckRobot):
     """The local map shows every way blocked."""
 
