@@ -225,13 +225,25 @@ class Runner:
         except BackendError as exc:  # a backend raised or handed over garbage: the verdict names it
             verdict = f"failed: {exc}"
             self.rundir.event(self._now(), "error", error=str(exc), traceback=traceback.format_exc())
+            self._land_after_error()
         except AmslamError as exc:
             verdict = f"failed: {exc}"
             self.rundir.event(self._now(), "error", error=str(exc))
+            self._land_after_error()
         except Exception as exc:
             verdict = f"failed: {type(exc).__name__}: {exc}"
             self.rundir.event(self._now(), "error", error=verdict, traceback=traceback.format_exc())
+            self._land_after_error()
         return self._finish(verdict)
+
+    def _land_after_error(self) -> None:
+        """The run failed in flight: land where the vehicle is. A real vehicle left in offboard
+        mode by software that stopped sending setpoints only falls back to what its autopilot was
+        told to do on offboard loss; the landing is commanded, not left to chance."""
+        if self.runtime is None:  # failed while setting up: nothing has taken off
+            return
+        self.rundir.event(self._now(), "landing", reason="the run failed: landing where it is")
+        self._safe_land()
 
     def _loop(self) -> str:
         """Tick until the tree ends, the vehicle crashes or the run overruns its time budget."""
@@ -256,7 +268,7 @@ class Runner:
                     return f"crashed: {status.crash_reason}"
                 runtime.tree.tick()
                 if runtime.planning.fault is not None:  # the planner handed back what it was not asked for
-                    self._safe_land()
+                    self._land_after_error()
                     return f"failed: {runtime.planning.fault}"
                 runtime.recorder.record(snapshot.t)
                 self._hook(

@@ -310,6 +310,12 @@ CASES = [
 def test_a_broken_backend_fails_the_run_naming_it(tmp_path, kind, plugin, what):
     result = fly(tmp_path, kind, plugin)
     assert result.verdict == f"failed: {kind} {plugin!r} {IN_PROCESS}: {what}"
+    events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
+    names = [e["event"] for e in events]
+    if "run_start" in names:  # it flew: the landing is commanded (and a broken platform's refusal logged)
+        assert "landing" in names and names.index("landing") > names.index("run_start")
+    else:
+        assert "landing" not in names
 
 
 def test_a_planner_touring_a_viewpoint_it_was_not_offered_fails_the_run(tmp_path):
