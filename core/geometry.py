@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 
 def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
@@ -49,6 +48,8 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def tum_line(stamp: float, T: np.ndarray) -> str:
     """One line of a TUM trajectory file: ``t tx ty tz qx qy qz qw``."""
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs 0.2 s: imported when a run writes
+
     q = Rotation.from_matrix(T[:3, :3]).as_quat()  # x, y, z, w
     x, y, z = T[:3, 3]
     return f"{stamp:.6f} {x:.6f} {y:.6f} {z:.6f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n"

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from amslam.geometry import invert, transform_points
 from amslam.rundir import Stream, jsonable
@@ -42,12 +41,16 @@ FILENAME = "measurements.jsonl"
 
 def pose_to_list(T: np.ndarray) -> list[float]:
     """A 4×4 pose as ``[x, y, z, qx, qy, qz, qw]`` (compact, exact to 1e-6)."""
+    from scipy.spatial.transform import Rotation
+
     q = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
     return [round(float(v), 6) for v in (*np.asarray(T)[:3, 3], *q)]
 
 
 def pose_from_list(values: list[float]) -> np.ndarray:
     """Inverse of :func:`pose_to_list`."""
+    from scipy.spatial.transform import Rotation
+
     T = np.eye(4)
     T[:3, 3] = values[:3]
     T[:3, :3] = Rotation.from_quat(values[3:7]).as_matrix()
@@ -103,6 +106,8 @@ class MeasurementLog:
         Returns the key pose's id; a pose within 1 mm and 1 mrad of the previous key pose is not
         logged again, its id is returned instead.
         """
+        from scipy.spatial.transform import Rotation
+
         T = np.asarray(odom.T_odom_body, float)
         if self._last is not None:
             rel = invert(self._last) @ T

@@ -24,12 +24,13 @@ from amslam.cli import Experiment
 from amslam.mission import load_mission
 from amslam.registry import Registry
 from amslam.rundir import new_folder
-from amslam.runner import Runner
 
 
 def _fly(
     spec: str, registry: Registry, overrides: list[str], runs: Path, log: Callable[[str], None]
 ) -> dict[str, Any]:
+    from amslam.runner import Runner  # the runner (py_trees, threads) is imported when a flight starts
+
     mission = load_mission(spec, registry, overrides)
     started = time.perf_counter()
     result = Runner(mission, registry, runs).run()

@@ -44,7 +44,6 @@ from amslam.errors import AmslamError
 from amslam.mission import Mission, load_mission
 from amslam.registry import Registry
 from amslam.rundir import new_folder
-from amslam.runner import Runner, started_platform
 from amslam.types import WorldSummary
 
 Mode = Literal["homogeneous", "heterogeneous"]
@@ -187,6 +186,8 @@ def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
 
 def _world_of(run_dir: Path, registry: Registry) -> WorldSummary:
     """The world summary of a run, rebuilt from its mission (same seed, same pin)."""
+    from amslam.runner import started_platform
+
     mission = load_mission(str(Path(run_dir) / "mission.yaml"), registry, [])
     platform = started_platform(mission, registry, Path(run_dir).parent)
     try:
@@ -203,6 +204,8 @@ def _fly(
     log: Callable[[str], None],
     reuse: dict[str, dict] | None = None,
 ) -> dict:
+    from amslam.runner import Runner
+
     mission = load_mission(spec, registry, flags)
     key = flight_key(mission)
     if reuse is not None and key in reuse:

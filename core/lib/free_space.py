@@ -10,8 +10,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy import ndimage, sparse
-from scipy.sparse import csgraph
 
 from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, centres, to_index
 
@@ -31,8 +29,9 @@ def clearance_kernel(radius: float, voxel: float) -> np.ndarray:
     return np.sqrt((gap**2).sum(-1)) < radius
 
 
-#: 6-connected structuring element
-_CROSS = ndimage.generate_binary_structure(3, 1)
+#: 6-connected structuring element (``ndimage.generate_binary_structure(3, 1)``, spelled out so that
+#: importing this module does not import scipy.ndimage)
+_CROSS = np.abs(np.indices((3, 3, 3)) - 1).sum(axis=0) <= 1
 
 
 def _shift(mask: np.ndarray, axis: int, step: int) -> np.ndarray:
@@ -70,6 +69,8 @@ SLAB_MIN_AREA = 4.0
 def slabs(states: np.ndarray, voxel: float) -> np.ndarray:
     """The :func:`horizontal_surfaces` voxels of slabs, floors and ceilings: components of at least
     ``SLAB_MIN_AREA`` within their z layer (furniture tops excluded)."""
+    from scipy import ndimage
+
     surf = horizontal_surfaces(states)
     if not surf.any():
         return surf
@@ -100,6 +101,8 @@ def narrow_slab_gaps(
     per layer) are taken for such holes. A real
     opening between floors — a shaft, a stairwell, an atrium — is wider and keeps its free space.
     """
+    from scipy import ndimage
+
     slab = slabs(states, voxel)
     if opening <= 0 or not slab.any():
         return np.zeros(states.shape, dtype=bool)
@@ -125,6 +128,8 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     radius of it. Unknown voxels connected to a horizontal surface through unknown voxels within
     ``reach`` metres (6-connected steps) are treated as occupied for clearance instead.
     """
+    from scipy import ndimage
+
     if reach <= 0:
         return np.zeros(states.shape, dtype=bool)
     slab = horizontal_surfaces(states)
@@ -166,6 +171,8 @@ def traversable(
 
 def inflate(occ: np.ndarray, radius: float, voxel: float) -> np.ndarray:
     """Voxels of ``occ`` and those whose centre lies within ``radius`` of an ``occ`` voxel's box."""
+    from scipy import ndimage
+
     if radius > 0 and occ.any():
         return ndimage.binary_dilation(occ, structure=clearance_kernel(radius, voxel))
     return occ.copy()
@@ -198,6 +205,8 @@ def vertical_ok(
 
     Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles).
     """
+    from scipy import ndimage
+
     ok = np.ones(states.shape, dtype=bool)
     slab = horizontal_surfaces(states)
     if not slab.any():
@@ -288,6 +297,8 @@ class FreeSpaceGraph:
         vertical_ok: np.ndarray | None = None,
         near_obstacle: np.ndarray | None = None,
     ):
+        from scipy import sparse
+
         self.lo = np.asarray(lo, dtype=np.int64)
         self.vertical_ok = vertical_ok
         self.near_obstacle = near_obstacle
@@ -380,6 +391,8 @@ class FreeSpaceGraph:
 
     def costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """S×T shortest path lengths (m), point to point, inf where unreachable."""
+        from scipy.sparse import csgraph
+
         sources = np.asarray(sources, dtype=float).reshape(-1, 3)
         targets = np.asarray(targets, dtype=float).reshape(-1, 3)
         out = np.full((len(sources), len(targets)), np.inf)
@@ -401,6 +414,8 @@ class FreeSpaceGraph:
 
     def shortest_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Voxel-centre waypoints from start to goal (both included), or None."""
+        from scipy.sparse import csgraph
+
         s, g = self.snap(start), self.snap(goal)
         if s < 0 or g < 0:
             return None

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
-from scipy import ndimage
 
 from amslam.lib.free_space import clearance_kernel
 from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, centres, decode, encode, index_box
@@ -382,6 +381,8 @@ class FrontierTracker:
     # ------------------------------------------------------------------ clusters
     @staticmethod
     def _components(keys: np.ndarray) -> list[np.ndarray]:
+        from scipy import ndimage
+
         if len(keys) == 0:
             return []
         idx = decode(keys)

@@ -48,8 +48,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial import ConvexHull, QhullError
 
 from amslam.geometry import wrap_angle, yaw_matrix
 
@@ -307,6 +305,8 @@ def fit_cuboid(
     Returns:
         A cuboid shape dict (module docstring) or ``None``.
     """
+    from scipy.spatial import ConvexHull, QhullError
+
     p = np.asarray(points, float).reshape(-1, 3)
     if len(p) < min_points:
         return None
@@ -513,6 +513,8 @@ def _circle_fit(xy: np.ndarray) -> tuple[np.ndarray, float]:
     refinement (scipy ``least_squares``) removes the bias and the soft-L1 loss down-weights
     stray points (a sign, a branch).
     """
+    from scipy.optimize import least_squares
+
     A = np.column_stack([2 * xy, np.ones(len(xy))])
     b = (xy**2).sum(axis=1)
     sol, *_ = np.linalg.lstsq(A, b, rcond=None)

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse.csgraph import shortest_path
 
 from amslam.errors import PlanningError
 from amslam.types import PlanRequest, TourItem, TourItemKind, Viewpoint
@@ -73,6 +72,8 @@ def metric_closure(costs: np.ndarray) -> np.ndarray:
     Path costs from a mapping backend are symmetric up to search artefacts; the larger of the two
     directions is kept so that a tour never relies on an optimistic one-way estimate.
     """
+    from scipy.sparse.csgraph import shortest_path
+
     c = np.asarray(costs, dtype=float).copy()
     c = np.maximum(c, c.T)
     off_diagonal = ~np.eye(len(c), dtype=bool)

@@ -8,34 +8,17 @@ without changing the estimate (:mod:`.information`: low-rank updates of one fact
 
 from __future__ import annotations
 
-from typing import Literal
-
 import gtsam
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.geometry import wrap_angle, yaw_of
 from amslam.plugins.gtsam_slam.frontend import FrontEnd
 from amslam.plugins.gtsam_slam.graph import LandmarkRec
 from amslam.plugins.gtsam_slam.information import virtual_factor
+from amslam.plugins.gtsam_slam.params import ActiveParams
 from amslam.types import SlcCandidate
 
 __all__ = ["ActiveParams", "ActiveSlam"]
-
-
-class ActiveParams(BaseModel):
-    """Active loop-closure candidates and eq. (10) (``slam.active``)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    dbscan_eps: float = Field(2.5, gt=0, le=1000, description="DBSCAN neighbourhood of landmark clusters, m")
-    cluster_min_landmarks: int = Field(3, ge=1, le=10_000, description="fewest landmarks of an SLC cluster")
-    floor_height: float = Field(
-        3.0, gt=0, le=100, description="height of a floor for per-floor clustering, m"
-    )
-    ig_variables: Literal["poses", "all"] = Field(
-        "all", description="variables whose covariance trace eq. (10) measures"
-    )
 
 
 class ActiveSlam:

@@ -17,21 +17,25 @@ The base station's merge (:mod:`.merge`) runs the same front end and graph for s
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L
 from pydantic import Field, ValidationError, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from amslam.interfaces import BackendParams, RunContext, Slam
-from amslam.plugins.gtsam_slam.active import ActiveParams, ActiveSlam
-from amslam.plugins.gtsam_slam.frontend import AssociationParams, FrontEnd, KeyPoseParams
-from amslam.plugins.gtsam_slam.graph import GraphParams, SlamGraph
-from amslam.plugins.gtsam_slam.loop_closure import LoopCloser, LoopClosureParams
-from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+from amslam.plugins.gtsam_slam.params import (
+    ActiveParams,
+    AssociationParams,
+    GraphParams,
+    KeyPoseParams,
+    LoopClosureParams,
+    ShapeParams,
+)
 from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
+
+if TYPE_CHECKING:
+    import gtsam
 
 __all__ = ["MOVED_PARAMETERS", "GtsamSlam"]
 
@@ -126,6 +130,14 @@ class GtsamSlam(Slam):
         self._build(self.params, np.random.default_rng(0), lambda *a, **k: None)
 
     def _build(self, params: Params, rng: np.random.Generator, emit: Any) -> None:
+        # The parts import gtsam (0.1 s) and scipy: imported when a backend is built, so that
+        # listing plugins and validating a mission read GtsamSlam.Params without them.
+        from amslam.plugins.gtsam_slam.active import ActiveSlam
+        from amslam.plugins.gtsam_slam.frontend import FrontEnd
+        from amslam.plugins.gtsam_slam.graph import SlamGraph
+        from amslam.plugins.gtsam_slam.loop_closure import LoopCloser
+        from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks
+
         shape_landmarks = ShapeLandmarks(params.landmark_models, params.shapes, rng)
         self._graph = SlamGraph(params.graph, shape_landmarks)
         self._front = FrontEnd(self._graph, params.association, params.keyposes, emit=emit)
@@ -196,6 +208,8 @@ class GtsamSlam(Slam):
 
     def landmarks(self) -> list[Landmark]:
         """Landmarks in the graph with class, position, marginal covariance and observation count."""
+        from gtsam.symbol_shorthand import L
+
         g = self._graph
         cov = self._marginals()
         out = []
@@ -216,6 +230,8 @@ class GtsamSlam(Slam):
 
     def uncertainty(self) -> tuple[float, float]:
         """(mean trace of the 6×6 pose marginals, mean trace of the landmark marginals)."""
+        from gtsam.symbol_shorthand import L
+
         cov = self._marginals()
         if not cov:
             return (0.0, 0.0)
@@ -237,6 +253,8 @@ class GtsamSlam(Slam):
 
     def graph(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """The whole factor graph and the current estimate (copies)."""
+        import gtsam
+
         g = self._graph
         g.flush()
         return gtsam.NonlinearFactorGraph(g.history), gtsam.Values(g.estimate)

@@ -20,75 +20,17 @@ all on one graph (:mod:`.merge`), so every robot's data is associated the same w
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
-from scipy.optimize import linear_sum_assignment
 
 from amslam.geometry import invert, wrap_angle, yaw_of
 from amslam.lib import shapes
 from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation, PoseKeys, SlamGraph
+from amslam.plugins.gtsam_slam.params import AssociationParams, KeyPoseParams
 from amslam.types import Detection, Odometry
 
 __all__ = ["AssociationParams", "FrontEnd", "KeyPoseParams", "KeyPoseRec"]
-
-
-class KeyPoseParams(BaseModel):
-    """When key poses are made (``slam.keyposes``); yaw thresholds are at most π, the largest turn."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    distance: float = Field(0.5, gt=0, le=100, description="a key pose every this many metres")
-    yaw: float = Field(0.35, gt=0, le=math.pi, description="or every this much yaw change, rad")
-    detection_distance: float = Field(
-        0.1, ge=0, le=100, description="detections farther than this from the last key pose get their own, m"
-    )
-    detection_yaw: float = Field(
-        0.1,
-        ge=0,
-        le=math.pi,
-        description="detections turned more than this from the last key pose get their own, rad",
-    )
-
-
-class AssociationParams(BaseModel):
-    """Data association and the tentative buffer (``slam.association``; the merge's ``association``)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    gate: float = Field(0.6, gt=0, le=100, description="largest association distance, m")
-    chi2: float = Field(
-        11.34,
-        gt=0,
-        le=1000,
-        description="Mahalanobis gate (χ², 3 dof; 11.34 = 99 %) on detection − landmark (at most 1000,"
-        " a 31-σ gate: no gate at all)",
-    )
-    ambiguity: float = Field(
-        4.6,
-        ge=0,
-        le=1000,
-        description="a detection whose second-best landmark is within this many χ² units of the best"
-        " is ambiguous and starts a new landmark (4.6 ≈ likelihood ratio 10)",
-    )
-    object_sigma: float = Field(
-        0.15,
-        ge=0,
-        le=100,
-        description="spread of an object's detected centroid across viewpoints (the visible part"
-        " moves with the view), per axis, m",
-    )
-    track_distance: float = Field(
-        3.0, ge=0, le=100_000, description="landmarks seen within this much travel are matched first, m"
-    )
-    min_observations: int = Field(3, ge=1, le=1000, description="observations before a landmark is trusted")
-    tentative_timeout: int = Field(
-        40, ge=1, le=1_000_000, description="key poses a tentative landmark may go unseen"
-    )
-    min_confidence: float = Field(0.3, ge=0, le=1, description="ignore weaker detections")
-    max_range: float = Field(8.0, gt=0, le=1000, description="ignore detections farther than this, m")
 
 
 class KeyPoseRec:
@@ -323,6 +265,8 @@ class FrontEnd:
 
         Returns, per detection, a landmark id or ``-1`` for a new landmark.
         """
+        from scipy.optimize import linear_sum_assignment
+
         p = self.p
         out = [-1] * len(classes)
         live = self.graph.live_landmarks()

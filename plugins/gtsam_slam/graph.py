@@ -22,74 +22,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Literal
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
-from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.lib import shapes
 from amslam.plugins.gtsam_slam.information import LinearizedGraph
+from amslam.plugins.gtsam_slam.params import GraphParams
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks
 
 __all__ = ["GraphParams", "LandmarkRec", "NoiseModels", "Observation", "PoseKeys", "SlamGraph"]
-
-
-class GraphParams(BaseModel):
-    """Noise models and solver of the factor graph (``slam.graph``; the merge's ``graph``).
-
-    Every std has an upper bound a run can square and invert (10 m/√m of VIO drift, 1 km of prior);
-    angle stds (rad) are at most π: a wider one says nothing about a direction."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    # VIO drifts as a random walk in the distance travelled (variance ∝ distance), so the std of
-    # a relative pose grows with the square root of its length; these match the simulator's VIO.
-    odometry_sigma_translation: float = Field(
-        0.05, gt=0, le=10, description="VIO horizontal random walk per axis, m/√m travelled"
-    )
-    # A VIO aided by gravity and a barometer drifts far less in height (PX4's EKF2 fuses the
-    # barometer; the simulator's VIO 0.012 m/√m). At the horizontal 0.05 the landmarks' heights,
-    # biased by the side of an object in view, pulled the chain: in the imported PAL home the
-    # estimate sank 1.0 m below the truth while VIO stayed within 0.05 m, and the flight's ceiling
-    # sank with it.
-    odometry_sigma_vertical: float = Field(
-        0.012, gt=0, le=10, description="VIO vertical random walk, m/√m travelled"
-    )
-    odometry_sigma_translation_min: float = Field(
-        0.005, gt=0, le=10, description="VIO translation std floor, m"
-    )
-    odometry_sigma_yaw: float = Field(
-        0.004, ge=0, le=math.pi, description="VIO yaw random walk, rad/√m travelled"
-    )
-    odometry_sigma_yaw_per_rad: float = Field(0.01, ge=0, le=10, description="VIO yaw std per radian turned")
-    odometry_sigma_yaw_min: float = Field(0.002, gt=0, le=math.pi, description="VIO yaw std floor, rad")
-    odometry_sigma_roll_pitch: float = Field(0.002, gt=0, le=math.pi, description="roll/pitch std (IMU), rad")
-    attitude_sigma: float = Field(
-        0.0,
-        ge=0,
-        le=math.pi,
-        description="std of each key pose's tilt against gravity (IMU), rad; 0: no attitude factors",
-    )
-    prior_sigma_translation: float = Field(
-        0.01, gt=0, le=1000, description="prior on a robot's first pose, m"
-    )
-    prior_sigma_rotation: float = Field(
-        0.005, gt=0, le=math.pi, description="prior on a robot's first pose, rad"
-    )
-    bearing_sigma: float = Field(0.05, gt=0, le=math.pi, description="bearing std of an object's point, rad")
-    range_sigma: float = Field(0.05, gt=0, le=100, description="range std at zero range, m")
-    range_sigma_per_m: float = Field(0.03, ge=0, le=10, description="range std growth per metre")
-    robust: Literal["huber", "cauchy", "none"] = Field("huber", description="robust kernel")
-    robust_k: float = Field(1.345, gt=0, le=100, description="robust kernel width (whitened units)")
-    fusion_sigma: float = Field(
-        0.05, gt=0, le=100, description="std of the zero-offset tie fusing two landmarks of one object, m"
-    )
-    factorization: Literal["QR", "CHOLESKY"] = Field(
-        "QR", description="iSAM2 factorisation (gtsam 4.3 Cholesky fails at loop closures)"
-    )
-    relinearize_threshold: float = Field(0.01, gt=0, le=10, description="iSAM2 relinearisation threshold")
 
 
 class NoiseModels:

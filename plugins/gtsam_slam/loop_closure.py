@@ -8,75 +8,18 @@ iSAM2 propagate the correction.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
-from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.geometry import wrap_angle, yaw_matrix, yaw_of
 from amslam.plugins.gtsam_slam import slc
 from amslam.plugins.gtsam_slam.frontend import FrontEnd
 from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation
+from amslam.plugins.gtsam_slam.params import LoopClosureParams
 from amslam.types import Detection, LoopClosureResult, Odometry
 
 __all__ = ["LoopCloser", "LoopClosureParams"]
-
-
-class LoopClosureParams(BaseModel):
-    """Semantic loop closure (``slam.loop_closure``); yaw bounds are at most π (rad, rad/m)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    solver: Literal["scalable", "exhaustive"] = Field("scalable", description="SLC registration")
-    tolerance: float = Field(0.3, gt=0, le=100, description="accepted RMS residual per landmark, m")
-    inlier_gate: float = Field(0.5, gt=0, le=100, description="largest matched-pair error, m")
-    min_matches: int = Field(3, ge=3, le=1000, description="fewest matched landmarks")
-    ambiguity_ratio: float = Field(0.75, gt=0, le=1, description="runner-up share that rejects")
-    min_age: float = Field(
-        8.0,
-        ge=0,
-        le=100_000,
-        description="map landmarks first seen within this travel (m) are not loop targets",
-    )
-    window: float = Field(30.0, gt=0, le=3600, description="panorama: detections of the last N seconds")
-    panorama_radius: float = Field(1.0, gt=0, le=100, description="panorama: within this of the robot, m")
-    merge_radius: float = Field(0.4, gt=0, le=100, description="same-class panorama detections merge, m")
-    max_drift_ratio: float = Field(
-        0.1, gt=0, le=10, description="reject corrections beyond this share of the distance travelled"
-    )
-    max_drift_floor: float = Field(1.0, ge=0, le=1000, description="plus this many metres")
-    fuse_ratio: float = Field(
-        0.5,
-        gt=0,
-        le=10,
-        description="fuse a duplicate with its old twin only if their post-alignment error is below"
-        " this share of tolerance (a looser pair still gets its range-bearing factors)",
-    )
-    prior: bool = Field(
-        True,
-        description="only corrections within the drift bound of the current estimate are candidates"
-        " (False: the paper's search over all transforms)",
-    )
-    prior_translation_floor: float = Field(
-        0.4, ge=0, le=1000, description="drift bound: position correction at zero untied travel, m"
-    )
-    prior_translation_ratio: float = Field(
-        0.03,
-        ge=0,
-        le=10,
-        description="drift bound: plus this share of the travel since the map here was seen",
-    )
-    prior_yaw_floor: float = Field(
-        0.15, ge=0, le=math.pi, description="drift bound: yaw correction at zero untied travel, rad"
-    )
-    prior_yaw_ratio: float = Field(
-        0.005,
-        ge=0,
-        le=math.pi,
-        description="drift bound: plus this much yaw per metre of untied travel, rad/m",
-    )
 
 
 class LoopCloser:

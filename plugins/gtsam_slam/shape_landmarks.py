@@ -20,101 +20,19 @@ front end of the shape classes:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Annotated
 
 import gtsam
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from amslam.geometry import yaw_matrix
 from amslam.lib import shapes
 from amslam.lib.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
+from amslam.plugins.gtsam_slam.params import ShapeParams, SizePrior
 
 __all__ = ["ShapeLandmarks", "ShapeParams", "SizePrior"]
 
 MODELS = ("centroid", "cuboid", "cylinder", "plane")
-
-
-#: a size or its spread, m: above zero and at most 100 m (no object is larger)
-_Size = Annotated[float, Field(gt=0, le=100)]
-
-
-class SizePrior(BaseModel):
-    """A class's typical box (for completing partial views) and its spread."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    dims: tuple[_Size, _Size, _Size] = Field(description="typical length, width, height (length ≥ width), m")
-    std: tuple[_Size, _Size, _Size] = Field(
-        (0.4, 0.15, 0.3), description="spread of the class's length, width, height, m"
-    )
-
-
-class ShapeParams(BaseModel):
-    """Parameters of the shape landmarks (``shapes:`` under the gtsam SLAM section)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    window: float = Field(
-        12.0, gt=0, le=3600, description="seconds of a landmark's points in one measurement"
-    )
-    min_points: int = Field(80, ge=10, le=1_000_000, description="fewest window points for a measurement")
-    max_points: int = Field(
-        6000, ge=100, le=1_000_000, description="window points kept per landmark (random thinning)"
-    )
-    voxel: float = Field(0.04, gt=0, le=10, description="ground buffer voxel size, m")
-    ground_radius: float = Field(
-        4.0, gt=0, le=1000, description="ground points within this of an object count, m"
-    )
-    ground_window: float = Field(60.0, gt=0, le=86_400, description="seconds of ground points kept")
-    percentile: float = Field(2.5, ge=0, lt=25, description="cuboid extent percentiles (shapes.fit_cuboid)")
-    extrapolate: bool = Field(
-        False, description="extrapolate the percentiles to the edges (low-noise sensors)"
-    )
-    cylinder_axis: str = Field("vertical", description="vertical | ground | pca (shapes.fit_cylinder)")
-    association_margin: float = Field(
-        0.4, ge=0, le=100, description="overlap association: distance to a landmark's points or shape, m"
-    )
-    association_overlap: float = Field(0.4, gt=0, le=1, description="share of points inside to associate")
-    max_radius: float = Field(
-        1.0, gt=0, le=100, description="cylinder fits with a larger radius are rejected, m"
-    )
-    min_dim: float = Field(
-        0.3, gt=0, le=100, description="cuboid fits with a smaller dimension are rejected, m"
-    )
-    max_dim: float = Field(
-        8.0, gt=0, le=1000, description="cuboid fits with a larger dimension are rejected, m"
-    )
-    complete: bool = Field(
-        True,
-        description="complete partial cuboid views with the class size prior (shapes.complete_cuboid):"
-        " a box is placed behind its visible faces, and its noise covers what was not seen",
-    )
-    size_prior: dict[str, SizePrior] = Field(
-        default_factory=dict,
-        description="per cuboid class, the typical box; a class not listed uses the median of the largest"
-        " boxes of its landmarks once size_prior_min_boxes of them look complete",
-    )
-    size_prior_min_boxes: int = Field(
-        3, ge=1, le=100_000, description="landmarks before a learned size prior is used"
-    )
-    completion_tolerance: float = Field(
-        0.15, ge=0, le=100, description="shortfall of an extent that is noise, m"
-    )
-    decorrelate: bool = Field(
-        True,
-        description="measurements of a landmark fitted to overlapping windows share their points: each"
-        " one's noise is scaled by √(its landmark's measurements within the window), so a window of"
-        " points counts once against the odometry",
-    )
-    factors: bool = Field(True, description="add the eq. 1 / eq. 2 factors (False: shapes are only reported)")
-    sigma_rotation: float = Field(0.1, gt=0, le=math.pi, description="cuboid pose rotation std, rad")
-    sigma_translation: float = Field(0.3, gt=0, le=1000, description="cuboid / root translation std, m")
-    sigma_dims: float = Field(0.3, gt=0, le=1000, description="cuboid dimension std, m")
-    sigma_axis: float = Field(0.05, gt=0, le=10, description="cylinder axis std (per component)")
-    sigma_radius: float = Field(0.03, gt=0, le=100, description="cylinder radius std, m")
 
 
 @dataclass

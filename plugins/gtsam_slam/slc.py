@@ -37,8 +37,6 @@ from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from amslam.geometry import wrap_angle, yaw_matrix
 
@@ -463,6 +461,8 @@ class _Scorer:
     SEP = 1.0e4
 
     def __init__(self, A: np.ndarray, ca: np.ndarray):
+        from scipy.spatial import cKDTree
+
         self.A = A
         self.ca = ca
         self.tree = cKDTree(np.column_stack([A, ca * self.SEP]))
@@ -483,6 +483,8 @@ def _associate(
     A: np.ndarray, ca: np.ndarray, B: np.ndarray, cb: np.ndarray, psi: float, t: np.ndarray, gate: float
 ) -> np.ndarray:
     """One-to-one class-consistent association within ``gate`` (Hungarian on squared distances)."""
+    from scipy.optimize import linear_sum_assignment
+
     pb = B @ yaw_matrix(psi).T + t
     d = np.linalg.norm(A[:, None, :] - pb[None, :, :], axis=2)
     bad = (ca[:, None] != cb[None, :]) | (d > gate)

@@ -27,7 +27,6 @@ vehicle's own failsafe (PX4: offboard loss → land) brings it down.
 
 from __future__ import annotations
 
-import asyncio
 import collections
 import logging
 import math
@@ -35,7 +34,7 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -45,6 +44,11 @@ from amslam.interfaces import BackendParams, FieldError, Platform, Point, RunCon
 from amslam.plugins.mavsdk_platform.camera_sources import CameraSource, CameraSourceParams, make_camera_source
 from amslam.plugins.mavsdk_platform.frames import enu_to_ned, pose_enu_from_ned, yaw_enu_to_ned
 from amslam.types import CameraModel, Failsafe, Frame, Odometry, RobotSpec, VehicleStatus
+
+if TYPE_CHECKING:
+    # asyncio (and mavsdk) are imported in the methods that fly: listing plugins, validating a
+    # mission or drawing its tree reads only the parameter models of this module
+    import asyncio
 
 log = logging.getLogger("amslam.mavsdk")
 
@@ -225,6 +229,8 @@ class MavsdkPlatform(Platform):
         return self.preflight()
 
     def _connect(self) -> None:
+        import asyncio
+
         if self.params is None:
             raise PlatformError("the mavsdk platform must be configured before it is started")
         if self._closed:
@@ -243,6 +249,8 @@ class MavsdkPlatform(Platform):
             time.sleep(0.05)
 
     async def _open(self) -> None:
+        import asyncio
+
         from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
         from mavsdk.asyncio.plugins.action import ActionAsync
         from mavsdk.asyncio.plugins.offboard import OffboardAsync
@@ -315,6 +323,8 @@ class MavsdkPlatform(Platform):
             self._flush_events()
 
     async def _shutdown(self) -> None:
+        import asyncio
+
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
@@ -393,6 +403,8 @@ class MavsdkPlatform(Platform):
     # ------------------------------------------------------------------------------------------
 
     async def _bounded(self, awaitable, what: str):
+        import asyncio
+
         try:
             return await asyncio.wait_for(awaitable, self.params.command_timeout)
         except TimeoutError:
@@ -439,6 +451,8 @@ class MavsdkPlatform(Platform):
 
     async def _land_sequence(self) -> None:
         """Hold if moving, land (retrying while the link is down), wait for touchdown, disarm."""
+        import asyncio
+
         from mavsdk.asyncio.plugins.action import ActionError
         from mavsdk.asyncio.plugins.offboard import OffboardError
 
@@ -481,6 +495,8 @@ class MavsdkPlatform(Platform):
         await self._disarm()
 
     async def _disarm(self) -> None:
+        import asyncio
+
         from mavsdk.asyncio.plugins.action import ActionError
 
         settle = time.monotonic() + 3.0  # PX4 disarms by itself after landing (COM_DISARM_LAND)
@@ -534,6 +550,8 @@ class MavsdkPlatform(Platform):
         return p is not None and bool(np.all(np.isfinite(p))) and fresh
 
     def _submit(self, coro) -> Future:
+        import asyncio
+
         assert self._loop is not None
         return asyncio.run_coroutine_threadsafe(coro, self._loop)
 

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 #: Letterbox border value (ultralytics' ``LetterBox`` default).
@@ -188,6 +187,8 @@ def letterbox(image: np.ndarray, input_hw: tuple[int, int]) -> tuple[np.ndarray,
     scaled size and borders round as ultralytics' ``LetterBox`` does (``round(dw ∓ 0.1)``).
     Shrinking uses area interpolation (no aliasing), enlarging bilinear.
     """
+    import cv2
+
     H, W = image.shape[:2]
     ih, iw = input_hw
     r = min(ih / H, iw / W)
@@ -224,6 +225,8 @@ def decode(
         max_det: most instances kept.
         mask_threshold: a pixel belongs to the instance when the mask's sigmoid exceeds this.
     """
+    import cv2
+
     protos = output1[0]
     nm, mh, mw = protos.shape
     pred = output0[0]
@@ -275,6 +278,8 @@ def _instance_mask(
     axis, which ``cv2.warpAffine`` samples bilinearly. Pixels u with x1 ≤ u < x2 are in the box
     (ultralytics' ``crop_mask`` convention).
     """
+    import cv2
+
     H, W = lb.src_hw
     nm, mh, mw = protos.shape
     m = coeffs @ protos.reshape(nm, -1)

@@ -45,7 +45,6 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
-from scipy import ndimage
 
 from amslam.errors import PlanningError
 from amslam.interfaces import (
@@ -626,6 +625,8 @@ class PamsPlanner(_TargetPlanner):
         if p.sampling == "uniform":
             pick = np.sort(self.rng.choice(idx, size=min(p.samples, len(idx)), replace=False))
         else:
+            from scipy import ndimage  # imported when PAMS samples, not when it is listed
+
             labels, _ = ndimage.label(good.reshape(shape))
             # regions wrap around in bearing: join labels that touch across 360° → 0°
             for a, b in zip(labels[:, 0].tolist(), labels[:, -1].tolist(), strict=True):

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import NdBSpline, SmoothBivariateSpline, UnivariateSpline, splev
 
 FORMAT = "amslam-uncertainty-1"
 
@@ -114,6 +113,9 @@ class LogVarianceSpline:
         )
 
     def _eval(self, r: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        # scipy.interpolate (0.1 s) is imported when a model is evaluated, not when PAMS is listed
+        from scipy.interpolate import NdBSpline, splev
+
         if len(self.knots) == 1:
             return np.asarray(splev(r, (self.knots[0], self.coefficients, self.degrees[0])), float)
         a = np.broadcast_to(np.asarray(angle, float).reshape(-1), r.shape)
@@ -327,6 +329,8 @@ def fit_log_variance(
     Raises:
         ValueError: fewer than two cells hold ``min_count`` samples.
     """
+    from scipy.interpolate import SmoothBivariateSpline, UnivariateSpline
+
     rc, ac, var, n = cell_variances(rng, angle, errors, range_bin, angle_bin, min_count)
     while len(rc) < 8 and range_bin < np.ptp(rng) / 4:
         # sparse data (a class seen from few places): coarser cells, until a curve can be fitted

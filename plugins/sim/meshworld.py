@@ -26,7 +26,6 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, ValidationInfo, model_validator
-from scipy.spatial import cKDTree
 
 from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Coordinate, FieldError, mission_file_path
@@ -180,6 +179,8 @@ def _mesh_xy_extent(
 
 def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
     """Load a mesh world; relative paths are resolved against ``base_dir`` (the mission folder)."""
+    from scipy.spatial import cKDTree
+
     mesh_path = (find_world_file(p.mesh, base_dir) or base_dir / p.mesh).resolve()
     V, T, C = _read_mesh(mesh_path, p)
     n = len(T)

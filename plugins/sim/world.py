@@ -15,7 +15,6 @@ import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from amslam.types import BoundingBox, WorldSummary
 
@@ -304,6 +303,8 @@ class World:
         building's walls (reached over them), counts as reachable though no flight may go there
         (an imported small house: 11 % of its "reachable" volume was a strip outside its walls).
         """
+        from scipy import ndimage
+
         margin = cell / 2.0 if margin is None else margin
         bound_key = None if bound is None else tuple(np.round(np.concatenate(bound), 6))
         key = (tuple(np.round(start, 6)), cell, margin, robot_radius, bound_key)
@@ -599,6 +600,8 @@ def box_room(
 
 def _component(cells: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The 6-connected component of ``cells`` holding index ``idx`` (or the nearest cell's)."""
+    from scipy import ndimage
+
     labels, _ = ndimage.label(cells)  # default structure = 6-connectivity
     start_label = labels[tuple(idx)]
     if start_label == 0:  # the start cell is not one of them: take the nearest that is

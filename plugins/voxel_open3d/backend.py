@@ -19,10 +19,9 @@ voxels both observe (tests/plugins/voxel_open3d/test_agreement.py).
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
-import open3d as o3d
 from pydantic import Field
 
 from amslam.interfaces import BackendParams
@@ -35,7 +34,16 @@ from amslam.lib.voxel_grid import (
 from amslam.lib.voxel_map import VoxelMapBase, VoxelMapParams
 from amslam.types import BoundingBox
 
-_CPU = o3d.core.Device("CPU:0")
+if TYPE_CHECKING:
+    import open3d as o3d
+
+
+def _o3c():
+    """``open3d.core``, imported when a map is made: ``import open3d`` takes 0.6 s (it loads its
+    visualisation and dash too), which listing plugins or validating a mission must not pay."""
+    import open3d
+
+    return open3d.core
 
 
 class Open3dVoxelMapParams(VoxelMapParams):
@@ -75,19 +83,20 @@ class HashGrid:
         self.shape = tuple(int(s) for s in shape)
         self.model = model
         self.bounded = bounded
-        self.map = o3d.core.HashMap(
+        o3c = _o3c()
+        self.map = o3c.HashMap(
             capacity,
-            key_dtype=o3d.core.int32,
+            key_dtype=o3c.int32,
             key_element_shape=(3,),
-            value_dtypes=[o3d.core.float32],
+            value_dtypes=[o3c.float32],
             value_element_shapes=[(1,)],
-            device=_CPU,
+            device=o3c.Device("CPU:0"),
         )
 
     # ------------------------------------------------------------------ hash-map helpers
     @staticmethod
     def _keys(index: np.ndarray) -> o3d.core.Tensor:
-        return o3d.core.Tensor(np.ascontiguousarray(index, dtype=np.int32))
+        return _o3c().Tensor(np.ascontiguousarray(index, dtype=np.int32))
 
     def _values(self) -> np.ndarray:
         # a view on the hash map's value buffer (re-fetched: a rehash reallocates it)
@@ -124,7 +133,7 @@ class HashGrid:
                 self.map.reserve(max(2 * self.map.capacity(), need))
                 buf, found = self._find(index)  # a rehash moves every slot: the old ones are stale
             ins_buf, _ = self.map.insert(
-                self._keys(index[new]), o3d.core.Tensor(np.zeros((int(new.sum()), 1), np.float32))
+                self._keys(index[new]), _o3c().Tensor(np.zeros((int(new.sum()), 1), np.float32))
             )
             buf[new] = ins_buf.numpy().astype(np.int64)
         values = self._values()
@@ -196,7 +205,7 @@ class HashGrid:
             index, values = index[keep], values[keep]
         if len(index):
             self.map.reserve(max(self.map.capacity(), 2 * len(index)))
-            self.map.insert(self._keys(index), o3d.core.Tensor(values.reshape(-1, 1)))
+            self.map.insert(self._keys(index), _o3c().Tensor(values.reshape(-1, 1)))
 
     def shift_to(self, lo: np.ndarray) -> None:
         """Move the window to start at ``lo``; a bounded grid forgets voxels left outside."""

@@ -1,0 +1,104 @@
+"""The commands that only read (list plugins, validate a mission, draw its tree, show a backend's
+parameters, help) import none of the heavy libraries the backends fly with (issue #20): those are
+imported when a backend is built. Each check runs in a fresh interpreter, where ``sys.modules``
+shows exactly what the commands imported."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+#: imported by a backend when it is built (or by an application when it runs), never to read
+HEAVY = (
+    "open3d",
+    "gtsam",
+    "scipy",
+    "sklearn",
+    "onnxruntime",
+    "cv2",
+    "mavsdk",
+    "pymavlink",
+    "matplotlib",
+    "plyfile",
+    "trimesh",
+    "collada",
+    "rerun",
+    "mcap",
+    "mcap_ros2",
+    "rosbags",
+    "pyoctomap",
+    "torch",
+    "tqdm",
+    "threadpoolctl",
+)
+
+#: what a user types to look before flying; each runs in the same interpreter, one after the other
+COMMANDS = (
+    ["--help"],
+    ["plugins"],
+    ["validate", "demo"],
+    ["tree", "demo"],
+    ["missions"],
+    ["dump-config", "slam", "gtsam"],
+    ["dump-config", "mapping", "open3d"],
+    ["dump-config", "platform", "mavsdk"],
+    ["dump-config", "detector", "onnx"],
+    ["dump-config", "planner", "pams"],
+)
+
+
+def run_commands(block_heavy: bool) -> dict:
+    """Run :data:`COMMANDS` through ``amslam.cli.main`` in a fresh interpreter; return each exit
+    status, what each printed, and which :data:`HEAVY` libraries were imported at the end.
+
+    ``block_heavy``: make importing any of them fail, as on a machine without them."""
+    script = textwrap.dedent(
+        """\
+        import contextlib, io, json, sys
+
+        heavy, commands, block = json.loads(sys.argv[1])
+        if block:
+            for name in heavy:
+                sys.modules[name] = None  # `import name` raises ImportError
+        from amslam.cli import main
+
+        results = []
+        for argv in commands:
+            out, err = io.StringIO(), io.StringIO()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                try:
+                    status = main(argv)
+                except SystemExit as exc:  # --help
+                    status = exc.code
+            results.append({"argv": argv, "status": status, "out": out.getvalue(), "err": err.getvalue()})
+        imported = sorted(n for n in heavy if sys.modules.get(n) is not None)
+        print(json.dumps({"results": results, "imported": imported}))
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, json.dumps([HEAVY, COMMANDS, block_heavy])],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return json.loads(done.stdout)
+
+
+def test_reading_commands_import_no_heavy_library():
+    found = run_commands(block_heavy=False)
+    for result in found["results"]:
+        assert result["status"] == 0, result
+    assert found["imported"] == []
+
+
+def test_reading_commands_work_without_the_heavy_libraries():
+    """Every plugin loads and every parameter model validates with the heavy libraries missing:
+    the models and the plugins' modules need none of them."""
+    found = run_commands(block_heavy=True)
+    for result in found["results"]:
+        assert result["status"] == 0, result
+        assert "failed to load" not in result["out"] + result["err"], result
+    validate = next(r for r in found["results"] if r["argv"][0] == "validate")
+    assert ": valid (platform=sim, mapping=open3d, slam=gtsam, detector=sim, planner=cop)" in validate["out"]
