@@ -94,10 +94,18 @@ def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[o
     for name in disabled:
         pm.set_blocked(name)
     registry = Registry(pm)
+    # "name version" per distribution: each ``Distribution.name`` / ``.version`` parses its METADATA
+    # file again, which for amslam's twenty-odd entry points was a tenth of every command's start
+    described: dict[int, str] = {}
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in disabled or pm.is_blocked(ep.name) or pm.has_plugin(ep.name):
             continue
-        dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else None
+        dist = None
+        if ep.dist is not None:
+            if id(ep.dist) not in described:
+                meta = ep.dist.metadata
+                described[id(ep.dist)] = f"{meta['Name']} {meta['Version']}"
+            dist = described[id(ep.dist)]
         where = f"distribution {dist}, {ep.value}" if dist else ep.value
         try:
             plugin = ep.load()

@@ -476,7 +476,7 @@ def _run(args, registry) -> int:
     if args.mission:
         from amslam.apps.commands import load_with_registry
 
-        mission = load_with_registry(args)[0]
+        mission = load_with_registry(args, registry)[0]
     characterise(Path(args.out), mission=mission, poses_per_spiral=args.poses, seed=args.seed)
     return 0
 

@@ -27,9 +27,14 @@ from amslam.registry import build_plugin_manager
 log = logging.getLogger(__name__)
 
 
-def load_with_registry(args):
+def load_with_registry(args, registry=None):
     """Build the registry honouring the mission's ``plugins.disable`` (from the file or ``--set``),
-    then validate the mission."""
+    then validate the mission.
+
+    ``registry``, the one the command line was built from, is used as it is when the mission
+    disables no plugin: building it again reads every installed distribution's entry points
+    and registers every plugin a second time.
+    """
     from amslam.errors import MissionError
     from amslam.mission import (
         apply_override,
@@ -51,7 +56,8 @@ def load_with_registry(args):
             disabled = [str(x) for x in section["disable"]]
     except MissionError:
         pass  # load_mission reports it, with the line
-    registry = build_plugin_manager(disabled)
+    if registry is None or disabled:
+        registry = build_plugin_manager(disabled)
     mission = load_mission(args.mission, registry, getattr(args, "set", None) or [])
     for name in mission.model.plugins.optional:  # load_mission refused every other load error
         if name in registry.load_errors:
@@ -79,7 +85,7 @@ def _live_rerun(args, registry) -> None:
 def cmd_run(args, registry) -> int:
     from amslam.runner import Runner
 
-    mission, registry = load_with_registry(args)
+    mission, registry = load_with_registry(args, registry)
     _live_rerun(args, registry)
     print(f"flying mission {mission.name!r} ({mission.source})", flush=True)
 
@@ -114,7 +120,7 @@ def cmd_fly(args, registry) -> int:
 
     from amslam.interfaces import RunContext
 
-    mission, registry = load_with_registry(args)
+    mission, registry = load_with_registry(args, registry)
     choice = mission.backends["platform"]
     cls = registry.backend_class("platform", choice.plugin)
     print(f"pre-flight check of {mission.name!r} ({mission.source})", flush=True)
@@ -147,7 +153,7 @@ def cmd_fly(args, registry) -> int:
 
 
 def cmd_validate(args, registry) -> int:
-    mission, _ = load_with_registry(args)
+    mission, _ = load_with_registry(args, registry)
     plugins = ", ".join(f"{kind}={choice.plugin}" for kind, choice in mission.backends.items())
     print(f"{mission.source}: valid ({plugins})")
     return 0
@@ -214,7 +220,7 @@ def _describe_params(model, values: dict, indent: str) -> list[str]:
 def cmd_tree(args, registry) -> int:
     import py_trees
 
-    mission, registry = load_with_registry(args)
+    mission, registry = load_with_registry(args, registry)
     real = not registry.backend_class("platform", mission.backends["platform"].plugin).simulated
     root = registry.tree(mission.model.tree)(mission.model, registry.behaviours, failsafe=real)
     if args.format in ("ascii", "unicode"):
