@@ -50,7 +50,8 @@ DEFAULT_PLUGINS = {
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # built when a mission is first validated, not at import (see BackendParams)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RobotSection(_Strict):

@@ -59,7 +59,7 @@ from amslam.types import CameraModel, Frame, WorldSummary
 class TargetSpec(BaseModel):
     """One object class to characterise and the true shape of its specimen."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", allow_inf_nan=False)
 
     class_name: str
     model: Literal["cuboid", "cylinder"] = "cuboid"
@@ -73,7 +73,7 @@ class TargetSpec(BaseModel):
 class CharacteriseConfig(BaseModel):
     """Where the spirals go and what sensor and detector fly them."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", allow_inf_nan=False)
 
     targets: list[TargetSpec] = Field(
         default_factory=lambda: [

@@ -31,7 +31,7 @@ _Size = Annotated[float, Field(gt=0, le=100)]
 class SizePrior(BaseModel):
     """A class's typical box (for completing partial views) and its spread."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", allow_inf_nan=False)
 
     dims: tuple[_Size, _Size, _Size] = Field(description="typical length, width, height (length ≥ width), m")
     std: tuple[_Size, _Size, _Size] = Field(
@@ -42,7 +42,7 @@ class SizePrior(BaseModel):
 class ShapeParams(BaseModel):
     """Parameters of the shape landmarks (``shapes:`` under the gtsam SLAM section)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", allow_inf_nan=False)
 
     window: float = Field(
         12.0, gt=0, le=3600, description="seconds of a landmark's points in one measurement"
@@ -107,7 +107,7 @@ class ShapeParams(BaseModel):
 class KeyPoseParams(BaseModel):
     """When key poses are made (``slam.keyposes``); yaw thresholds are at most π, the largest turn."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     distance: float = Field(0.5, gt=0, le=100, description="a key pose every this many metres")
     yaw: float = Field(0.35, gt=0, le=math.pi, description="or every this much yaw change, rad")
@@ -125,7 +125,7 @@ class KeyPoseParams(BaseModel):
 class AssociationParams(BaseModel):
     """Data association and the tentative buffer (``slam.association``; the merge's ``association``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     gate: float = Field(0.6, gt=0, le=100, description="largest association distance, m")
     chi2: float = Field(
@@ -166,7 +166,7 @@ class GraphParams(BaseModel):
     Every std has an upper bound a run can square and invert (10 m/√m of VIO drift, 1 km of prior);
     angle stds (rad) are at most π: a wider one says nothing about a direction."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     # VIO drifts as a random walk in the distance travelled (variance ∝ distance), so the std of
     # a relative pose grows with the square root of its length; these match the simulator's VIO.
@@ -219,7 +219,7 @@ class GraphParams(BaseModel):
 class LoopClosureParams(BaseModel):
     """Semantic loop closure (``slam.loop_closure``); yaw bounds are at most π (rad, rad/m)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     solver: Literal["scalable", "exhaustive"] = Field("scalable", description="SLC registration")
     tolerance: float = Field(0.3, gt=0, le=100, description="accepted RMS residual per landmark, m")
@@ -274,7 +274,7 @@ class LoopClosureParams(BaseModel):
 class ActiveParams(BaseModel):
     """Active loop-closure candidates and eq. (10) (``slam.active``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     dbscan_eps: float = Field(2.5, gt=0, le=1000, description="DBSCAN neighbourhood of landmark clusters, m")
     cluster_min_landmarks: int = Field(3, ge=1, le=10_000, description="fewest landmarks of an SLC cluster")

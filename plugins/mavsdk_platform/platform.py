@@ -59,7 +59,7 @@ _ACTION_RANK = {"return_and_land": 0, "land": 1, "hand_over": 2}
 class GeofenceParams(BaseModel):
     """An axis-aligned box in the odometry frame (ENU of the autopilot's local frame), metres."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     lo: Point
     hi: Point

@@ -49,7 +49,7 @@ from amslam.types import Detection, Frame, WorldSummary
 class PerceptionModel(BaseModel):
     """How confidence and geometric noise of one class depend on range and viewing angle."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     confidence_max: float = Field(0.95, gt=0.0, le=1.0, description="confidence of an ideal close view")
     range_half: float = Field(

@@ -41,7 +41,7 @@ _Mount = Annotated[float, Field(ge=-10, le=10)]
 class CameraSourceParams(BaseModel):
     """Which camera a real platform reads, its nominal model and where it is mounted."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
     source: Literal["none", "realsense", "replay"] = Field(
         "none", description="none (no frames), realsense (pyrealsense2), replay (a folder of .npz frames)"
