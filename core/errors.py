@@ -29,3 +29,9 @@ class PlanningError(AmslamError):
 
 class NoPathFoundError(PlanningError):
     """No collision-free path exists between two points in the known free space."""
+
+
+class RunFileError(AmslamError, ValueError):
+    """A file of a run folder (a trajectory, ``landmarks.json``, ``map.npz``) cannot be read: the
+    message names the file (and the line or record). A ``ValueError`` too, so code that caught the
+    ``ValueError`` of a bad file before the readers were shared still catches it."""

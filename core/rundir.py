@@ -6,6 +6,12 @@ that cannot be written (a full disk) stops and says so at the end, it does not s
 (metrics, map, plots, report) are written once at the end, on every exit path, each **atomically**:
 to a temporary file beside it, then renamed over it, so a kill or a full disk mid-write leaves the
 old file or none — never an empty or half-written ``metrics.json``.
+
+The formats this module writes are read here too, so one module knows each of them: the TUM
+trajectories (:func:`read_tum`, :func:`tum_values` for a stream read line by line) and
+``landmarks.json`` (:func:`write_landmarks`, :func:`read_landmarks`). A file that cannot be read
+is one :class:`~amslam.errors.RunFileError` naming the file and the line or record; only a torn
+*last* line of a stream (a run stopped mid-write) is dropped, with a warning.
 """
 
 from __future__ import annotations
@@ -16,14 +22,17 @@ import math
 import os
 import tempfile
 import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 import yaml
 
-from amslam.errors import AmslamError
+from amslam.errors import AmslamError, RunFileError
 from amslam.geometry import tum_line
+from amslam.types import Landmark
 
 TRAJECTORIES = ("ground_truth", "vio", "slam")
 
@@ -240,3 +249,157 @@ class RunDir(RunFiles):
     def close(self) -> None:
         for f in (self._events, self._tree, *self._tum.values()):
             f.close()
+
+
+# -- readers of the formats written above -------------------------------------------------------
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:  # strerror: the OSError's text without the path again
+        raise RunFileError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A TUM trajectory: N stamps (s) and N×7 poses ``x y z qx qy qz qw`` (unit quaternions)."""
+
+    stamps: np.ndarray
+    poses: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def matrices(self) -> np.ndarray:
+        """The poses as N×4×4 transforms."""
+        from scipy.spatial.transform import Rotation
+
+        T = np.tile(np.eye(4), (len(self), 1, 1))
+        if len(self):
+            T[:, :3, :3] = Rotation.from_quat(self.poses[:, 3:7]).as_matrix()
+            T[:, :3, 3] = self.poses[:, :3]
+        return T
+
+
+def tum_values(line: str) -> list[float] | None:
+    """The eight finite numbers ``t x y z qx qy qz qw`` of a TUM line (:func:`~amslam.geometry.tum_line`);
+    None for a blank line, a ``#`` comment or a malformed line (a reader that skips bad lines)."""
+    text = line.strip()
+    if not text or text.startswith("#"):
+        return None
+    try:
+        values = [float(v) for v in text.split()]
+    except ValueError:
+        return None
+    return values if len(values) == 8 and all(math.isfinite(v) for v in values) else None
+
+
+def read_tum(path: Path, warnings: list[str] | None = None) -> Trajectory:
+    """A whole ``<which>.tum``, checked: eight numbers a line (``#`` comments and blank lines
+    allowed), time never going back, no zero quaternion; the quaternions normalised.
+
+    A malformed *last* line is a run stopped mid-write: it is dropped and said in ``warnings``.
+
+    Raises:
+        RunFileError: the file cannot be read, or a line (other than the last) is bad;
+            ``FILE:LINE: what``.
+    """
+    lines = _read_text(path).splitlines()
+    stamps: list[float] = []
+    poses: list[list[float]] = []
+    for number, line in enumerate(lines, 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        values = tum_values(text)
+        if values is None:
+            if number == len(lines):
+                if warnings is not None:
+                    warnings.append(
+                        f"{path}:{number}: not 8 numbers (a run stopped mid-write?): line dropped"
+                    )
+                break
+            raise RunFileError(
+                f"{path}:{number}: expected 8 numbers 't x y z qx qy qz qw', got {text[:60]!r}"
+            )
+        if stamps and values[0] < stamps[-1]:
+            raise RunFileError(f"{path}:{number}: time {values[0]} goes back (previous {stamps[-1]})")
+        norm = math.sqrt(sum(q * q for q in values[4:]))
+        if norm < 1e-6:
+            raise RunFileError(f"{path}:{number}: quaternion is zero")
+        stamps.append(values[0])
+        poses.append([*values[1:4], *(q / norm for q in values[4:])])
+    return Trajectory(np.asarray(stamps, float), np.asarray(poses, float).reshape(-1, 7))
+
+
+def landmark_records(landmarks: Iterable[Landmark]) -> list[dict[str, Any]]:
+    """Landmarks as the records of ``landmarks.json``: ``id``, ``class``, ``position``,
+    ``covariance`` (nulls where not finite: a backend without uncertainty), ``observations`` and,
+    when fitted, ``shape``."""
+    return [
+        jsonable(
+            {
+                "id": lm.id,
+                "class": lm.class_name,
+                "position": np.asarray(lm.position, float),
+                "covariance": np.atleast_2d(np.asarray(lm.covariance, float)),
+                "observations": lm.observations,
+                **({"shape": lm.shape} if lm.shape else {}),
+            }
+        )
+        for lm in landmarks
+    ]
+
+
+def write_landmarks(path: Path, landmarks: Sequence[Landmark]) -> Path:
+    """``landmarks.json`` (:func:`landmark_records`), written atomically."""
+    return write_atomically(Path(path), json.dumps(landmark_records(landmarks), indent=2) + "\n")
+
+
+def _is_vector(value: Any, n: int) -> bool:
+    return (
+        isinstance(value, list)
+        and len(value) == n
+        and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+    )
+
+
+def _is_covariance_row(value: Any) -> bool:
+    return isinstance(value, list) and len(value) == 3 and all(v is None or _is_vector([v], 1) for v in value)
+
+
+def read_landmarks(path: Path) -> list[dict[str, Any]]:
+    """``landmarks.json``, checked: a list of ``{id?, class, position, covariance?, observations?,
+    shape?}`` (:func:`landmark_records`). A covariance holding nulls (unknown) becomes None.
+
+    Raises:
+        RunFileError: the file cannot be read, is not JSON, or a record is malformed;
+            ``FILE: landmark I: what``.
+    """
+    text = _read_text(path)
+    try:
+        landmarks = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RunFileError(f"{path}:{exc.lineno}: not JSON ({exc.msg})") from None
+    if not isinstance(landmarks, list):
+        raise RunFileError(f"{path}: expected a JSON list of landmarks")
+    for i, lm in enumerate(landmarks):
+        where = f"{path}: landmark {i}"
+        if (
+            not isinstance(lm, dict)
+            or not isinstance(lm.get("class"), str)
+            or not _is_vector(lm.get("position"), 3)
+        ):
+            raise RunFileError(f"{where}: needs a 'class' string and a 'position' [x, y, z]")
+        cov = lm.get("covariance")
+        if cov is not None and not (
+            isinstance(cov, list) and len(cov) == 3 and all(map(_is_covariance_row, cov))
+        ):
+            raise RunFileError(f"{where}: 'covariance' must be a 3×3 list of numbers (or nulls: unknown)")
+        if cov is not None and any(v is None for row in cov for v in row):
+            lm["covariance"] = None  # a backend without uncertainty (odometry SLAM) writes nulls
+        shape = lm.get("shape")
+        if shape is not None and not (isinstance(shape, dict) and isinstance(shape.get("model"), str)):
+            raise RunFileError(f"{where}: 'shape' must be an object with a 'model'")
+    return landmarks

@@ -39,6 +39,7 @@ import amslam
 from amslam.cli import Command
 from amslam.geometry import yaw_matrix
 from amslam.interfaces import RunContext
+from amslam.lib.class_colours import class_colour
 from amslam.lib.viewing import viewing_angle
 from amslam.plugins.pams.uncertainty import COMPONENTS, UncertaintyModels, fit_models, plot_models
 from amslam.plugins.sim.camera import CameraParams, Renderer
@@ -49,7 +50,6 @@ from amslam.plugins.sim.world import (
     WorldObject,
     WorldSpec,
     box_mesh,
-    class_colour,
 )
 from amslam.types import CameraModel, Frame, WorldSummary
 

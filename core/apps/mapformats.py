@@ -45,7 +45,7 @@ import numpy as np
 
 import amslam
 from amslam.cli import Command
-from amslam.errors import AmslamError
+from amslam.errors import AmslamError, RunFileError
 from amslam.lib.octomap_files import write_bt
 from amslam.lib.shapes import points_inside
 from amslam.rundir import write_atomically
@@ -103,13 +103,14 @@ def probabilities_from_saved_map(points: np.ndarray, saved_map: Path, voxel: flo
     (``map.npz``: the global map's indices and log-odds); NaN where the file has no such voxel
     or is not that format."""
     points = np.asarray(points, float).reshape(-1, 3)
+    from amslam.lib.voxel_map import read_saved_map  # the voxel map's module: not at `amslam --help`
+
     out = np.full(len(points), np.nan, np.float32)
     try:
-        with np.load(saved_map) as f:
-            index, logodds = f["global_index"].astype(np.int64), f["global_logodds"].astype(np.float64)
-            saved_voxel = float(f["global_voxel"])
-    except (OSError, KeyError, ValueError):
+        saved = read_saved_map(saved_map).global_map
+    except RunFileError:  # missing, or not a saved map: the probabilities are unknown
         return out
+    index, logodds, saved_voxel = saved.index, saved.logodds, saved.voxel
     if len(points) == 0 or len(index) == 0 or not np.isclose(saved_voxel, voxel):
         return out
     wanted = np.floor(points / voxel).astype(np.int64)
@@ -214,11 +215,10 @@ def write_run_octomap(run_dir: Path, out: Path) -> tuple[int, int]:
         raise AmslamError(f"{ply}: {exc}") from None
     voxel, known = cloud.voxel_size, np.zeros((0, 3), np.int64)
     if saved.is_file():
-        try:
-            with np.load(saved) as f:
-                known, voxel = f["global_index"].astype(np.int64), float(f["global_voxel"])
-        except (OSError, KeyError, ValueError) as exc:
-            raise AmslamError(f"{saved}: not a map saved by amslam ({exc})") from None
+        from amslam.lib.voxel_map import read_saved_map
+
+        grid = read_saved_map(saved).global_map  # a RunFileError names the file
+        known, voxel = grid.index, grid.voxel
     if voxel is None:
         raise AmslamError(f"{ply}: the voxel size is unknown (no obj_info voxel_size line, no map.npz)")
     occupied = np.unique(np.floor(cloud.points / voxel).astype(np.int64), axis=0)

@@ -43,7 +43,7 @@ from amslam.cli import Experiment, positive_int
 from amslam.errors import AmslamError
 from amslam.mission import Mission, load_mission
 from amslam.registry import Registry
-from amslam.rundir import new_folder
+from amslam.rundir import new_folder, write_landmarks
 from amslam.types import WorldSummary
 
 Mode = Literal["homogeneous", "heterogeneous"]
@@ -248,7 +248,7 @@ def fly_team(
     ``odometry="slam"`` merges the robots' onboard SLAM trajectories instead of their VIO
     (:func:`amslam.plugins.gtsam_slam.merge.with_slam_odometry`).
     """
-    from amslam.plugins.gtsam_slam.merge import MergeParams, merge_runs, write_landmarks
+    from amslam.plugins.gtsam_slam.merge import MergeParams, merge_runs
 
     runs.mkdir(parents=True, exist_ok=True)
     teams = team_overrides(spec, registry, n, mode, seed, overrides, scratch=runs, **setup)

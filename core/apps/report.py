@@ -25,7 +25,8 @@ from amslam.apps.mapformats import (
     write_map_ply,
 )
 from amslam.geometry import wrap_angle, yaw_of
-from amslam.rundir import RunFiles
+from amslam.lib.class_colours import class_hex
+from amslam.rundir import RunFiles, write_landmarks
 from amslam.types import RunSummary, VoxelState, WorldSummary
 
 
@@ -328,20 +329,7 @@ def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunFiles
             mapping.save(rundir.path / "map.npz")  # the whole map, for a later run's prior_map
         write_map_ply(rundir.path / "map.ply", map_cloud(summary, rundir.path / "map.npz"))
     if summary.landmarks is not None:
-        rundir.write_json(
-            "landmarks.json",
-            [
-                {
-                    "id": lm.id,
-                    "class": lm.class_name,
-                    "position": lm.position,
-                    "covariance": lm.covariance,
-                    "observations": lm.observations,
-                    **({"shape": lm.shape} if lm.shape else {}),
-                }
-                for lm in summary.landmarks
-            ],
-        )
+        write_landmarks(rundir.path / "landmarks.json", summary.landmarks)
         kps = summary.keyposes
         if kps and summary.slam_optimises:
             rundir.write_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
@@ -363,8 +351,6 @@ def map_cloud(summary: RunSummary, saved_map: Path) -> MapCloud:
     return MapCloud(points, classes, probability, voxel, names)
 
 
-#: landmark colours by class (sorted by name), the viewer's palette (``viewer.js``)
-CLASS_COLOURS = ("#e6a100", "#b03fc4", "#0a9bb5", "#d4561c", "#6a8f00", "#c2185b", "#5c6bc0", "#795548")
 #: the trajectories of ``top_view.png``: ground truth, VIO (odometry frame) and SLAM (key poses)
 TRAJECTORY_STYLES = (("ground truth", "tab:green"), ("VIO", "tab:red"), ("SLAM", "tab:blue"))
 
@@ -463,7 +449,7 @@ def top_view_figure(summary: RunSummary):
     ]
     landmarks = list(summary.landmarks or ())
     classes = sorted({lm.class_name for lm in landmarks})
-    colour = {c: CLASS_COLOURS[i % len(CLASS_COLOURS)] for i, c in enumerate(classes)}
+    colour = {c: class_hex(c) for c in classes}  # as the simulator, rerun and the web viewer draw them
     positions = np.array([lm.position for lm in landmarks], float).reshape(-1, 3)
     lo, hi = _plan_extent(world, [occupied, *trajectories, positions])
     # every panel shows the building at one scale: its height fixed, its width following the plan

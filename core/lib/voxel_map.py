@@ -5,19 +5,26 @@ viewpoints, path costs, collision checks, volumes, save/load) on top of a small 
 (``integrate_depth``, ``states_at_index``, ``dense_states``, ``voxels``, ``extent``, ``to_arrays``,
 ``from_arrays``, ``shift_to``); a backend plugin supplies the storage (``numpy``: dense arrays,
 ``open3d``: a hash map).
+
+A saved map (a run's ``map.npz``, a later mission's ``prior_map``) is written by
+:meth:`VoxelMapBase.save` and read by :func:`read_saved_map`, here, for the backends and the apps
+alike (the report's ``map.ply`` probabilities, ``amslam map``, the exports and viewers).
 """
 
 from __future__ import annotations
 
 import abc
 import math
+import zipfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Protocol
 
 import numpy as np
 from pydantic import Field, model_validator
 
+from amslam.errors import RunFileError
 from amslam.interfaces import BackendParams, FieldError, Mapping, Point, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
@@ -45,8 +52,78 @@ from amslam.lib.voxel_grid import (
 from amslam.types import BoundingBox, Viewpoint
 
 Vec3 = tuple[float, float, float]
+#: the ``format`` a saved map (``.npz``) declares
+SAVED_MAP_FORMAT = "amslam-voxels-1"
+#: the occupancy threshold of a saved map read without its mission's ``mapping.p_occ``
+#: (:attr:`VoxelMapParams.p_occ`'s default)
+DEFAULT_P_OCC = LogOddsModel.p_occ
 #: a side of the local window, m: its voxels are allocated at once (100 m at 0.1 m: 10⁶ a layer)
 _Window = Annotated[float, Field(gt=0, le=100)]
+
+
+@dataclass(frozen=True)
+class SavedGrid:
+    """One map of a saved map: its known voxels' indices (N×3), log-odds (N) and voxel edge (m)."""
+
+    index: np.ndarray
+    logodds: np.ndarray
+    voxel: float
+
+    def occupied(self, p_occ: float = DEFAULT_P_OCC) -> np.ndarray:
+        """Which voxels are occupied: log-odds above ``logit(p_occ)``, the mapping backends' rule
+        (:class:`~amslam.lib.voxel_grid.LogOddsModel`)."""
+        return self.logodds > logit(p_occ)
+
+    def probability(self) -> np.ndarray:
+        """The occupancy probability of each voxel."""
+        return 1.0 / (1.0 + np.exp(-self.logodds))
+
+    def centres(self) -> np.ndarray:
+        """The voxels' centres (N×3), world frame."""
+        return centres(self.index, self.voxel)
+
+
+@dataclass(frozen=True)
+class SavedMap:
+    """A map written by :meth:`VoxelMapBase.save`: the global map and, when saved, the local one."""
+
+    global_map: SavedGrid
+    local_map: SavedGrid | None
+
+
+def read_saved_map(path: Path) -> SavedMap:
+    """A saved map (``map.npz``, format :data:`SAVED_MAP_FORMAT`), checked.
+
+    Raises:
+        RunFileError: not a readable ``.npz``, not that format, or a map's arrays missing or not
+            agreeing; the message names the file.
+    """
+    if Path(path).is_file() and not zipfile.is_zipfile(path):  # np.load would speak of pickled data
+        raise RunFileError(f"{path}: not a readable .npz (not a zip archive)")
+    try:
+        with np.load(Path(path), allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # BadZipFile: a member cut short
+        raise RunFileError(f"{path}: not a readable .npz ({exc})") from None
+    # a file without ``format`` is read by its arrays (the maps saved by amslam always say it)
+    if "format" in arrays and str(arrays["format"]) != SAVED_MAP_FORMAT:
+        raise RunFileError(f"{path}: not an amslam voxel map (format {SAVED_MAP_FORMAT!r} expected)")
+    grids: dict[str, SavedGrid | None] = {}
+    for name in ("global", "local"):
+        keys = (f"{name}_index", f"{name}_logodds", f"{name}_voxel")
+        if name == "local" and not any(k in arrays for k in keys):
+            grids[name] = None
+            continue
+        try:
+            index = np.asarray(arrays[keys[0]], np.int64).reshape(-1, 3)
+            logodds = np.asarray(arrays[keys[1]], np.float64).reshape(-1)
+            voxel = float(arrays[keys[2]])
+        except (KeyError, ValueError, TypeError) as exc:
+            raise RunFileError(f"{path}: the {name} map is incomplete ({exc})") from None
+        if len(index) != len(logodds) or not voxel > 0:
+            raise RunFileError(f"{path}: the {name} map's index, log-odds and voxel size do not agree")
+        grids[name] = SavedGrid(index, logodds, voxel)
+    return SavedMap(grids["global"], grids["local"])  # type: ignore[arg-type]
 
 
 class VoxelMapParams(BackendParams):
@@ -70,7 +147,7 @@ class VoxelMapParams(BackendParams):
     p_hit: float = Field(0.70, gt=0.5, lt=1, description="Occupancy probability of a voxel where a ray ends.")
     p_miss: float = Field(0.35, gt=0, lt=0.5, description="Occupancy probability of a voxel a ray crosses.")
     p_occ: float = Field(
-        0.80,
+        DEFAULT_P_OCC,
         gt=0,
         lt=1,
         description="A voxel is OCCUPIED above this probability (and the prior at first sight).",
@@ -631,7 +708,7 @@ class VoxelMapBase(Mapping):
         g, loc = self.global_map.to_arrays(), self.local_map.to_arrays()
         np.savez_compressed(
             Path(path),
-            format=np.array("amslam-voxels-1"),
+            format=np.array(SAVED_MAP_FORMAT),
             global_index=g["index"],
             global_logodds=g["logodds"],
             global_voxel=np.array(self.global_map.voxel),
@@ -649,14 +726,18 @@ class VoxelMapBase(Mapping):
         if Path(path).suffix.lower() == ".bt":
             self._load_octomap(Path(path))
             return
-        with np.load(Path(path)) as f:
-            for name, store in (("global", self.global_map), ("local", self.local_map)):
-                if not np.isclose(float(f[f"{name}_voxel"]), store.voxel):
-                    raise ValueError(
-                        f"{path}: {name} voxel {float(f[f'{name}_voxel'])} m does not match the configured "
-                        f"{store.voxel} m"
-                    )
-                store.from_arrays({"index": f[f"{name}_index"], "logodds": f[f"{name}_logodds"]})
+        saved = read_saved_map(Path(path))
+        for name, grid, store in (
+            ("global", saved.global_map, self.global_map),
+            ("local", saved.local_map, self.local_map),
+        ):
+            if grid is None:  # a saved map without its local window starts with an empty one
+                continue
+            if not np.isclose(grid.voxel, store.voxel):
+                raise ValueError(
+                    f"{path}: {name} voxel {grid.voxel} m does not match the configured {store.voxel} m"
+                )
+            store.from_arrays({"index": grid.index, "logodds": grid.logodds})
         self._version += 1
         self._graph = None
         self.recompute_frontiers()

@@ -56,7 +56,6 @@ the optimised key poses, when a ``shape_fitter`` is given.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -74,7 +73,7 @@ from amslam.geometry import transform_points, wrap_angle, yaw_of
 from amslam.lib import shapes
 from amslam.measurements import RobotMeasurements, read_measurements
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeParams
-from amslam.rundir import jsonable
+from amslam.rundir import read_tum, write_landmarks
 from amslam.types import Landmark
 
 __all__ = [
@@ -756,18 +755,6 @@ def merge_measurements(
     return _Merger(logs, params or MergeParams()).run(shape_fitter)
 
 
-def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps and 4×4 poses of a TUM trajectory file (``t x y z qx qy qz qw`` per line)."""
-    from scipy.spatial.transform import Rotation
-
-    rows = np.loadtxt(path, ndmin=2)
-    T = np.tile(np.eye(4), (len(rows), 1, 1))
-    if len(rows):
-        T[:, :3, :3] = Rotation.from_quat(rows[:, 4:8]).as_matrix()
-        T[:, :3, 3] = rows[:, 1:4]
-    return rows[:, 0] if len(rows) else np.zeros(0), T
-
-
 def with_slam_odometry(log: RobotMeasurements, run_dir: Path) -> RobotMeasurements:
     """The log with the robot's onboard SLAM estimate as its odometry (``slam.tum``, ``vio.tum``).
 
@@ -778,8 +765,8 @@ def with_slam_odometry(log: RobotMeasurements, run_dir: Path) -> RobotMeasuremen
     estimate is written at its key poses, the VIO at every tick), in the odometry frame (the
     onboard graph is anchored at the robot's start).
     """
-    ts, Ts = _read_tum(Path(run_dir) / "slam.tum")
-    tv, Tv = _read_tum(Path(run_dir) / "vio.tum")
+    slam, vio = read_tum(Path(run_dir) / "slam.tum"), read_tum(Path(run_dir) / "vio.tum")
+    ts, Ts, tv, Tv = slam.stamps, slam.matrices(), vio.stamps, vio.matrices()
     if len(ts) == 0 or len(tv) == 0:
         return log
     out = []
@@ -816,28 +803,6 @@ def merge_runs(
         for log, T in zip(logs, bases, strict=True):
             log.T_world_odom = np.asarray(T, float)
     return merge_measurements(logs, params, shape_fitter)
-
-
-def write_landmarks(path: Path, landmarks: Sequence[Landmark]) -> Path:
-    """Write landmarks as a run folder's ``landmarks.json`` (id, class, position, covariance, ...)."""
-
-    def clean(a: np.ndarray) -> list:
-        return [[None if not np.isfinite(v) else float(v) for v in row] for row in np.atleast_2d(a)]
-
-    records = [
-        {
-            "id": lm.id,
-            "class": lm.class_name,
-            "position": [float(v) for v in lm.position],
-            "covariance": clean(lm.covariance),
-            "observations": lm.observations,
-            **({"shape": jsonable(lm.shape)} if lm.shape else {}),
-        }
-        for lm in landmarks
-    ]
-    path = Path(path)
-    path.write_text(json.dumps(records, indent=2) + "\n")
-    return path
 
 
 def position_errors(

@@ -37,7 +37,6 @@ blocked place forever.
 from __future__ import annotations
 
 import itertools
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,7 +45,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
 
-from amslam.errors import PlanningError
+from amslam.errors import PlanningError, RunFileError
 from amslam.interfaces import (
     BackendParams,
     Coordinate,
@@ -58,6 +57,7 @@ from amslam.interfaces import (
 )
 from amslam.lib.tours import exact_open_tour, nearest_neighbour_tour, two_opt
 from amslam.plugins.pams.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
+from amslam.rundir import read_landmarks
 from amslam.types import BoundingBox, PlanRequest, TourItem, TourItemKind
 
 # -- targets -----------------------------------------------------------------------------------
@@ -111,11 +111,12 @@ def _shape_position(shape: dict | None, position: np.ndarray) -> np.ndarray:
 
 
 def load_prior_objects(path: Path, default_radius: float = 0.5) -> list[Target]:
-    """Targets from a run's ``landmarks.json`` (list of ``{id, class, position, shape?}``)."""
+    """Targets from a run's ``landmarks.json`` (:func:`amslam.rundir.read_landmarks`: a list of
+    ``{id, class, position, shape?}``)."""
     try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise PlanningError(f"prior_objects: cannot read {path}: {exc}") from None
+        data = read_landmarks(Path(path))
+    except RunFileError as exc:  # names the file, and the landmark
+        raise PlanningError(f"prior_objects: {exc}") from None
     out = []
     for i, lm in enumerate(data):
         shape = lm.get("shape")

@@ -29,7 +29,8 @@ from pydantic import Field, ValidationInfo, model_validator
 
 from amslam.errors import PlatformError
 from amslam.interfaces import BackendParams, Coordinate, FieldError, mission_file_path
-from amslam.plugins.sim.world import MeshPart, World, WorldObject, WorldSpec, class_colour, survey_floors
+from amslam.lib.class_colours import class_colour
+from amslam.plugins.sim.world import MeshPart, World, WorldObject, WorldSpec, survey_floors
 from amslam.plugins.sim.worldpath import WorldFile, find_world_file
 
 #: classes treated as building structure (instance 0) unless the mission says otherwise

@@ -32,12 +32,12 @@ from pydantic import Field, model_validator
 
 from amslam.geometry import yaw_matrix
 from amslam.interfaces import BackendParams, FieldError
+from amslam.lib.class_colours import class_colour
 from amslam.plugins.sim.world import (
     MeshPart,
     WorldObject,
     WorldSpec,
     boxes_mesh,
-    class_colour,
     merge_meshes,
 )
 

@@ -11,37 +11,18 @@ Open3D is imported lazily so that loading the plugin (``amslam plugins``) stays 
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from amslam.lib.class_colours import class_colour
 from amslam.types import BoundingBox, WorldSummary
 
 #: Open3D's ``RaycastingScene.INVALID_ID`` (uint32 max): no geometry was hit.
 INVALID_ID = np.uint32(0xFFFFFFFF)
 
-#: Albedo of the classes the procedural generator uses (RGB in [0, 1]).
-CLASS_COLOURS: dict[str, tuple[float, float, float]] = {
-    "chair": (0.78, 0.22, 0.18),
-    "table": (0.55, 0.36, 0.18),
-    "shelf": (0.22, 0.38, 0.68),
-    "sofa": (0.28, 0.58, 0.30),
-    "wall": (0.82, 0.80, 0.76),
-    "floor": (0.52, 0.47, 0.42),
-    "ceiling": (0.93, 0.93, 0.92),
-}
-
 #: Classes with fixed ids, so the same class has the same id in every procedural world.
 BASE_CLASSES: tuple[str, ...] = ("background", "chair", "table", "shelf", "sofa")
-
-
-def class_colour(name: str) -> np.ndarray:
-    """Albedo of a class: a fixed colour for known classes, a stable hashed colour otherwise."""
-    if name in CLASS_COLOURS:
-        return np.array(CLASS_COLOURS[name])
-    digest = hashlib.sha1(name.encode()).digest()
-    return 0.25 + 0.6 * np.frombuffer(digest[:3], dtype=np.uint8) / 255.0
 
 
 @dataclass

@@ -17,7 +17,7 @@ from amslam.apps.export.runfolder import (
     ExportError,
     RunFolder,
     Trajectory,
-    read_ply_cloud,
+    map_ply_cloud,
     read_run_folder,
 )
 
@@ -268,7 +268,7 @@ def test_a_binary_ply_map_keeps_its_extra_vertex_values(tmp_path):
         for t, n in [("float", c) for c in "xyz"] + [("float", "probability"), ("uchar", "class")]
     )
     (tmp_path / "map.ply").write_bytes((header + "end_header\n").encode() + vertices.tobytes())
-    cloud = read_ply_cloud(tmp_path / "map.ply")
+    cloud = map_ply_cloud(tmp_path / "map.ply")
     assert cloud.points[:, 0].tolist() == [1, 2, 3]
     assert set(cloud.values) == {"probability", "class"} and cloud.values["class"].tolist() == [1, 2, 3]
     message = ros.point_cloud(cloud, "world", 0.0)

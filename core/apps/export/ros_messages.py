@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from amslam.apps.export.runfolder import RunFolder, Trajectory, VoxelCloud
+from amslam.apps.export.runfolder import RunFolder, VoxelCloud
+from amslam.lib.class_colours import class_colour
+from amslam.rundir import Trajectory
 
 WORLD, ODOM, BASE, TRUTH, CAMERA = "world", "odom", "base_link", "base_link_truth", "camera_optical"
 #: frame of each trajectory's poses and the body frame they move
@@ -198,14 +200,6 @@ def _marker(t: float, ns: str, marker_id: int, kind: int, **fields: Any) -> dict
     return marker
 
 
-def class_rgb(name: str) -> tuple[float, float, float]:
-    """The class's colour in the simulated world and the other apps' pictures."""
-    from amslam.plugins.sim.world import class_colour
-
-    r, g, b = (float(v) for v in class_colour(name))
-    return r, g, b
-
-
 def _rotation_taking_z_to(axis) -> np.ndarray:
     axis = np.asarray(axis, float)
     axis = axis / np.linalg.norm(axis)
@@ -268,7 +262,7 @@ def landmark_markers(landmarks: list[dict[str, Any]], t: float) -> dict[str, Any
     markers: list[dict[str, Any]] = [_marker(t, "", 0, CUBE, action=DELETEALL)]
     for n, lm in enumerate(landmarks):
         cls = lm["class"]
-        rgba = (*class_rgb(cls), 1.0)
+        rgba = (*(float(c) for c in class_colour(cls)), 1.0)
         marker_id = int(lm.get("id", n))
         markers.append(shape_marker(t, cls, marker_id, lm, rgba))
         ellipsoid = covariance_marker(t, f"{cls}/covariance", marker_id, lm, rgba)

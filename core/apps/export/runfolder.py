@@ -5,6 +5,11 @@ file handed to other tools, so here a malformed record is an :class:`ExportError
 file and line. Only a partial *last* line of a stream is forgiven (a run killed mid-write leaves
 one): it is dropped with a warning. A missing optional file (``landmarks.json``, ``map.npz``, ...)
 is a warning; its topics are left out.
+
+The files are read by the modules that write them (the trajectories and ``landmarks.json``:
+:mod:`amslam.rundir`; ``map.npz``: :mod:`amslam.lib.voxel_map`; ``map.ply``:
+:mod:`amslam.apps.mapformats`); the streams ``events.jsonl`` and ``tree.jsonl`` are checked here
+record by record, for what an export needs of them.
 """
 
 from __future__ import annotations
@@ -19,30 +24,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from amslam.errors import AmslamError
+from amslam.apps.mapformats import read_map_ply
+from amslam.errors import AmslamError, RunFileError
+from amslam.lib.voxel_map import DEFAULT_P_OCC, read_saved_map
+from amslam.rundir import TRAJECTORIES, Trajectory, read_landmarks, read_tum
 from amslam.types import CameraModel
-
-TRAJECTORIES = ("ground_truth", "vio", "slam")
-#: the voxel map format ``VoxelMap.save`` writes (``core/lib/voxel_map.py``)
-MAP_FORMAT = "amslam-voxels-1"
-#: the occupancy threshold when the run folder's mission.yaml does not give ``mapping.p_occ``
-#: (the mapping plugins' default, ``core/lib/voxel_map.py``)
-DEFAULT_P_OCC = 0.8
 
 
 class ExportError(AmslamError):
     """A run folder that cannot be exported; the message names the file (and line)."""
-
-
-@dataclass
-class Trajectory:
-    """A TUM trajectory: N stamps (s) and N×7 poses ``x y z qx qy qz qw``."""
-
-    stamps: np.ndarray
-    poses: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.stamps)
 
 
 @dataclass
@@ -101,7 +91,13 @@ def read_run_folder(path: Path) -> RunFolder:
     Raises:
         ExportError: the folder is missing or not a run folder, or one of its files is malformed.
     """
-    path = Path(path)
+    try:
+        return _read_run_folder(Path(path))
+    except RunFileError as exc:  # a file read by its format's own reader: the message names it
+        raise ExportError(str(exc)) from None
+
+
+def _read_run_folder(path: Path) -> RunFolder:
     if not path.is_dir():
         raise ExportError(f"{path}: no such run folder")
     if not (path / "events.jsonl").is_file() and not any((path / f"{n}.tum").is_file() for n in TRAJECTORIES):
@@ -141,7 +137,7 @@ def read_run_folder(path: Path) -> RunFolder:
     if (path / "map.npz").is_file():
         global_map, local_map = read_voxel_maps(path / "map.npz", float(p_occ))
     elif (path / "map.ply").is_file():
-        global_map = read_ply_cloud(path / "map.ply")
+        global_map = map_ply_cloud(path / "map.ply")
         # map.ply carries each voxel's probability since it became binary; older ones do not
         lost = "the final local map"
         if "probability" not in global_map.values:
@@ -187,34 +183,6 @@ def _last_line_cut(file: Path, number: int, total: int, what: str, warnings: lis
         warnings.append(f"{file}:{number}: {what} (a run stopped mid-write?): line dropped")
         return True
     return False
-
-
-def read_tum(file: Path, warnings: list[str]) -> Trajectory:
-    """``t x y z qx qy qz qw`` per line (``#`` comments allowed), in time order."""
-    lines = _lines(file)
-    stamps, poses = [], []
-    for number, line in enumerate(lines, 1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        try:
-            values = [float(v) for v in text.split()]
-            if len(values) != 8 or not all(math.isfinite(v) for v in values):
-                raise ValueError
-        except ValueError:
-            if _last_line_cut(file, number, len(lines), "not 8 numbers", warnings):
-                break
-            raise ExportError(
-                f"{file}:{number}: expected 8 numbers 't x y z qx qy qz qw', got {text[:60]!r}"
-            ) from None
-        if stamps and values[0] < stamps[-1]:
-            raise ExportError(f"{file}:{number}: time {values[0]} goes back (previous {stamps[-1]})")
-        norm = math.sqrt(sum(q * q for q in values[4:]))
-        if norm < 1e-6:
-            raise ExportError(f"{file}:{number}: quaternion is zero")
-        stamps.append(values[0])
-        poses.append([*values[1:4], *(q / norm for q in values[4:])])
-    return Trajectory(np.asarray(stamps, float), np.asarray(poses, float).reshape(-1, 7))
 
 
 def _check_event(record: dict[str, Any]) -> str | None:
@@ -296,88 +264,41 @@ def _is_vector(value: Any, n: int) -> bool:
     )
 
 
-def _is_row(value: Any) -> bool:
-    return isinstance(value, list) and len(value) == 3 and all(v is None or _is_vector([v], 1) for v in value)
-
-
-def read_landmarks(file: Path) -> list[dict[str, Any]]:
-    """``landmarks.json``: ``[{id, class, position, covariance?, shape?}, ...]``."""
-    landmarks = _read_json(file)
-    if not isinstance(landmarks, list):
-        raise ExportError(f"{file}: expected a JSON list of landmarks")
-    for i, lm in enumerate(landmarks):
-        where = f"{file}: landmark {i}"
-        if (
-            not isinstance(lm, dict)
-            or not isinstance(lm.get("class"), str)
-            or not _is_vector(lm.get("position"), 3)
-        ):
-            raise ExportError(f"{where}: needs a 'class' string and a 'position' [x, y, z]")
-        cov = lm.get("covariance")
-        if cov is not None and not (isinstance(cov, list) and len(cov) == 3 and all(_is_row(r) for r in cov)):
-            raise ExportError(f"{where}: 'covariance' must be a 3×3 list of numbers (or nulls: unknown)")
-        if cov is not None and any(v is None for row in cov for v in row):
-            lm["covariance"] = None  # a backend without uncertainty (odometry SLAM) writes nulls
-        shape = lm.get("shape")
-        if shape is not None and not (isinstance(shape, dict) and isinstance(shape.get("model"), str)):
-            raise ExportError(f"{where}: 'shape' must be an object with a 'model'")
-    return landmarks
-
-
-def read_voxel_maps(file: Path, p_occ: float) -> tuple[VoxelCloud, VoxelCloud]:
-    """The global and local maps of ``map.npz``: occupied voxels with their occupancy probability.
+def read_voxel_maps(file: Path, p_occ: float) -> tuple[VoxelCloud, VoxelCloud | None]:
+    """The global and local maps of ``map.npz`` (:func:`amslam.lib.voxel_map.read_saved_map`):
+    occupied voxels with their occupancy probability; the local map None when it was not saved.
 
     A voxel is occupied when its log-odds exceed ``logit(p_occ)``, the rule of the mapping
     plugins (``core/lib/voxel_grid.py``), so the global cloud is exactly ``map.ply``'s points.
     """
-    try:
-        with np.load(file, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise ExportError(f"{file}: not a readable .npz ({exc})") from None
-    if str(arrays.get("format", "")) != MAP_FORMAT:
-        raise ExportError(f"{file}: not an amslam voxel map (format {MAP_FORMAT!r} expected)")
-    threshold = math.log(p_occ / (1.0 - p_occ))
+    saved = read_saved_map(file)
     maps = []
-    for name in ("global", "local"):
-        try:
-            index = np.asarray(arrays[f"{name}_index"], np.int64).reshape(-1, 3)
-            logodds = np.asarray(arrays[f"{name}_logodds"], np.float64).reshape(-1)
-            voxel = float(arrays[f"{name}_voxel"])
-        except (KeyError, ValueError) as exc:
-            raise ExportError(f"{file}: the {name} map is incomplete ({exc})") from None
-        if len(index) != len(logodds) or not voxel > 0:
-            raise ExportError(f"{file}: the {name} map's index, log-odds and voxel size do not agree")
-        occupied = logodds > threshold
-        centres = (index[occupied] + 0.5) * voxel  # as core/lib/voxel_grid.py `centres`
-        probability = 1.0 / (1.0 + np.exp(-logodds[occupied]))
-        maps.append(VoxelCloud(centres, voxel, {"probability": probability}))
+    for grid in (saved.global_map, saved.local_map):
+        if grid is None:  # a saved map without its local window
+            maps.append(None)
+            continue
+        occupied = grid.occupied(p_occ)
+        maps.append(
+            VoxelCloud(grid.centres()[occupied], grid.voxel, {"probability": grid.probability()[occupied]})
+        )
     return maps[0], maps[1]
 
 
-def read_ply_cloud(file: Path) -> VoxelCloud:
-    """Points of ``map.ply`` (ASCII or binary, through trimesh) with any extra numeric vertex values."""
-    import trimesh
-
+def map_ply_cloud(file: Path) -> VoxelCloud:
+    """The points of ``map.ply`` (:func:`amslam.apps.mapformats.read_map_ply`: the binary one with
+    class and probability per voxel, or the ASCII x, y, z of older runs) with their class and,
+    where the file knows it, their occupancy probability."""
     try:
-        cloud = trimesh.load(file, file_type="ply", process=False)
-    except Exception as exc:  # trimesh raises many kinds on a bad file
-        raise ExportError(f"{file}: not a readable PLY ({exc})") from None
-    points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
+        cloud = read_map_ply(file)
+    except ValueError as exc:  # names the file already
+        raise ExportError(str(exc)) from None
+    except OSError as exc:
+        raise ExportError(f"{file}: cannot be read ({exc})") from None
     values: dict[str, np.ndarray] = {}
-    vertex = getattr(cloud, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    # trimesh gives an ASCII file's columns as a dict, a binary file's as a structured array
-    columns = (
-        vertex
-        if isinstance(vertex, dict)
-        else {n: vertex[n] for n in getattr(vertex, "dtype", np.dtype([])).names or ()}
-    )
-    for name, column in columns.items():
-        column = np.asarray(column)
-        numeric = column.ndim == 1 and len(column) == len(points) and np.issubdtype(column.dtype, np.number)
-        if name not in ("x", "y", "z") and numeric:
-            values[name] = column.astype(float)
-    return VoxelCloud(points, None, values)
+    if np.isfinite(cloud.probability).any():
+        values["probability"] = cloud.probability.astype(float)
+    values["class"] = cloud.classes.astype(float)
+    return VoxelCloud(cloud.points, cloud.voxel_size, values)
 
 
 # -- mission and camera -----------------------------------------------------------------------------

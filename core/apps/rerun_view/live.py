@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 
 import amslam
-from amslam.apps.rerun_view.replay import StreamTail, log_events, log_tree, read_landmarks, read_map
+from amslam.apps.rerun_view.replay import StreamTail, landmarks_of, log_events, log_tree, read_map
 from amslam.apps.rerun_view.scene import SOURCES, Scene, parse_tum
 from amslam.apps.rerun_view.sink import open_recording
+from amslam.rundir import landmark_records
 
 
 class LiveRerun:
@@ -125,14 +126,6 @@ class LiveRerun:
             points, voxel, classes = np.asarray(mapping.occupied_points(), float), mapping.voxel_size(), None
         scene.at(self.last_poll)  # timed like the growing map (a static one would hide it at every time)
         scene.map(points, voxel, classes, static=False)
-        landmarks = [
-            {
-                "id": lm.id,
-                "class": lm.class_name,
-                "position": np.asarray(lm.position, float).tolist(),
-                **({"shape": lm.shape} if lm.shape else {}),
-            }
-            for lm in summary.landmarks or []
-        ] or read_landmarks(Path(run_dir))
+        landmarks = landmark_records(summary.landmarks or []) or landmarks_of(Path(run_dir))
         scene.landmarks(landmarks)
         self.recording.flush()

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import math
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +10,10 @@ import numpy as np
 
 from amslam.apps.rerun_view.scene import SOURCES, Scene, parse_tum
 from amslam.apps.viewer.runfiles import FILES, parse_json_line, read_lines
-from amslam.errors import AmslamError
+from amslam.errors import AmslamError, RunFileError
+from amslam.rundir import read_landmarks
+
+log = logging.getLogger(__name__)
 
 
 class StreamTail:
@@ -64,7 +66,11 @@ def read_map(run_dir: Path) -> tuple[np.ndarray, float | None, list[str] | None]
     """Occupied voxel centres of the run's map, its voxel size and, when the file names any, the
     voxels' classes (None when every voxel is ``none``): ``map.ply`` (binary with class per voxel,
     or the ASCII one of older runs, read by :func:`amslam.apps.mapformats.read_map_ply`), else
-    ``map.npz`` (voxels at or above the default occupancy probability, 0.8)."""
+    ``map.npz`` (voxels above the default occupancy probability, 0.8, read by
+    :func:`amslam.lib.voxel_map.read_saved_map`).
+
+    Raises:
+        AmslamError: a map file that cannot be read, named."""
     ply, npz = run_dir / "map.ply", run_dir / "map.npz"
     if ply.exists():
         from amslam.apps.mapformats import NO_CLASS, read_map_ply
@@ -83,19 +89,24 @@ def read_map(run_dir: Path) -> tuple[np.ndarray, float | None, list[str] | None]
         guess = voxel_size(cloud.points) if len(cloud.points) else None
         return cloud.points, cloud.voxel_size or guess, classes
     if npz.exists():
-        with np.load(npz) as f:
-            voxel = float(f["global_voxel"])
-            occupied = f["global_logodds"] >= math.log(0.8 / 0.2)
-            return (f["global_index"][occupied] + 0.5) * voxel, voxel, None
+        from amslam.lib.voxel_map import read_saved_map
+
+        grid = read_saved_map(npz).global_map
+        return grid.centres()[grid.occupied()], grid.voxel, None
     return np.zeros((0, 3)), None, None
 
 
-def read_landmarks(run_dir: Path) -> list[dict[str, Any]]:
-    try:
-        raw = json.loads((run_dir / "landmarks.json").read_text())
-    except (OSError, json.JSONDecodeError):
+def landmarks_of(run_dir: Path) -> list[dict[str, Any]]:
+    """The run's ``landmarks.json`` (:func:`amslam.rundir.read_landmarks`); none when the file is
+    missing, or, with a warning, when it cannot be read (the rest of the run is still shown)."""
+    path = run_dir / "landmarks.json"
+    if not path.is_file():  # a run stopped before its end, or one without SLAM
         return []
-    return [lm for lm in raw if isinstance(lm, dict) and "position" in lm] if isinstance(raw, list) else []
+    try:
+        return read_landmarks(path)
+    except RunFileError as exc:
+        log.warning(f"{exc}: the landmarks left out")
+        return []
 
 
 def replay_run(run_dir: Path, rec: Any) -> dict[str, int]:
@@ -116,5 +127,5 @@ def replay_run(run_dir: Path, rec: Any) -> dict[str, int]:
     points, voxel, classes = read_map(run_dir)
     scene.map(points, voxel, classes)
     counts["map"] = len(points)
-    counts.update({f"landmarks_{k}": n for k, n in scene.landmarks(read_landmarks(run_dir)).items()})
+    counts.update({f"landmarks_{k}": n for k, n in scene.landmarks(landmarks_of(run_dir)).items()})
     return counts

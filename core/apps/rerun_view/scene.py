@@ -30,10 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from amslam.plugins.sim.world import class_colour
+from amslam.lib.class_colours import class_rgb
+from amslam.rundir import TRAJECTORIES, tum_values
 
 TIMELINE = "sim_time"
-SOURCES = ("ground_truth", "vio", "slam")
+SOURCES = TRAJECTORIES
 #: trajectory colours (RGB 0-255): truth green, VIO orange, SLAM blue, as in the web viewer
 SOURCE_COLOURS = {"ground_truth": (46, 160, 67), "vio": (230, 126, 34), "slam": (41, 98, 255)}
 TOUR_COLOURS = {"explore": (0, 170, 200), "slc": (214, 39, 40)}
@@ -45,26 +46,10 @@ FIELD_CHARS = 120
 
 
 def parse_tum(lines: Iterable[str]) -> np.ndarray:
-    """TUM rows ``t x y z qx qy qz qw`` as an N×8 array; comments and malformed lines are skipped."""
-    rows = []
-    for line in lines:
-        parts = line.split()
-        if len(parts) != 8 or line.startswith("#"):
-            continue
-        try:
-            rows.append([float(p) for p in parts])
-        except ValueError:
-            continue
+    """TUM rows ``t x y z qx qy qz qw`` as an N×8 array; comments and malformed lines are skipped
+    (a live run's streams are read as they are written: :func:`amslam.rundir.tum_values`)."""
+    rows = [values for values in map(tum_values, lines) if values is not None]
     return np.asarray(rows, float).reshape(-1, 8)
-
-
-def rgb(name: str) -> tuple[int, int, int]:
-    """A class's colour as the simulator renders it (a stable hashed colour for other classes);
-    map voxels of no landmark (``none``) grey."""
-    if name == "none":
-        return 150, 150, 150
-    r, g, b = (int(round(255 * c)) for c in class_colour(name))
-    return r, g, b
 
 
 class Scene:
@@ -92,7 +77,7 @@ class Scene:
         if new:
             for name in new:
                 self.class_ids[name] = len(self.class_ids) + 1
-            context = [(i, name, rgb(name)) for name, i in self.class_ids.items()]
+            context = [(i, name, class_rgb(name)) for name, i in self.class_ids.items()]
             self.rec.log("world", self.rr.AnnotationContext(context), static=True)
         return [self.class_ids[n] for n in names]
 

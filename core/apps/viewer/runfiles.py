@@ -16,6 +16,7 @@ Everything is turned into small JSON-ready structures, the shapes the page's scr
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 from dataclasses import dataclass, field
@@ -26,9 +27,13 @@ import numpy as np
 import yaml
 
 from amslam.apps.mapformats import read_map_ply
+from amslam.errors import RunFileError
+from amslam.lib.class_colours import class_hex
+from amslam.rundir import TRAJECTORIES, read_landmarks, tum_values
 
-STREAMS = ("events", "tree", "ground_truth", "vio", "slam")
-TRAJECTORIES = ("ground_truth", "vio", "slam")
+log = logging.getLogger(__name__)
+
+STREAMS = ("events", "tree", *TRAJECTORIES)
 FILES = {
     "events": "events.jsonl",
     "tree": "tree.jsonl",
@@ -47,14 +52,12 @@ def yaw_from_quaternion(qx: float, qy: float, qz: float, qw: float) -> float:
 
 
 def parse_tum_line(line: str) -> list[float] | None:
-    """``t x y z qx qy qz qw`` → ``[t, x, y, z, yaw]`` rounded for the page; None for a bad line."""
-    parts = line.split()
-    if len(parts) != 8 or line.startswith("#"):
+    """``t x y z qx qy qz qw`` → ``[t, x, y, z, yaw]`` rounded for the page; None for a bad line
+    (:func:`amslam.rundir.tum_values`)."""
+    values = tum_values(line)
+    if values is None:
         return None
-    try:
-        t, x, y, z, qx, qy, qz, qw = (float(p) for p in parts)
-    except ValueError:
-        return None
+    t, x, y, z, qx, qy, qz, qw = values
     return [round(t, 3), round(x, 3), round(y, 3), round(z, 3), round(yaw_from_quaternion(qx, qy, qz, qw), 4)]
 
 
@@ -167,12 +170,6 @@ def poll_run(run_dir: Path, cursor: dict[str, int] | None = None) -> Delta:
 
 
 # -- summaries --------------------------------------------------------------------------------------
-
-
-def read_ply_points(path: Path) -> np.ndarray:
-    """Vertices of a map PLY (binary or ASCII) as an N×3 array (empty when the file is missing,
-    empty or not a PLY)."""
-    return read_map_points(path)[0]
 
 
 def read_map_points(path: Path) -> tuple[np.ndarray, float | None]:
@@ -294,27 +291,29 @@ def floor_slices(points: np.ndarray, heights: list[float]) -> list[dict[str, Any
     return floors
 
 
-def read_landmarks(path: Path) -> list[dict[str, Any]]:
-    """``landmarks.json`` as ``{id, class, p: [x, y, z], sigma: √(tr Σ), n}`` (empty when missing)."""
+def page_landmarks(path: Path) -> list[dict[str, Any]]:
+    """``landmarks.json`` (:func:`amslam.rundir.read_landmarks`) as the page's
+    ``{id, class, p: [x, y, z], sigma: √(tr Σ), n}``; empty when the file is missing, or, with a
+    warning, when it cannot be read (the page shows the rest of the run)."""
+    if not path.is_file():
+        return []
     try:
-        raw = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
+        landmarks = read_landmarks(path)
+    except RunFileError as exc:
+        log.warning(f"{exc}: the landmarks left out")
         return []
     out = []
-    for lm in raw if isinstance(raw, list) else []:
-        try:
-            cov = np.asarray(lm.get("covariance") or np.zeros((3, 3)), float)
-            out.append(
-                {
-                    "id": lm.get("id"),
-                    "class": str(lm.get("class", "?")),
-                    "p": [round(float(c), 3) for c in lm["position"][:3]],
-                    "sigma": round(float(math.sqrt(max(np.trace(cov), 0.0))), 4),
-                    "n": lm.get("observations", 0),
-                }
-            )
-        except (KeyError, TypeError, ValueError):
-            continue
+    for lm in landmarks:
+        cov = np.asarray(lm.get("covariance") or np.zeros((3, 3)), float)
+        out.append(
+            {
+                "id": lm.get("id"),
+                "class": lm["class"],
+                "p": [round(float(c), 3) for c in lm["position"]],
+                "sigma": round(float(math.sqrt(max(np.trace(cov), 0.0))), 4),
+                "n": lm.get("observations", 0),
+            }
+        )
     return out
 
 
@@ -335,17 +334,20 @@ METRIC_KEYS = (
 
 
 def read_summaries(run_dir: Path) -> dict[str, Any]:
-    """The end-of-run files: the map sliced per floor, the landmarks and the headline metrics."""
+    """The end-of-run files: the map sliced per floor, the landmarks (and their classes' colours,
+    :mod:`amslam.lib.class_colours`) and the headline metrics."""
     points, voxel = read_map_points(run_dir / "map.ply")
     heights = floor_heights(run_dir, points)
     try:
         metrics = json.loads((run_dir / "metrics.json").read_text())
     except (OSError, json.JSONDecodeError):
         metrics = {}
+    landmarks = page_landmarks(run_dir / "landmarks.json")
     return {
         "voxel": voxel or (voxel_size(points) if len(points) else None),
         "floors": floor_slices(points, heights),
-        "landmarks": read_landmarks(run_dir / "landmarks.json"),
+        "landmarks": landmarks,
+        "class_colours": {lm["class"]: class_hex(lm["class"]) for lm in landmarks},
         "metrics": {k: metrics[k] for k in METRIC_KEYS if k in metrics},
     }
 

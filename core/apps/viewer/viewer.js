@@ -12,7 +12,6 @@
     vio: { colour: "#e0453a", label: "VIO", width: 1.4 },
     slam: { colour: "#3568d4", label: "SLAM", width: 1.4 },
   };
-  const CLASS_COLOURS = ["#e6a100", "#b03fc4", "#0a9bb5", "#d4561c", "#6a8f00", "#c2185b", "#5c6bc0", "#795548"];
   const TOUR_COLOUR = "#f08c00";
   const SLC_COLOUR = "#8e3fd6";
   const EVENT_KIND = {
@@ -43,7 +42,6 @@
     trajTimes: {},
     stat: data.static || null,
     info: data.info || {},
-    classColour: {},
     bounds: null,
     floorCanvases: [],
     rows: {},
@@ -96,12 +94,10 @@
     return 0;
   }
 
+  // a class's colour comes with the run's summaries (amslam.lib.class_colours): the simulator's,
+  // rerun's and the report's colour of that class
   function classColour(name) {
-    if (!(name in state.classColour)) {
-      const n = Object.keys(state.classColour).length;
-      state.classColour[name] = CLASS_COLOURS[n % CLASS_COLOURS.length];
-    }
-    return state.classColour[name];
+    return ((state.stat && state.stat.class_colours) || {})[name] || "#888888";
   }
 
   // -- header --------------------------------------------------------------------------------------

@@ -15,10 +15,11 @@ from amslam.apps.viewer.runfiles import (
     parse_tum_line,
     poll_run,
     read_lines,
-    read_ply_points,
+    read_map_points,
     slice_levels,
     voxel_size,
 )
+from amslam.lib.class_colours import class_colour
 from tests.apps.viewer import synthetic
 
 
@@ -89,7 +90,7 @@ def test_poll_follows_a_run_in_progress(tmp_path):
 
 def test_floor_heights_come_from_metrics_then_mission_then_map(tmp_path):
     run = synthetic.write_run(tmp_path / "run")
-    points = read_ply_points(run / "map.ply")
+    points, _ = read_map_points(run / "map.ply")
     assert floor_heights(run, points) == [0.0]  # procedural world: floors × floor_height
     metrics = json.loads((run / "metrics.json").read_text())
     (run / "metrics.json").write_text(json.dumps({**metrics, "floor_heights": [0.0, 3.0]}))
@@ -121,3 +122,18 @@ def test_slices_keep_walls_and_furniture_not_floor_or_ceiling():
     assert wall == 10 and table == 2  # wall voxels from z 0.375 to 2.625; the table's two levels
     n_wall_cells = 2 * (24 + 16) - 4
     assert len(cells) == n_wall_cells + 4
+
+
+def test_the_page_gets_each_class_in_the_colour_the_simulator_paints_it(tmp_path):
+    static = poll_run(synthetic.write_run(tmp_path / "run")).static
+    chair = class_colour("chair")
+    assert static["class_colours"]["chair"] == "#{:02x}{:02x}{:02x}".format(*(round(255 * c) for c in chair))
+    assert set(static["class_colours"]) == {"chair", "table"}
+
+
+def test_a_landmarks_file_that_does_not_read_leaves_the_landmarks_out_with_a_warning(tmp_path, caplog):
+    run = synthetic.write_run(tmp_path / "run")
+    (run / "landmarks.json").write_text('[{"class": "chair", "position": [1, 2')  # cut mid-write
+    static = poll_run(run).static
+    assert static["landmarks"] == [] and static["floors"]  # the rest of the run is shown
+    assert any("landmarks.json:1: not JSON" in r.getMessage() for r in caplog.records)

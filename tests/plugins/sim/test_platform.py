@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.plugins.sim.world import MeshPart, World, WorldSpec, box_room, boxes_mesh, class_colour
+from amslam.lib.class_colours import class_colour
+from amslam.plugins.sim.world import MeshPart, World, WorldSpec, box_room, boxes_mesh
 from amslam.types import RobotSpec
 
 from .conftest import fly_to, make_platform
