@@ -18,7 +18,8 @@ happens (a crash loses nothing already written):
 
 A key pose is logged whenever the SLAM backend makes one and for every detection frame (at the
 frame's own VIO pose), so each detection has an exact key pose and the chain of ``rel`` motions is
-the robot's whole odometry. :func:`read_measurements` loads a log back.
+the robot's whole odometry. :func:`read_measurements` loads a log back;
+:func:`read_measurements_header` its first line alone (the camera mount, without the whole log).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from amslam.errors import RunFileError
 from amslam.geometry import invert, transform_points
 from amslam.rundir import Stream, jsonable
 from amslam.types import Detection, Odometry
@@ -225,6 +227,33 @@ class RobotMeasurements:
         return [transform_points(T_world_body[d.keypose], d.points) for d in self.detections]
 
 
+def _is_header(record: Any) -> bool:
+    return isinstance(record, dict) and record.get("type") == "header" and record.get("format") == FORMAT
+
+
+def read_measurements_header(path: Path) -> dict[str, Any]:
+    """The header record (first line) of a ``measurements.jsonl`` file (or the one in a run folder).
+
+    Raises:
+        RunFileError: the file cannot be read or its first line is not the header; named.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / FILENAME
+    try:
+        with open(path, encoding="utf-8") as f:
+            first = f.readline()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RunFileError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        record = json.loads(first)
+    except json.JSONDecodeError:
+        record = None
+    if not _is_header(record):
+        raise RunFileError(f"{path}:1: not an amslam measurement log (first line is not its header)")
+    return record
+
+
 def read_measurements(path: Path) -> RobotMeasurements:
     """Load a ``measurements.jsonl`` file (or the one in a run folder).
 
@@ -248,7 +277,7 @@ def read_measurements(path: Path) -> RobotMeasurements:
             raise ValueError(f"{path}:{n}: not JSON: {exc}") from None
         kind = rec.get("type")
         if n == 1:
-            if kind != "header" or rec.get("format") != FORMAT:
+            if not _is_header(rec):
                 raise ValueError(f"{path}: not an amslam measurement log (first line is not its header)")
             header = rec
         elif kind == "keypose":

@@ -20,6 +20,9 @@ from amslam.apps.export.runfolder import (
     map_ply_cloud,
     read_run_folder,
 )
+from amslam.errors import RunFileError
+from amslam.measurements import MeasurementLog, read_measurements_header
+from amslam.types import CameraModel
 
 
 def trajectory(stamps, xyz, yaws) -> Trajectory:
@@ -274,3 +277,18 @@ def test_a_binary_ply_map_keeps_its_extra_vertex_values(tmp_path):
     message = ros.point_cloud(cloud, "world", 0.0)
     assert [f["name"] for f in message["fields"]] == ["x", "y", "z", "probability", "class"]
     assert message["point_step"] == 20 and len(message["data"]) == 60
+
+
+def test_the_camera_mount_comes_from_the_measurement_logs_header(tmp_path):
+    (tmp_path / "vio.tum").write_text("0.1 0 0 0 0 0 0 1\n")
+    mount = CameraModel.forward_mount(20.0, (0.1, 0.0, 0.05))
+    MeasurementLog(tmp_path / "measurements.jsonl", "r1", mount).close()
+    run = read_run_folder(tmp_path)
+    assert run.camera.source == "measurements.jsonl header"
+    np.testing.assert_allclose(run.camera.T_body_cam, mount, atol=1e-9)
+    (tmp_path / "measurements.jsonl").write_text('{"type": "keypose"}\n')  # not a header
+    run = read_run_folder(tmp_path)
+    assert run.camera.source.startswith("assumed")
+    assert any("measurements.jsonl:1: no T_body_cam in the header" in w for w in run.warnings)
+    with pytest.raises(RunFileError, match=r"measurements.jsonl:1: not an amslam measurement log"):
+        read_measurements_header(tmp_path)

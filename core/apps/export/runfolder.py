@@ -27,6 +27,7 @@ import yaml
 from amslam.apps.mapformats import read_map_ply
 from amslam.errors import AmslamError, RunFileError
 from amslam.lib.voxel_map import DEFAULT_P_OCC, read_saved_map
+from amslam.measurements import read_measurements_header
 from amslam.rundir import TRAJECTORIES, Trajectory, read_landmarks, read_tum
 from amslam.types import CameraModel
 
@@ -332,12 +333,10 @@ def camera_mount(path: Path, mission: dict[str, Any] | None, warnings: list[str]
     file = path / "measurements.jsonl"
     if file.is_file():
         try:
-            with open(file, encoding="utf-8", errors="replace") as f:
-                header = json.loads(f.readline())
-            T = np.asarray(header["T_body_cam"], float)
+            T = np.asarray(read_measurements_header(file)["T_body_cam"], float)
             if T.shape == (4, 4) and np.all(np.isfinite(T)):
                 return CameraMount(T, f"{file.name} header")
-        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError):
+        except (RunFileError, KeyError, TypeError, ValueError):  # no usable header: the mission's mount
             pass
         warnings.append(f"{file}:1: no T_body_cam in the header; camera mount taken from the mission")
     camera = _nested(mission, "platform", "camera", default={})
