@@ -8,8 +8,9 @@ to a temporary file beside it, then renamed over it, so a kill or a full disk mi
 old file or none — never an empty or half-written ``metrics.json``.
 
 The formats this module writes are read here too, so one module knows each of them: the TUM
-trajectories (:func:`read_tum`, :func:`tum_values` for a stream read line by line) and
-``landmarks.json`` (:func:`write_landmarks`, :func:`read_landmarks`). A file that cannot be read
+trajectories (:func:`read_tum`, :func:`tum_values` for a stream read line by line),
+``landmarks.json`` (:func:`write_landmarks`, :func:`read_landmarks`) and ``metrics.json``
+(:func:`read_metrics`). A file that cannot be read
 is one :class:`~amslam.errors.RunFileError` naming the file and the line or record; only a torn
 *last* line of a stream (a run stopped mid-write) is dropped, with a warning.
 """
@@ -333,6 +334,28 @@ def read_tum(path: Path, warnings: list[str] | None = None) -> Trajectory:
     return Trajectory(np.asarray(stamps, float), np.asarray(poses, float).reshape(-1, 7))
 
 
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(_read_text(path))
+    except json.JSONDecodeError as exc:
+        raise RunFileError(f"{path}:{exc.lineno}: not JSON ({exc.msg})") from None
+
+
+def read_metrics(path: Path) -> dict[str, Any]:
+    """``metrics.json`` (the runner's, :meth:`RunFiles.write_json`; the run folder or the file).
+
+    Raises:
+        RunFileError: the file cannot be read, is not JSON or not a JSON object; named.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "metrics.json"
+    metrics = _read_json(path)
+    if not isinstance(metrics, dict):
+        raise RunFileError(f"{path}: not a JSON object")
+    return metrics
+
+
 def landmark_records(landmarks: Iterable[Landmark]) -> list[dict[str, Any]]:
     """Landmarks as the records of ``landmarks.json``: ``id``, ``class``, ``position``,
     ``covariance`` (nulls where not finite: a backend without uncertainty), ``observations`` and,
@@ -377,11 +400,7 @@ def read_landmarks(path: Path) -> list[dict[str, Any]]:
         RunFileError: the file cannot be read, is not JSON, or a record is malformed;
             ``FILE: landmark I: what``.
     """
-    text = _read_text(path)
-    try:
-        landmarks = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RunFileError(f"{path}:{exc.lineno}: not JSON ({exc.msg})") from None
+    landmarks = _read_json(path)
     if not isinstance(landmarks, list):
         raise RunFileError(f"{path}: expected a JSON list of landmarks")
     for i, lm in enumerate(landmarks):

@@ -43,7 +43,7 @@ from amslam.cli import Experiment, positive_int
 from amslam.errors import AmslamError
 from amslam.mission import Mission, load_mission
 from amslam.registry import Registry
-from amslam.rundir import new_folder, write_landmarks
+from amslam.rundir import new_folder, read_metrics, write_landmarks
 from amslam.types import WorldSummary
 
 Mode = Literal["homogeneous", "heterogeneous"]
@@ -177,7 +177,7 @@ def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
             if not (run / "mission.yaml").exists() or not (run / "metrics.json").exists():
                 continue  # a run still flying, or killed
             mission = load_mission(str(run / "mission.yaml"), registry, [])
-            metrics = json.loads((run / "metrics.json").read_text())
+            metrics = read_metrics(run / "metrics.json")
             out.setdefault(
                 flight_key(mission), {"flags": None, "run_dir": run, "metrics": metrics, "world": None}
             )

@@ -11,7 +11,15 @@ import pytest
 from amslam.errors import RunFileError
 from amslam.geometry import pose_from, tum_line
 from amslam.lib.voxel_map import read_saved_map
-from amslam.rundir import RunDir, read_landmarks, read_tum, tum_values, write_landmarks
+from amslam.rundir import (
+    RunDir,
+    RunFiles,
+    read_landmarks,
+    read_metrics,
+    read_tum,
+    tum_values,
+    write_landmarks,
+)
 from amslam.types import Landmark
 
 
@@ -116,3 +124,18 @@ def test_a_bad_saved_map_is_one_error_naming_it(tmp_path: Path, arrays, expected
         np.savez(path, **arrays)
     with pytest.raises(RunFileError, match=expected):
         read_saved_map(path)
+
+
+def test_metrics_read_from_the_folder_or_the_file_and_a_bad_one_is_named(tmp_path: Path):
+    RunFiles(tmp_path).write_json("metrics.json", {"verdict": "completed", "distance_m": np.float64(2.5)})
+    assert (
+        read_metrics(tmp_path)
+        == read_metrics(tmp_path / "metrics.json")
+        == {
+            "verdict": "completed",
+            "distance_m": 2.5,
+        }
+    )
+    (tmp_path / "metrics.json").write_text("[1, 2]")
+    with pytest.raises(RunFileError, match=r"metrics.json: not a JSON object"):
+        read_metrics(tmp_path)

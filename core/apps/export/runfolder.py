@@ -28,7 +28,7 @@ from amslam.apps.mapformats import read_map_ply
 from amslam.errors import AmslamError, RunFileError
 from amslam.lib.voxel_map import DEFAULT_P_OCC, read_saved_map
 from amslam.measurements import read_measurements_header
-from amslam.rundir import TRAJECTORIES, Trajectory, read_landmarks, read_tum
+from amslam.rundir import TRAJECTORIES, Trajectory, read_landmarks, read_metrics, read_tum
 from amslam.types import CameraModel
 
 
@@ -148,9 +148,7 @@ def _read_run_folder(path: Path) -> RunFolder:
         missing("map.npz (and map.ply)", "the map")
     metrics = None
     if (path / "metrics.json").is_file():
-        metrics = _read_json(path / "metrics.json")
-        if not isinstance(metrics, dict):
-            raise ExportError(f"{path / 'metrics.json'}: not a JSON object")
+        metrics = read_metrics(path / "metrics.json")
     name = (metrics or {}).get("mission") or (mission or {}).get("name") or path.name
     return RunFolder(
         path=path,
@@ -246,15 +244,6 @@ def read_tree(file: Path, warnings: list[str]) -> tuple[list[dict[str, Any]] | N
 
 
 # -- summaries --------------------------------------------------------------------------------------
-
-
-def _read_json(file: Path) -> Any:
-    try:
-        return json.loads(file.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ExportError(f"{file}: cannot be read ({exc})") from None
-    except json.JSONDecodeError as exc:
-        raise ExportError(f"{file}:{exc.lineno}: not JSON ({exc.msg})") from None
 
 
 def _is_vector(value: Any, n: int) -> bool:

@@ -15,6 +15,7 @@ Everything is turned into small JSON-ready structures, the shapes the page's scr
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -29,7 +30,7 @@ import yaml
 from amslam.apps.mapformats import read_map_ply
 from amslam.errors import RunFileError
 from amslam.lib.class_colours import class_hex
-from amslam.rundir import TRAJECTORIES, read_landmarks, tum_values
+from amslam.rundir import TRAJECTORIES, read_landmarks, read_metrics, tum_values
 
 log = logging.getLogger(__name__)
 
@@ -200,12 +201,10 @@ def floor_heights(run_dir: Path, points: np.ndarray) -> list[float]:
     z levels holding many occupied voxels (floors and ceilings); each floor stands on the top
     of one such band, and the highest band is the roof.
     """
-    try:
-        metrics = json.loads((run_dir / "metrics.json").read_text())
+    metrics = _metrics(run_dir)
+    with contextlib.suppress(TypeError, ValueError):  # floor heights that are not numbers: the next source
         if metrics.get("floor_heights"):
             return [float(h) for h in metrics["floor_heights"]]
-    except (OSError, json.JSONDecodeError):
-        pass
     try:
         mission = yaml.safe_load((run_dir / "mission.yaml").read_text()) or {}
         world = (mission.get("platform") or {}).get("world") or {}
@@ -333,15 +332,21 @@ METRIC_KEYS = (
 )
 
 
+def _metrics(run_dir: Path) -> dict[str, Any]:
+    """``metrics.json`` (:func:`amslam.rundir.read_metrics`), empty while the run has not written
+    it or when it does not read (the page shows what the other files hold)."""
+    try:
+        return read_metrics(Path(run_dir) / "metrics.json")
+    except RunFileError:
+        return {}
+
+
 def read_summaries(run_dir: Path) -> dict[str, Any]:
     """The end-of-run files: the map sliced per floor, the landmarks (and their classes' colours,
     :mod:`amslam.lib.class_colours`) and the headline metrics."""
     points, voxel = read_map_points(run_dir / "map.ply")
     heights = floor_heights(run_dir, points)
-    try:
-        metrics = json.loads((run_dir / "metrics.json").read_text())
-    except (OSError, json.JSONDecodeError):
-        metrics = {}
+    metrics = _metrics(run_dir)
     landmarks = page_landmarks(run_dir / "landmarks.json")
     return {
         "voxel": voxel or (voxel_size(points) if len(points) else None),

@@ -137,3 +137,10 @@ def test_a_landmarks_file_that_does_not_read_leaves_the_landmarks_out_with_a_war
     static = poll_run(run).static
     assert static["landmarks"] == [] and static["floors"]  # the rest of the run is shown
     assert any("landmarks.json:1: not JSON" in r.getMessage() for r in caplog.records)
+
+
+def test_a_metrics_file_that_is_not_an_object_leaves_the_metrics_out(tmp_path):
+    run = synthetic.write_run(tmp_path / "run")
+    (run / "metrics.json").write_text('["completed"]')  # was an AttributeError traceback
+    static = poll_run(run).static
+    assert static["metrics"] == {} and static["landmarks"]
