@@ -33,7 +33,7 @@ import numpy as np
 
 from amslam.errors import RunFileError
 from amslam.geometry import invert, transform_points
-from amslam.rundir import Stream, jsonable
+from amslam.rundir import Stream, jsonable, read_jsonl
 from amslam.types import Detection, Odometry
 
 FORMAT = "amslam-measurements"
@@ -258,23 +258,15 @@ def read_measurements(path: Path) -> RobotMeasurements:
     """Load a ``measurements.jsonl`` file (or the one in a run folder).
 
     Raises:
-        ValueError: the file is not a measurement log, or a record is malformed.
+        ValueError: the file is not a measurement log, or a record is malformed
+            (:class:`~amslam.errors.RunFileError`, a ValueError, when a line is not a JSON object).
     """
     path = Path(path)
     if path.is_dir():
         path = path / FILENAME
     header: dict[str, Any] | None = None
     stamps, poses, rels, truths, dets = [], [], [], [], []
-    lines = path.read_text().splitlines()
-    for n, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as exc:
-            if n == len(lines):  # a run killed mid-write leaves a partial last line
-                break
-            raise ValueError(f"{path}:{n}: not JSON: {exc}") from None
+    for n, rec in read_jsonl(path):  # a partial last line (a run killed mid-write) is dropped
         kind = rec.get("type")
         if n == 1:
             if not _is_header(rec):

@@ -8,7 +8,8 @@ to a temporary file beside it, then renamed over it, so a kill or a full disk mi
 old file or none — never an empty or half-written ``metrics.json``.
 
 The formats this module writes are read here too, so one module knows each of them: the TUM
-trajectories (:func:`read_tum`, :func:`tum_values` for a stream read line by line),
+trajectories (:func:`read_tum`, :func:`tum_values` for a stream read line by line), the JSON-lines
+streams (:func:`read_jsonl`),
 ``landmarks.json`` (:func:`write_landmarks`, :func:`read_landmarks`) and ``metrics.json``
 (:func:`read_metrics`). A file that cannot be read
 is one :class:`~amslam.errors.RunFileError` naming the file and the line or record; only a torn
@@ -262,6 +263,42 @@ def _read_text(path: Path) -> str:
         raise RunFileError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
 
 
+def _torn_last_line(path: Path, number: int, total: int, what: str, warnings: list[str] | None) -> bool:
+    """Whether a malformed line is the last one: a run stopped mid-write. It is dropped, and said
+    in ``warnings``; a malformed line before it is an error (the caller's)."""
+    if number != total:
+        return False
+    if warnings is not None:
+        warnings.append(f"{path}:{number}: {what} (a run stopped mid-write?): line dropped")
+    return True
+
+
+def read_jsonl(path: Path, warnings: list[str] | None = None) -> list[tuple[int, dict[str, Any]]]:
+    """The records of a JSON-lines stream (``events.jsonl``, ``tree.jsonl``,
+    ``measurements.jsonl``) with their line numbers; blank lines skipped, a torn last line dropped
+    (and said in ``warnings``).
+
+    Raises:
+        RunFileError: the file cannot be read, or a line before the last is not a JSON object;
+            ``FILE:LINE: what``.
+    """
+    lines = _read_text(path).splitlines()
+    records = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            if _torn_last_line(path, number, len(lines), "not JSON", warnings):
+                break
+            raise RunFileError(f"{path}:{number}: not JSON ({exc.msg})") from None
+        if not isinstance(record, dict):
+            raise RunFileError(f"{path}:{number}: not a JSON object")
+        records.append((number, record))
+    return records
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """A TUM trajectory: N stamps (s) and N×7 poses ``x y z qx qy qz qw`` (unit quaternions)."""
@@ -315,11 +352,7 @@ def read_tum(path: Path, warnings: list[str] | None = None) -> Trajectory:
             continue
         values = tum_values(text)
         if values is None:
-            if number == len(lines):
-                if warnings is not None:
-                    warnings.append(
-                        f"{path}:{number}: not 8 numbers (a run stopped mid-write?): line dropped"
-                    )
+            if _torn_last_line(path, number, len(lines), "not 8 numbers", warnings):
                 break
             raise RunFileError(
                 f"{path}:{number}: expected 8 numbers 't x y z qx qy qz qw', got {text[:60]!r}"

@@ -11,9 +11,11 @@ import pytest
 from amslam.errors import RunFileError
 from amslam.geometry import pose_from, tum_line
 from amslam.lib.voxel_map import read_saved_map
+from amslam.measurements import MeasurementLog, read_measurements
 from amslam.rundir import (
     RunDir,
     RunFiles,
+    read_jsonl,
     read_landmarks,
     read_metrics,
     read_tum,
@@ -139,3 +141,30 @@ def test_metrics_read_from_the_folder_or_the_file_and_a_bad_one_is_named(tmp_pat
     (tmp_path / "metrics.json").write_text("[1, 2]")
     with pytest.raises(RunFileError, match=r"metrics.json: not a JSON object"):
         read_metrics(tmp_path)
+
+
+def test_a_json_lines_stream_forgives_only_a_torn_last_line(tmp_path: Path):
+    events = tmp_path / "events.jsonl"
+    events.write_text('{"t": 0.0, "event": "run_start"}\n\n{"t": 1.0, "event": "replan"}\n{"t": 2.0, "ev')
+    warnings: list[str] = []
+    assert [n for n, _ in read_jsonl(events, warnings)] == [1, 3]
+    assert warnings == [f"{events}:4: not JSON (a run stopped mid-write?): line dropped"]
+    events.write_text('{"t": 0.0}\n[1, 2]\n{"t": 1.0}\n')
+    with pytest.raises(RunFileError, match=r"events.jsonl:2: not a JSON object"):
+        read_jsonl(events)
+    events.write_text('{"t": 0.0}\n{"t": 1.\n{"t": 1.0}\n')
+    with pytest.raises(RunFileError, match=r"events.jsonl:2: not JSON"):
+        read_jsonl(events)
+
+
+def test_a_measurement_log_cut_mid_write_reads_and_a_garbled_one_is_named(tmp_path: Path):
+    log = MeasurementLog(tmp_path / "measurements.jsonl", "r1", np.eye(4))
+    log.close()
+    with open(tmp_path / "measurements.jsonl", "a") as f:
+        f.write('{"type": "keyp')  # killed mid-write
+    assert read_measurements(tmp_path).robot == "r1"
+    (tmp_path / "measurements.jsonl").write_text((tmp_path / "measurements.jsonl").read_text() + '"x"\n{}\n')
+    with pytest.raises(RunFileError, match=r"measurements.jsonl:2: not JSON"):
+        read_measurements(tmp_path)
+    with pytest.raises(RunFileError, match=r"missing: cannot be read"):
+        read_measurements(tmp_path / "missing")

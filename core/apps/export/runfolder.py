@@ -14,7 +14,6 @@ record by record, for what an export needs of them.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ from amslam.apps.mapformats import read_map_ply
 from amslam.errors import AmslamError, RunFileError
 from amslam.lib.voxel_map import DEFAULT_P_OCC, read_saved_map
 from amslam.measurements import read_measurements_header
-from amslam.rundir import TRAJECTORIES, Trajectory, read_landmarks, read_metrics, read_tum
+from amslam.rundir import TRAJECTORIES, Trajectory, read_jsonl, read_landmarks, read_metrics, read_tum
 from amslam.types import CameraModel
 
 
@@ -169,21 +168,6 @@ def _read_run_folder(path: Path) -> RunFolder:
 # -- streams ----------------------------------------------------------------------------------------
 
 
-def _lines(file: Path) -> list[str]:
-    try:
-        return file.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ExportError(f"{file}: cannot be read ({exc})") from None
-
-
-def _last_line_cut(file: Path, number: int, total: int, what: str, warnings: list[str]) -> bool:
-    """A malformed last line of a stream is a run stopped mid-write: warn and drop it."""
-    if number == total:
-        warnings.append(f"{file}:{number}: {what} (a run stopped mid-write?): line dropped")
-        return True
-    return False
-
-
 def _check_event(record: dict[str, Any]) -> str | None:
     if not isinstance(record.get("t"), int | float) or not isinstance(record.get("event"), str):
         return "an event needs a number 't' and a string 'event'"
@@ -201,18 +185,10 @@ def _check_event(record: dict[str, Any]) -> str | None:
 def _read_jsonl(
     file: Path, warnings: list[str], check: Callable[[dict[str, Any]], str | None]
 ) -> list[dict[str, Any]]:
-    lines = _lines(file)
+    """The records of a stream (:func:`amslam.rundir.read_jsonl`), each checked by ``check``."""
     records = []
-    for number, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError as exc:
-            if _last_line_cut(file, number, len(lines), "not JSON", warnings):
-                break
-            raise ExportError(f"{file}:{number}: not JSON ({exc.msg})") from None
-        problem = "not a JSON object" if not isinstance(record, dict) else check(record)
+    for number, record in read_jsonl(file, warnings):
+        problem = check(record)
         if problem:
             raise ExportError(f"{file}:{number}: {problem}")
         records.append(record)
