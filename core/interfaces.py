@@ -16,8 +16,9 @@ defaults and descriptions. The mission's section for the backend is validated ag
 from __future__ import annotations
 
 import abc
+import importlib.util
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
@@ -141,9 +142,26 @@ class Backend(abc.ABC):  # noqa: B024 — the lifecycle methods are optional
     """Lifecycle shared by all backend kinds."""
 
     Params: ClassVar[type[BackendParams]] = BackendParams
+    #: top-level Python modules the backend imports when it is built (heavy libraries are imported
+    #: lazily, so listing the plugin or validating a mission does not); a mission choosing the
+    #: backend is refused when one is not installed, before anything flies
+    requires: ClassVar[tuple[str, ...]] = ()
 
     def configure(self, params: BackendParams, context: RunContext) -> None:  # noqa: B027
         """Receive validated parameters and the run context."""
+
+
+def missing_modules(names: Sequence[str]) -> list[str]:
+    """The top-level modules among ``names`` that are not installed (looked up, not imported)."""
+    missing = []
+    for name in names:
+        try:
+            found = importlib.util.find_spec(name) is not None
+        except (ImportError, ValueError):  # ValueError: sys.modules holds None for it (blocked)
+            found = False
+        if not found:
+            missing.append(name)
+    return missing
 
     def close(self) -> None:  # noqa: B027
         """Release resources. Safe to call twice."""

@@ -35,6 +35,7 @@ from amslam.interfaces import (
     Point,
     check_mission_file,
     lo_below_hi,
+    missing_modules,
 )
 from amslam.registry import Registry
 from amslam.types import BoundingBox, RobotSpec
@@ -450,6 +451,12 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
         except PluginError as exc:
             report((kind, "plugin"), str(exc))
             continue
+        if missing := missing_modules(getattr(cls, "requires", ())):
+            needs = ", ".join(repr(m) for m in missing)
+            report(
+                (kind, "plugin"),
+                f"{plugin!r} needs the Python module{'s' * (len(missing) > 1)} {needs}, not installed here",
+            )
         try:
             # Backends resolve relative file parameters (a model, a mesh) against the mission's folder.
             params = cls.Params.model_validate(section, context={"mission_dir": path.resolve().parent})

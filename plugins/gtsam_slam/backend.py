@@ -85,6 +85,8 @@ MOVED_PARAMETERS: dict[str, str] = _moved()
 class GtsamSlam(Slam):
     """Semantic SLAM on GTSAM iSAM2 with semantic loop closure and eq. (10) information gain."""
 
+    requires = ("gtsam", "sklearn")  # imported when built (see Backend.requires)
+
     class Params(BackendParams):
         keyposes: KeyPoseParams = Field(default_factory=KeyPoseParams, description="when key poses are made")
         graph: GraphParams = Field(default_factory=GraphParams, description="noise models and solver")

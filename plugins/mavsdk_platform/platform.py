@@ -103,6 +103,8 @@ class _Telemetry:
 class MavsdkPlatform(Platform):
     """A PX4 vehicle over MAVLink through MAVSDK (platform plugin ``mavsdk``). See docs/flight.md."""
 
+    requires = ("mavsdk",)  # imported when built (see Backend.requires)
+
     simulated = False
 
     class Params(BackendParams):

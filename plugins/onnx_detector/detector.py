@@ -50,6 +50,8 @@ def resolve_model(model: str | None, mission_dir: Path | None) -> Path:
 class OnnxDetector(Detector):
     """Detector plugin ``onnx``: YOLOv8-seg instance segmentation with onnxruntime on the CPU."""
 
+    requires = ("onnxruntime", "cv2")  # imported when built (see Backend.requires)
+
     class Params(BackendParams):
         """Parameters of the ONNX instance-segmentation detector."""
 

@@ -533,6 +533,8 @@ class _TargetState:
 class PamsPlanner(_TargetPlanner):
     """``pams``: viewpoints where the models predict confident, accurate looks (paper 2 §IV-D)."""
 
+    requires = ("sklearn",)  # imported when built (see Backend.requires)
+
     Params = PamsParams
 
     def __init__(self) -> None:

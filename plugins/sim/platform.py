@@ -44,6 +44,8 @@ class SimPlatform(Platform):
     start pose.
     """
 
+    requires = ("open3d",)  # imported when built (see Backend.requires)
+
     simulated = True
 
     @staticmethod

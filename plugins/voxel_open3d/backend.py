@@ -299,6 +299,8 @@ class Open3dVoxelMap(VoxelMapBase):
     code); the global map is unbounded, the local map is a window that follows the camera.
     """
 
+    requires = ("open3d",)  # imported when built (see Backend.requires)
+
     Params: ClassVar[type[BackendParams]] = Open3dVoxelMapParams
 
     def _make_storage(
