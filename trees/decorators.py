@@ -102,7 +102,9 @@ class GiveUpGoal(Decorator):
         # run towards the same or another goal from the same spot: a robot the guards hold in
         # place would start a fresh 20 s clock every 6 s and never give up (demo seed 1 hovered
         # 180 s in the shaft that way). The clock goes on across such runs until the robot moves.
-        if new_status != Status.SUCCESS or self.decorated.arrived:
+        # Only giving up and arriving end it: a composite restarting stops its finished children
+        # with INVALID, which says nothing (the first version reset on it, and never fired).
+        if new_status == Status.FAILURE or self.decorated.arrived:
             self.last_progress = None
 
     def tick(self):

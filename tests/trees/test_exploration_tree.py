@@ -340,6 +340,8 @@ def test_goto_gives_up_a_goal_it_is_held_from_although_the_tour_keeps_going_stal
     runs, status = 0, Status.SUCCESS
     while status == Status.SUCCESS and robot.t < 60.0:
         py_trees.blackboard.Blackboard.set("/tour_time", robot.t)  # a new plan, the same goal
+        if runs:
+            go.stop(Status.INVALID)  # as the exploration loop's sequence does when it restarts
         runs += 1
         statuses = fly(robot, go, 100)
         status = statuses[-1]
