@@ -150,6 +150,9 @@ class Backend(abc.ABC):  # noqa: B024 — the lifecycle methods are optional
     def configure(self, params: BackendParams, context: RunContext) -> None:  # noqa: B027
         """Receive validated parameters and the run context."""
 
+    def close(self) -> None:  # noqa: B027
+        """Release resources. Safe to call twice."""
+
 
 def missing_modules(names: Sequence[str]) -> list[str]:
     """The top-level modules among ``names`` that are not installed (looked up, not imported)."""
@@ -162,9 +165,6 @@ def missing_modules(names: Sequence[str]) -> list[str]:
         if not found:
             missing.append(name)
     return missing
-
-    def close(self) -> None:  # noqa: B027
-        """Release resources. Safe to call twice."""
 
 
 class Platform(Backend):
