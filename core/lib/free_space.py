@@ -275,7 +275,8 @@ class FreeSpaceGraph:
         lo: lattice index of the block's first voxel.
         voxel: voxel edge in metres.
         snap_radius: a query point off the graph connects to the nearest node within this distance,
-            provided its own voxel is not occupied (the robot's own cell is unseen at take-off).
+            provided its own voxel is not occupied (the robot's own cell is unseen at take-off) or
+            it is a path's start (see :meth:`snap`).
         states: the matching VoxelState block, used to refuse snapping from occupied voxels.
         penalty: optional per-voxel cost multiplier (≥ 1); an edge costs its length times the mean
             of its two ends' multipliers. Like a costmap's inflation layer, it keeps paths away from
@@ -365,8 +366,14 @@ class FreeSpaceGraph:
         out[inside] = self.node_of_voxel[tuple(rel[inside].T)] >= 0
         return out
 
-    def snap(self, point: np.ndarray) -> int:
-        """Graph node for a point: its own voxel, or the nearest node within the snap radius; -1."""
+    def snap(self, point: np.ndarray, *, start: bool = False) -> int:
+        """Graph node for a point: its own voxel, or the nearest node within the snap radius; -1.
+
+        A point in an occupied voxel is off the graph — unless it is where a path ``start``s: the
+        robot is there, so the map is wrong there (a surface integrated at a pose SLAM corrected
+        later: demo seed 3 found such a phantom wall through home after a loop closure, was off
+        the graph, and ended "no reachable frontier left" at 56 % explored). The path then leaves
+        through it to the nearest node; the fresh local map checks that leg as it is flown."""
         point = np.asarray(point, dtype=float)
         rel = to_index(point[None], self.voxel)[0] - self.lo
         inside = bool(np.all((rel >= 0) & (rel < np.array(self.shape))))
@@ -374,7 +381,7 @@ class FreeSpaceGraph:
             node = self.node_of_voxel[tuple(rel)]
             if node >= 0:
                 return int(node)
-            if self.states[tuple(rel)] == OCCUPIED:
+            if self.states[tuple(rel)] == OCCUPIED and not start:
                 return -1
         m = int(np.ceil(self.snap_radius / self.voxel))
         a = np.maximum(rel - m, 0)
@@ -396,7 +403,7 @@ class FreeSpaceGraph:
         sources = np.asarray(sources, dtype=float).reshape(-1, 3)
         targets = np.asarray(targets, dtype=float).reshape(-1, 3)
         out = np.full((len(sources), len(targets)), np.inf)
-        s_nodes = np.array([self.snap(p) for p in sources], dtype=np.int64)
+        s_nodes = np.array([self.snap(p, start=True) for p in sources], dtype=np.int64)
         t_nodes = np.array([self.snap(p) for p in targets], dtype=np.int64)
         ok_s, ok_t = s_nodes >= 0, t_nodes >= 0
         if not ok_s.any() or not ok_t.any() or self.n_nodes == 0:
@@ -416,7 +423,7 @@ class FreeSpaceGraph:
         """Voxel-centre waypoints from start to goal (both included), or None."""
         from scipy.sparse import csgraph
 
-        s, g = self.snap(start), self.snap(goal)
+        s, g = self.snap(start, start=True), self.snap(goal)
         if s < 0 or g < 0:
             return None
         if s == g:
