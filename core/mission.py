@@ -451,7 +451,7 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
         except PluginError as exc:
             report((kind, "plugin"), str(exc))
             continue
-        if missing := missing_modules(getattr(cls, "requires", ())):
+        if missing := missing_modules(cls.requires):
             needs = ", ".join(repr(m) for m in missing)
             report(
                 (kind, "plugin"),

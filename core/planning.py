@@ -174,27 +174,35 @@ class PlanningService:
         Each cluster's viewpoint and its alternatives are judged alike; the first that passes
         stands for the cluster, carrying the others that pass as its alternatives.
         """
-        out = []
-        for vp in self.snapshot.viewpoints if self.snapshot else ():
-            options = [o for o in vp.options() if self._worth_visiting(o)]
-            if options:
-                out.append(dataclasses.replace(options[0], alternatives=tuple(options[1:])))
+        vps = self.snapshot.viewpoints if self.snapshot else ()
+        options = [vp.options() for vp in vps]
+        flat = [o for opts in options for o in opts]
+        if not flat:
+            return []
+        ok = self._worth_visiting(flat)  # every option at once: this runs at every tick of a GoTo
+        out, k = [], 0
+        for opts in options:
+            kept = [o for o, good in zip(opts, ok[k : k + len(opts)], strict=True) if good]
+            k += len(opts)
+            if kept:
+                out.append(dataclasses.replace(kept[0], alternatives=tuple(kept[1:])))
         return out
 
-    def _worth_visiting(self, vp: Viewpoint) -> bool:
-        if vp.gain < self.exploration.min_viewpoint_gain:
-            return False
-        if any(np.linalg.norm(vp.position - u) < 0.75 for u in self.unreachable):
-            return False
-        return not any(np.linalg.norm(vp.position - u) < 0.5 for u in self.visited)
+    def _worth_visiting(self, vps: list[Viewpoint]) -> np.ndarray:
+        """Which viewpoints have enough gain, are not near a goal found unreachable (0.75 m) and
+        not near one visited (0.5 m)."""
+        ok = np.array([vp.gain >= self.exploration.min_viewpoint_gain for vp in vps])
+        pos = np.array([vp.position for vp in vps])
+        for near, within in ((self.unreachable, 0.75), (self.visited, 0.5)):
+            if near:
+                d = np.linalg.norm(pos[:, None] - np.asarray(near)[None], axis=2)
+                ok &= ~np.any(d < within, axis=1)
+        return ok
 
     def wants_view_near(self, position: np.ndarray, within: float) -> bool:
         """Whether some candidate viewpoint, or an alternative of one, lies within ``within`` m."""
-        return any(
-            np.linalg.norm(o.position - position) < within
-            for vp in self.candidate_viewpoints()
-            for o in vp.options()
-        )
+        pos = [o.position for vp in self.candidate_viewpoints() for o in vp.options()]
+        return bool(pos) and bool(np.any(np.linalg.norm(np.asarray(pos) - position, axis=1) < within))
 
     def frontier_change(self) -> float:
         """Share of viewpoints that appeared or vanished (by position) since the last plan."""
