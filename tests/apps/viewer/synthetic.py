@@ -147,7 +147,6 @@ def write_run(folder: Path, until: float = math.inf, with_summaries: bool | None
     (folder / "mission.yaml").write_text(yaml.safe_dump(mission, sort_keys=False))
     lines = [json.dumps({"structure": STRUCTURE})] + [json.dumps(r) for r in TREE if r["t"] <= until]
     _grow(folder / "tree.jsonl", "\n".join(lines) + "\n")
-    _grow(folder / "events.jsonl", "".join(json.dumps(e) + "\n" for e in EVENTS if e["t"] <= until))
     stamps = [round(0.1 * i, 1) for i in range(1, 151) if 0.1 * i <= until + 1e-9]
     for name, offset in (("ground_truth", 0.0), ("vio", 0.15), ("slam", 0.05)):
         text = ""
@@ -169,6 +168,9 @@ def write_run(folder: Path, until: float = math.inf, with_summaries: bool | None
             "distance_m": 12.0,
         }
         (folder / "metrics.json").write_text(json.dumps(metrics))
+    # events last: the runner writes run_end after every summary, and a live reader that sees it
+    # reads them at once (written earlier, a poll in between showed a finished run with no verdict)
+    _grow(folder / "events.jsonl", "".join(json.dumps(e) + "\n" for e in EVENTS if e["t"] <= until))
     return folder
 
 
