@@ -253,7 +253,12 @@ class Mapping(Backend):
 
     @abc.abstractmethod
     def path_costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """S×T path lengths (m) through known free space of the global map; inf if unreachable."""
+        """S×T path lengths (m) through known free space of the global map; inf if unreachable.
+
+        A source is where a path starts: one the map shows inside an occupied voxel (the robot,
+        after SLAM moved a surface it had integrated) may leave it to the nearest free space. A
+        target must be free. So the matrix need not be symmetric where a point is both.
+        """
 
     @abc.abstractmethod
     def plan_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:

@@ -257,15 +257,8 @@ class PlanningService:
         if not vps and self.plans_frontiers:
             return Plan([], planned, MappingProxyType({}))
         start = inputs.snapshot.position_world
-        vps = self._reachable_options(start, vps)
-        nodes = np.vstack([start[None], np.array([v.position for v in vps]).reshape(-1, 3)])
-        costs = self.mapping.path_costs(nodes, nodes) if vps else np.zeros((1, 1))
         offered = self._slc_candidates(inputs) if inputs.slc is not None else ()
-        slc_costs = (
-            self.mapping.path_costs(np.array([c.position for c in offered]), nodes)
-            if offered
-            else np.zeros((0, len(nodes)))
-        )
+        vps, costs, slc_costs = self._tour_costs(start, vps, offered)
         request = PlanRequest(
             start=start,
             start_yaw=inputs.snapshot.yaw_world,
@@ -280,23 +273,46 @@ class PlanningService:
             tour = self.boundary.tour(self.planner.plan(request), request, self.plans_frontiers)
         return Plan(tour, planned, MappingProxyType({c.keypose_id: c for c in offered}))
 
-    def _reachable_options(self, start: np.ndarray, vps: tuple[Viewpoint, ...]) -> tuple[Viewpoint, ...]:
-        """Each viewpoint, or its best alternative with a path from ``start`` when it has none.
+    def _tour_costs(
+        self, start: np.ndarray, vps: tuple[Viewpoint, ...], offered: tuple[SlcCandidate, ...]
+    ) -> tuple[tuple[Viewpoint, ...], np.ndarray, np.ndarray]:
+        """The viewpoints to plan over (each, or its best alternative with a path from ``start``
+        when it has none) and the request's path-cost matrices.
 
-        One search from ``start`` to every option. A cluster none of whose options is reachable
-        keeps its viewpoint (the planner leaves it out: its path cost is infinite).
+        The robot's row and column both come from one search out of the robot, to every option and
+        candidate. Asked as a target, the robot's own position is no node when the map shows it
+        inside an occupied voxel (a surface SLAM moved after it was integrated); only a path that
+        starts there may leave it (:meth:`Mapping.path_costs`). The tour closure keeps the larger
+        of a pair's two directions, so an all-pairs query with the robot among the targets made
+        every viewpoint unreachable: demo seed 3 found such a phantom wall at home after a loop
+        closure and ended "no reachable frontier left" at 56 % explored.
         """
-        if not any(vp.alternatives for vp in vps):
-            return vps
         options = [vp.options() for vp in vps]
-        flat = np.array([o.position for opts in options for o in opts])
-        reach = np.isfinite(self.mapping.path_costs(start[None], flat)[0])
-        out, k = [], 0
-        for vp, opts in zip(vps, options, strict=True):
-            ok = [o for o, r in zip(opts, reach[k : k + len(opts)], strict=True) if r]
+        flat = [o.position for opts in options for o in opts] + [c.position for c in offered]
+        from_robot = (
+            self.mapping.path_costs(start[None], np.array(flat).reshape(-1, 3))[0] if flat else np.zeros(0)
+        )
+        chosen, row, k = [], [], 0
+        for opts in options:
+            reach = from_robot[k : k + len(opts)]
             k += len(opts)
-            out.append(ok[0] if ok else vp)
-        return tuple(out)
+            i = int(np.argmax(np.isfinite(reach)))  # the first reachable option; else the viewpoint
+            chosen.append(opts[i])  # a cluster none of whose options is reachable stays out of the tour
+            row.append(reach[i])
+        to_candidates = from_robot[k:]
+        vps = tuple(chosen)
+        n = len(vps)
+        costs = np.zeros((n + 1, n + 1))
+        if n:
+            positions = np.array([v.position for v in vps])
+            costs[1:, 1:] = self.mapping.path_costs(positions, positions)
+            costs[0, 1:] = costs[1:, 0] = row
+        slc_costs = np.zeros((len(offered), n + 1))
+        if offered:
+            slc_costs[:, 0] = to_candidates
+            if n:
+                slc_costs[:, 1:] = self.mapping.path_costs(np.array([c.position for c in offered]), positions)
+        return vps, costs, slc_costs
 
     def _slc_candidates(self, inputs: PlanInputs) -> tuple[SlcCandidate, ...]:
         # A key pose from the take-off climb is still a fine place to look from, in the air.

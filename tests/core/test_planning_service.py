@@ -87,3 +87,28 @@ def test_visited_and_unreachable_options_are_skipped() -> None:
     s.mark_visited(IN_SHAFT)
     assert s.candidate_viewpoints() == []
     assert not s.wants_view_near(IN_SHAFT, 0.3)
+
+
+class RobotInPhantomWall(UpperFloorOutOfReach):
+    """The map shows the robot's own voxel occupied (a surface SLAM moved after it was integrated):
+    a path may leave it, but as a target it is off the graph."""
+
+    robot = np.array([0.0, 0.0, 1.2])
+
+    def path_costs(self, sources, targets):
+        cost = super().path_costs(sources, targets)
+        at_robot = np.all(np.isclose(np.atleast_2d(targets), self.robot), axis=1)
+        return np.where(at_robot[None], np.inf, cost)
+
+
+def test_views_stay_reachable_when_the_map_shows_the_robot_inside_a_wall() -> None:
+    from amslam.lib.tours import planning_graph
+
+    s, planner = service([viewpoint([3.0, 0.0, 1.2], 30.0), viewpoint([4.0, 1.0, 1.2], 20.0)])
+    s.mapping = RobotInPhantomWall()
+    tour = s.plan_async(1.2).result()
+    assert len(tour) == 2
+    request = planner.requests[0]
+    assert np.all(np.isfinite(request.costs)) and np.allclose(request.costs, request.costs.T)
+    # the tour's closure (larger of a pair's two directions) keeps both views: seed 3 lost them all
+    assert planning_graph(request).size == 2
