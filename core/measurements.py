@@ -258,8 +258,8 @@ def read_measurements(path: Path) -> RobotMeasurements:
     """Load a ``measurements.jsonl`` file (or the one in a run folder).
 
     Raises:
-        ValueError: the file is not a measurement log, or a record is malformed
-            (:class:`~amslam.errors.RunFileError`, a ValueError, when a line is not a JSON object).
+        RunFileError: (a ValueError) the file cannot be read, is not a measurement log, or a
+            record is malformed or lacks a field; the message names the file and line.
     """
     path = Path(path)
     if path.is_dir():
@@ -267,32 +267,41 @@ def read_measurements(path: Path) -> RobotMeasurements:
     header: dict[str, Any] | None = None
     stamps, poses, rels, truths, dets = [], [], [], [], []
     for n, rec in read_jsonl(path):  # a partial last line (a run killed mid-write) is dropped
-        kind = rec.get("type")
-        if n == 1:
-            if not _is_header(rec):
-                raise ValueError(f"{path}: not an amslam measurement log (first line is not its header)")
-            header = rec
-        elif kind == "keypose":
-            if rec["id"] != len(stamps):
-                raise ValueError(f"{path}:{n}: key pose {rec['id']} out of order")
-            stamps.append(rec["t"])
-            poses.append(pose_from_list(rec["T_odom_body"]))
-            rels.append(pose_from_list(rec["rel"]))
-            truths.append(pose_from_list(rec["truth"]) if "truth" in rec else None)
-        elif kind == "detections":
-            for o in rec["objects"]:
-                dets.append(
-                    LoggedDetection(
-                        int(rec["keypose"]),
-                        o["class"],
-                        float(o["confidence"]),
-                        np.asarray(o["p_body"], float),
-                        np.asarray(o.get("points", []), float).reshape(-1, 3),
-                        o.get("shape"),
+        try:
+            kind = rec.get("type")
+            if n == 1:
+                if not _is_header(rec):
+                    raise RunFileError(
+                        f"{path}:1: not an amslam measurement log (first line is not its header)"
                     )
-                )
+                header = rec
+            elif kind == "keypose":
+                if rec["id"] != len(stamps):
+                    raise RunFileError(f"{path}:{n}: key pose {rec['id']} out of order")
+                stamps.append(rec["t"])
+                poses.append(pose_from_list(rec["T_odom_body"]))
+                rels.append(pose_from_list(rec["rel"]))
+                truths.append(pose_from_list(rec["truth"]) if "truth" in rec else None)
+            elif kind == "detections":
+                for o in rec["objects"]:
+                    dets.append(
+                        LoggedDetection(
+                            int(rec["keypose"]),
+                            o["class"],
+                            float(o["confidence"]),
+                            np.asarray(o["p_body"], float),
+                            np.asarray(o.get("points", []), float).reshape(-1, 3),
+                            o.get("shape"),
+                        )
+                    )
+        except RunFileError:
+            raise
+        except KeyError as exc:  # one line naming the record, not a traceback from deep in here
+            raise RunFileError(f"{path}:{n}: {kind or 'record'} record has no {exc.args[0]!r}") from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise RunFileError(f"{path}:{n}: malformed {kind or 'record'} record ({exc})") from None
     if header is None:
-        raise ValueError(f"{path}: empty measurement log")
+        raise RunFileError(f"{path}: empty measurement log")
     has_truth = bool(truths) and all(t is not None for t in truths)
     return RobotMeasurements(
         robot=header["robot"],

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -168,3 +169,20 @@ def test_a_measurement_log_cut_mid_write_reads_and_a_garbled_one_is_named(tmp_pa
         read_measurements(tmp_path)
     with pytest.raises(RunFileError, match=r"missing: cannot be read"):
         read_measurements(tmp_path / "missing")
+
+
+def test_a_measurement_record_missing_a_field_or_garbled_is_named_by_line(tmp_path: Path):
+    log = MeasurementLog(tmp_path / "measurements.jsonl", "r1", np.eye(4))
+    log.close()
+    header = (tmp_path / "measurements.jsonl").read_text()
+    keypose = {"type": "keypose", "id": 0, "t": 0.5, "T_odom_body": [0, 0, 1, 0, 0, 0, 1]}  # no "rel"
+    (tmp_path / "measurements.jsonl").write_text(header + json.dumps(keypose) + "\n")
+    with pytest.raises(RunFileError, match=r"measurements.jsonl:2: keypose record has no 'rel'"):
+        read_measurements(tmp_path)
+    keypose["rel"] = [0, 0, 0, 0, 0, 0, 1]
+    detection = {"type": "detections", "keypose": 0, "objects": [{"class": "chair", "confidence": "high"}]}
+    (tmp_path / "measurements.jsonl").write_text(
+        header + json.dumps(keypose) + "\n" + json.dumps(detection) + "\n"
+    )
+    with pytest.raises(RunFileError, match=r"measurements.jsonl:3: malformed detections record"):
+        read_measurements(tmp_path)
