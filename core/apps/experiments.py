@@ -12,7 +12,6 @@ experiment folder adds ``results.json``, ``table.md`` and PNG plots.
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,31 +19,9 @@ from typing import Any
 import numpy as np
 
 import amslam
+from amslam.apps.flights import SERIAL, Flight, FlightRunner, experiment_folder, flight_arguments, fly_all
 from amslam.cli import Experiment
-from amslam.mission import load_mission
 from amslam.registry import Registry
-from amslam.rundir import new_folder
-
-
-def _fly(
-    spec: str, registry: Registry, overrides: list[str], runs: Path, log: Callable[[str], None]
-) -> dict[str, Any]:
-    from amslam.runner import Runner  # the runner (py_trees, threads) is imported when a flight starts
-
-    mission = load_mission(spec, registry, overrides)
-    started = time.perf_counter()
-    result = Runner(mission, registry, runs).run()
-    took = time.perf_counter() - started
-    log(f"  {' '.join(overrides):<60} {result.verdict:<12} ({took:.0f} s) {result.run_dir}")
-    return {"overrides": overrides, "run_dir": str(result.run_dir), "metrics": result.metrics}
-
-
-def _folder(out: Path, experiment: str, mission: str) -> Path:
-    """A new experiment folder with its ``runs`` folder (as a run's: one error line if it cannot be)."""
-    name = f"{experiment}-{Path(mission).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder = new_folder(Path(out), name, "an experiment folder")
-    (folder / "runs").mkdir()
-    return folder
 
 
 def _pct_reduction(before: float, after: float) -> float:
@@ -74,15 +51,20 @@ def slc_ablation(
     out: Path,
     overrides: list[str] = (),
     log: Callable[[str], None] = print,
+    runner: FlightRunner = SERIAL,
+    resume: str | None = None,
 ) -> Path:
     """Fly ``spec`` with SLC on and off for each seed; write tables and the Fig. 7 plot."""
-    folder = _folder(out, "slc-ablation", spec)
+    folder = experiment_folder(out, "slc-ablation", spec, resume)
+    cases = [(seed, slc) for seed in seeds for slc in ("on", "off")]
+    flights = [
+        Flight(spec, (*overrides, f"seed={seed}", f"exploration.slc={'true' if slc == 'on' else 'false'}"))
+        for seed, slc in cases
+    ]
+    flown = fly_all(flights, folder, runner, log, registry)
     rows = []
     for seed in seeds:
-        pair = {}
-        for slc in (True, False):
-            flags = [*overrides, f"seed={seed}", f"exploration.slc={'true' if slc else 'false'}"]
-            pair["on" if slc else "off"] = _fly(spec, registry, flags, folder / "runs", log)
+        pair = {slc: rec for (s_, slc), rec in zip(cases, flown, strict=True) if s_ == seed}
         rows.append({"seed": seed, **pair})
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(slc_tables(rows))
@@ -190,21 +172,20 @@ def planner_comparison(
     planners: tuple[str, ...] = ("cop", "tsp", "greedy"),
     overrides: list[str] = (),
     log: Callable[[str], None] = print,
+    runner: FlightRunner = SERIAL,
+    resume: str | None = None,
 ) -> Path:
     """Fly ``spec`` with each planner for each seed; tabulate and plot exploration progress."""
-    folder = _folder(out, "planners", spec)
-    rows = []
-    for seed in seeds:
-        for planner in planners:
-            flags = [*overrides, f"seed={seed}", f"planner.plugin={planner}"]
-            rows.append(
-                {
-                    "seed": seed,
-                    "planner": planner,
-                    "world": Path(spec).stem,
-                    **_fly(spec, registry, flags, folder / "runs", log),
-                }
-            )
+    folder = experiment_folder(out, "planners", spec, resume)
+    cases = [(seed, planner) for seed in seeds for planner in planners]
+    flights = [
+        Flight(spec, (*overrides, f"seed={seed}", f"planner.plugin={planner}")) for seed, planner in cases
+    ]
+    flown = fly_all(flights, folder, runner, log, registry)
+    rows = [
+        {"seed": seed, "planner": planner, "world": Path(spec).stem, **rec}
+        for (seed, planner), rec in zip(cases, flown, strict=True)
+    ]
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(planner_table(rows))
     plot_exploration(rows, folder / "explored_vs_distance.png")
@@ -304,6 +285,8 @@ def pams_comparison(
     planners: tuple[str, ...] = ("pams", "prior_visit"),
     overrides: list[str] = (),
     log: Callable[[str], None] = print,
+    runner: FlightRunner = SERIAL,
+    resume: str | None = None,
 ) -> Path:
     """Fly every mission (one simulated world each) with PAMS and the baseline for each seed.
 
@@ -312,20 +295,17 @@ def pams_comparison(
     paper 2 Fig. 9: dimension error mean and standard deviation and the share of objects mapped,
     per world, per class and over all data.
     """
-    folder = _folder(out, "pams", specs[0] if len(specs) == 1 else "worlds")
-    rows = []
-    for spec in specs:
-        for seed in seeds:
-            for planner in planners:
-                flags = [*overrides, f"seed={seed}", f"planner.plugin={planner}"]
-                rows.append(
-                    {
-                        "world": Path(spec).stem,
-                        "seed": seed,
-                        "planner": planner,
-                        **_fly(spec, registry, flags, folder / "runs", log),
-                    }
-                )
+    folder = experiment_folder(out, "pams", specs[0] if len(specs) == 1 else "worlds", resume)
+    cases = [(spec, seed, planner) for spec in specs for seed in seeds for planner in planners]
+    flights = [
+        Flight(spec, (*overrides, f"seed={seed}", f"planner.plugin={planner}"))
+        for spec, seed, planner in cases
+    ]
+    flown = fly_all(flights, folder, runner, log, registry)
+    rows = [
+        {"world": Path(spec).stem, "seed": seed, "planner": planner, **rec}
+        for (spec, seed, planner), rec in zip(cases, flown, strict=True)
+    ]
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(pams_table(rows, planners))
     return folder
@@ -420,26 +400,34 @@ def _seeds(args) -> list[int]:
     return list(range(args.first_seed, args.first_seed + args.seeds))
 
 
+def _how(args) -> dict[str, Any]:
+    """The keyword arguments every experiment here takes from the command line."""
+    return {"overrides": args.set or [], "runner": FlightRunner.from_args(args), "resume": args.resume}
+
+
 @amslam.hookimpl
 def amslam_experiments():
     return {
         "slc-ablation": Experiment(
             "the mission with semantic loop closure on and off (paper 1 Tables I, II, Fig. 7)",
             lambda args, registry: slc_ablation(
-                args.mission, registry, _seeds(args), Path(args.out), args.set or []
+                args.mission, registry, _seeds(args), Path(args.out), **_how(args)
             ),
+            flight_arguments,
         ),
         "planners": Experiment(
             "the mission with each exploration planner (COP, TSP, greedy)",
             lambda args, registry: planner_comparison(
-                args.mission, registry, _seeds(args), Path(args.out), overrides=args.set or []
+                args.mission, registry, _seeds(args), Path(args.out), **_how(args)
             ),
+            flight_arguments,
         ),
         "pams": Experiment(
             "PAMS against the prior-visit baseline on one or more worlds (paper 2 Fig. 9)",
             lambda args, registry: pams_comparison(
-                [args.mission, *args.more], registry, _seeds(args), Path(args.out), overrides=args.set or []
+                [args.mission, *args.more], registry, _seeds(args), Path(args.out), **_how(args)
             ),
+            flight_arguments,
             several_missions=True,
         ),
     }

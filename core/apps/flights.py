@@ -1,0 +1,203 @@
+"""The flights of an experiment: flown one after another, or as Ray tasks; found again on resume.
+
+An experiment lists its flights first (:class:`Flight`: a mission and its ``--set`` overrides),
+then :func:`fly_all` flies those not flown yet and returns one record per flight, in the order
+given, for the experiment's tables:
+
+* **Serially** in this process (the default, and the only way without Ray installed).
+* **As Ray tasks** with ``--ray``: each flight a task of one CPU in its own worker process, on a
+  local Ray (``ray.init()`` on this machine: as many flights at once as it has cores) or on a
+  cluster (``--address ray://HEAD:10001``, or ``auto`` inside one). Ray is an optional extra,
+  ``pip install 'amslam[ray]'``. On a cluster the run folders are written on the node that flew
+  them: give ``--out`` a folder every node shares, or only the records come back.
+* **Resumable**: every finished flight leaves ``flights/<key>.json`` in the experiment folder
+  (its record, written atomically). ``--resume FOLDER`` flies in that experiment folder again
+  and skips each flight whose record is there, so an experiment stopped half-way (a killed
+  process, a lost node) goes on where it stopped. The key is the mission as given and the sorted
+  overrides, so the same command finds the same flights.
+
+A flight that raises is recorded with verdict ``failed`` and its error, and the others go on:
+nothing already flown is lost to one bad flight. Progress is one line per finished flight.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from amslam.errors import AmslamError
+from amslam.registry import Registry, build_plugin_manager
+from amslam.rundir import new_folder, write_atomically
+
+RAY_HINT = "Ray is not installed: pip install 'amslam[ray]' (or fly without --ray)"
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One flight of an experiment: a mission (file or packaged name) and its overrides."""
+
+    mission: str
+    overrides: tuple[str, ...]
+
+    @property
+    def key(self) -> str:
+        """The flight's name in the experiment folder: the same command gives the same key."""
+        spec = self.mission
+        if Path(spec).is_file():  # a file given by two relative paths is one mission
+            spec = str(Path(spec).resolve())
+        text = json.dumps([spec, sorted(self.overrides)])
+        return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+    def label(self) -> str:
+        return " ".join(self.overrides) or Path(self.mission).stem
+
+
+def flight_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--ray``, ``--address``, ``--resume``: how an experiment's flights are run."""
+    parser.add_argument(
+        "--ray", action="store_true", help="fly the runs as Ray tasks (local Ray unless --address)"
+    )
+    parser.add_argument("--address", help="Ray cluster to use with --ray (ray://HOST:PORT, or auto)")
+    parser.add_argument(
+        "--resume", metavar="FOLDER", help="an experiment folder to go on in: its finished flights are kept"
+    )
+
+
+@dataclass(frozen=True)
+class FlightRunner:
+    """How :func:`fly_all` runs flights: serially or on Ray (``address`` None: a local Ray)."""
+
+    ray: bool = False
+    address: str | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> FlightRunner:
+        if getattr(args, "address", None) and not getattr(args, "ray", False):
+            raise AmslamError("--address names a Ray cluster: give --ray too")
+        return cls(bool(getattr(args, "ray", False)), getattr(args, "address", None))
+
+
+#: flights one after another in this process
+SERIAL = FlightRunner()
+
+
+def experiment_folder(out: Path, experiment: str, mission: str, resume: str | None = None) -> Path:
+    """A new experiment folder with its ``runs`` folder, or the one to resume (checked)."""
+    if resume:
+        folder = Path(resume)
+        if not (folder / "runs").is_dir():
+            raise AmslamError(f"--resume {resume}: not an experiment folder (it has no runs/ folder)")
+        return folder
+    name = f"{experiment}-{Path(mission).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder = new_folder(Path(out), name, "an experiment folder")
+    (folder / "runs").mkdir()
+    return folder
+
+
+def fly_all(
+    flights: Sequence[Flight],
+    folder: Path,
+    runner: FlightRunner = SERIAL,
+    log: Callable[[str], None] = print,
+    registry: Registry | None = None,
+) -> list[dict[str, Any]]:
+    """Fly the flights not flown yet in ``folder``; every flight's record, in the order given.
+
+    Serial flights use ``registry`` (default: the installed plugins); a Ray worker loads the
+    installed plugins itself (a registry holds modules, which do not travel between processes).
+
+    A record is ``{"overrides", "run_dir", "metrics", "wall_s"}``; a flight that raised has
+    ``metrics == {"verdict": "failed", "error": ...}`` and ``run_dir`` None.
+    """
+    records_dir = Path(folder) / "flights"
+    records_dir.mkdir(exist_ok=True)
+    done: dict[str, dict[str, Any]] = {}
+    for f in flights:
+        path = records_dir / f"{f.key}.json"
+        if path.exists() and f.key not in done:
+            try:
+                done[f.key] = json.loads(path.read_text())
+            except (OSError, ValueError):
+                continue  # a record that does not read is flown again
+    todo = list({f.key: f for f in flights if f.key not in done}.values())
+    total = len(todo)
+    if len(done):
+        log(f"  {len(done)} flight(s) already flown in {folder}, {total} to fly")
+    finished = 0
+
+    def record(flight: Flight, rec: dict[str, Any]) -> None:
+        nonlocal finished
+        finished += 1
+        done[flight.key] = rec
+        write_atomically(records_dir / f"{flight.key}.json", json.dumps(rec, indent=2, default=str) + "\n")
+        verdict = rec["metrics"].get("verdict", "?")
+        where = rec["run_dir"] or rec["metrics"].get("error", "")
+        log(f"  [{finished}/{total}] {flight.label():<60} {verdict:<12} ({rec['wall_s']:.0f} s) {where}")
+
+    runs = Path(folder) / "runs"
+    if runner.ray and todo:
+        _fly_on_ray(todo, runs, runner.address, record)
+    else:
+        for flight in todo:
+            record(flight, fly_one(flight.mission, flight.overrides, str(runs), registry))
+    return [done[f.key] for f in flights]
+
+
+def fly_one(
+    mission: str, overrides: Sequence[str], runs: str, registry: Registry | None = None
+) -> dict[str, Any]:
+    """One flight in this process (a Ray worker's too): its record; an exception is recorded."""
+    from amslam.mission import load_mission
+    from amslam.runner import Runner  # the runner (py_trees, threads) is imported when a flight starts
+
+    overrides = list(overrides)
+    started = time.perf_counter()
+    try:
+        registry = registry or build_plugin_manager()
+        result = Runner(load_mission(mission, registry, overrides), registry, Path(runs)).run()
+    except Exception as exc:  # one flight's failure is that flight's row, not the experiment's end
+        return _failed(overrides, exc, time.perf_counter() - started)
+    took = time.perf_counter() - started
+    return {"overrides": overrides, "run_dir": str(result.run_dir), "metrics": result.metrics, "wall_s": took}
+
+
+def _failed(overrides: Sequence[str], exc: BaseException, took: float) -> dict[str, Any]:
+    metrics = {"verdict": "failed", "error": f"{type(exc).__name__}: {exc}"}
+    return {"overrides": list(overrides), "run_dir": None, "metrics": metrics, "wall_s": took}
+
+
+def _fly_on_ray(
+    todo: list[Flight], runs: Path, address: str | None, record: Callable[[Flight, dict], None]
+) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise AmslamError(RAY_HINT) from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        # A local Ray (address None) starts its own head; its dashboard and log forwarding are
+        # not wanted in a terminal that prints one line per flight.
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
+    try:
+        task = ray.remote(num_cpus=1, max_retries=0)(fly_one)
+        pending = {
+            task.remote(f.mission, list(f.overrides), str(runs.resolve())): (f, time.perf_counter())
+            for f in todo
+        }
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            flight, started = pending.pop(ready[0])
+            try:
+                rec = ray.get(ready[0])
+            except Exception as exc:  # the worker died (killed, out of memory): that flight failed
+                rec = _failed(flight.overrides, exc, time.perf_counter() - started)
+            record(flight, rec)
+    finally:
+        if started_here:
+            ray.shutdown()

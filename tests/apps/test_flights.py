@@ -1,0 +1,88 @@
+"""An experiment's flights: serial or on a local Ray, resumable, one failure kept to its own row."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from amslam.apps import flights as flights_module
+from amslam.apps.flights import Flight, FlightRunner, experiment_folder, fly_all
+from amslam.errors import AmslamError
+from tests.e2e.missions import small_mission
+
+
+def _flights(mission: Path, seeds) -> list[Flight]:
+    return [Flight(str(mission), (f"seed={s}",)) for s in seeds]
+
+
+def test_a_resumed_experiment_flies_only_what_it_had_not_flown(tmp_path: Path, monkeypatch) -> None:
+    mission = small_mission(tmp_path, max_time=4)
+    folder = experiment_folder(tmp_path / "out", "test", str(mission))
+    first = fly_all(_flights(mission, [1, 2]), folder, log=lambda line: None)
+    assert [r["metrics"]["verdict"] for r in first] == ["completed", "completed"]
+    assert len(list((folder / "flights").glob("*.json"))) == 2
+
+    flown = []
+    real = flights_module.fly_one
+    monkeypatch.setattr(
+        flights_module, "fly_one", lambda m, o, runs, reg=None: flown.append(list(o)) or real(m, o, runs, reg)
+    )
+    again = experiment_folder(tmp_path / "out", "test", str(mission), resume=str(folder))
+    lines: list[str] = []
+    records = fly_all(_flights(mission, [2, 3, 1]), again, log=lines.append)
+    assert flown == [["seed=3"]]  # seeds 1 and 2 are found in the folder
+    assert [r["overrides"] for r in records] == [["seed=2"], ["seed=3"], ["seed=1"]]
+    assert records[0] == first[1] and records[2] == first[0]
+    assert lines[0].startswith("  2 flight(s) already flown")
+    assert "[1/1] seed=3" in lines[1]
+
+
+def test_a_flight_that_raises_is_its_own_failed_row(tmp_path: Path) -> None:
+    mission = small_mission(tmp_path, max_time=3)
+    folder = experiment_folder(tmp_path / "out", "test", str(mission))
+    bad = Flight(str(mission), ("seed=1", "robot.altitude=high"))
+    records = fly_all([bad, *_flights(mission, [1])], folder, log=lambda line: None)
+    assert records[0]["metrics"]["verdict"] == "failed"
+    assert "robot.altitude" in records[0]["metrics"]["error"] and records[0]["run_dir"] is None
+    assert records[1]["metrics"]["verdict"] == "completed"
+
+
+def test_the_key_is_the_mission_and_its_overrides_in_any_order(tmp_path: Path, monkeypatch) -> None:
+    mission = small_mission(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    a = Flight(str(mission), ("seed=1", "planner.plugin=tsp"))
+    b = Flight(mission.name, ("planner.plugin=tsp", "seed=1"))  # the same file, by a relative path
+    assert a.key == b.key
+    assert a.key != Flight(str(mission), ("seed=2", "planner.plugin=tsp")).key
+
+
+def test_resume_needs_an_experiment_folder_and_address_needs_ray(tmp_path: Path) -> None:
+    with pytest.raises(AmslamError, match="not an experiment folder"):
+        experiment_folder(tmp_path, "test", "demo", resume=str(tmp_path))
+    import argparse
+
+    with pytest.raises(AmslamError, match="give --ray too"):
+        FlightRunner.from_args(argparse.Namespace(ray=False, address="auto"))
+
+
+def test_flights_run_as_tasks_on_a_local_two_cpu_ray(tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray")
+    mission = small_mission(tmp_path, max_time=4)
+    folder = experiment_folder(tmp_path / "out", "test", str(mission))
+    serial = fly_all(_flights(mission, [5]), experiment_folder(tmp_path / "s", "t", str(mission)), log=print)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        lines: list[str] = []
+        records = fly_all(_flights(mission, [5, 6]), folder, FlightRunner(ray=True), log=lines.append)
+    finally:
+        ray.shutdown()
+    assert [r["metrics"]["verdict"] for r in records] == ["completed", "completed"]
+    assert sorted(line.split("]")[0].strip() for line in lines) == ["[1/2", "[2/2"]
+    # a worker flies exactly what this process flies (the simulator is deterministic per seed)
+    for key in ("explored_percent", "distance_m"):
+        assert records[0]["metrics"][key] == serial[0]["metrics"][key]
+    for r in records:
+        assert Path(r["run_dir"]).parent == folder / "runs"
+        assert json.loads((Path(r["run_dir"]) / "metrics.json").read_text())["verdict"] == "completed"
