@@ -173,9 +173,7 @@ class Perception:
             self._refresh = False
             self.rates.viewpoints = frame.stamp + self.exploration.viewpoint_period
             with check.calling("mapping", "viewpoints()"):
-                self._viewpoints = tuple(
-                    self._options_within_band(vp) for vp in check.viewpoints(self.mapping.viewpoints())
-                )
+                self._viewpoints = self._within_band(check.viewpoints(self.mapping.viewpoints()))
         if frame.stamp >= self.rates.detect and self._detecting is None:
             self.rates.detect = frame.stamp + self.detect_period
             if self._pool is None:
@@ -221,34 +219,44 @@ class Perception:
             explored_volume=explored[-1][2] if explored else 0.0,
         )
 
-    def _options_within_band(self, vp: Viewpoint) -> Viewpoint:
-        """:meth:`_within_band` for a viewpoint and each of its alternatives."""
-        alternatives = tuple(self._within_band(a) for a in vp.alternatives)
-        return dataclasses.replace(self._within_band(vp), alternatives=alternatives)
+    def _within_band(self, vps: list[Viewpoint]) -> tuple[Viewpoint, ...]:
+        """Move each viewpoint, and each of its alternatives, vertically into the band between
+        floor and ceiling the tree flies in.
 
-    def _within_band(self, vp: Viewpoint) -> Viewpoint:
-        """Move a viewpoint vertically into the band between floor and ceiling the tree flies in.
-
-        The coarse map allows any height with a robot radius of clearance, but odometry drifts
-        most in z: a goal a radius above the floor or below the ceiling is a crash waiting for
+        The coarse map allows any height with a robot radius of clearance, but odometry drift is
+        largest in z: a goal a radius above the floor or below the ceiling is a crash waiting for
         a few centimetres of drift. Floor and ceiling are the nearest occupied voxels below and
-        above in the global map.
+        above in the global map: one query for the columns of every option at once (this runs
+        at every viewpoint update, for up to 7 options per cluster).
         """
+        options = [vp.options() for vp in vps]
+        flat = [o for opts in options for o in opts]
+        if not flat:
+            return ()
         ex = self.exploration
         step = self.mapping.voxel_size()
         offsets = np.arange(step, 3.0 + step, step)
-        column = np.concatenate(
-            [vp.position + np.outer(-offsets, [0, 0, 1]), vp.position + np.outer(offsets, [0, 0, 1])]
+        n = len(offsets)
+        signed = np.concatenate([-offsets, offsets])  # below, then above
+        centres = np.array([o.position for o in flat])
+        columns = centres[:, None, :] + signed[None, :, None] * np.array([0.0, 0.0, 1.0])
+        occupied = (self.mapping.states(columns.reshape(-1, 3)) == VoxelState.OCCUPIED).reshape(
+            len(flat), 2 * n
         )
-        occupied = self.mapping.states(column) == VoxelState.OCCUPIED
-        below, above = occupied[: len(offsets)], occupied[len(offsets) :]
-        z = vp.position[2]
-        floor = z - offsets[np.argmax(below)] if below.any() else -np.inf
-        ceiling = z + offsets[np.argmax(above)] if above.any() else np.inf
+        below, above = occupied[:, :n], occupied[:, n:]
+        z = centres[:, 2]
+        floor = np.where(below.any(axis=1), z - offsets[np.argmax(below, axis=1)], -np.inf)
+        ceiling = np.where(above.any(axis=1), z + offsets[np.argmax(above, axis=1)], np.inf)
         lo, hi = floor + ex.min_height, ceiling - ex.min_headroom
-        if lo > hi:
-            return vp  # a low gap: leave it to the path planner's clearance
-        new_z = float(np.clip(z, lo, hi))
-        if new_z == z:
-            return vp
-        return dataclasses.replace(vp, position=np.array([vp.position[0], vp.position[1], new_z]))
+        # a low gap (lo > hi) is left to the path planner's clearance
+        new_z = np.where(lo > hi, z, np.clip(z, lo, hi))
+        moved = [
+            o if nz == o.position[2] else dataclasses.replace(o, position=np.array([*o.position[:2], nz]))
+            for o, nz in zip(flat, new_z.tolist(), strict=True)
+        ]
+        out, k = [], 0
+        for opts in options:
+            first, *rest = moved[k : k + len(opts)]
+            k += len(opts)
+            out.append(dataclasses.replace(first, alternatives=tuple(rest)))
+        return tuple(out)
