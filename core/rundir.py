@@ -389,6 +389,28 @@ def read_metrics(path: Path) -> dict[str, Any]:
     return metrics
 
 
+def read_run_mission(path: Path) -> dict[str, Any]:
+    """A run folder's ``mission.yaml`` (the mission as flown, every default filled in) as plain
+    data (the run folder or the file). Not validated: a run of another version, or of plugins
+    not installed here, still reads; use :func:`amslam.mission.load_mission` to fly it again.
+
+    Raises:
+        RunFileError: the file cannot be read, is not YAML or not a mapping; named.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "mission.yaml"
+    try:
+        mission = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RunFileError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
+    except yaml.YAMLError as exc:
+        raise RunFileError(f"{path}: not readable YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(mission, dict):
+        raise RunFileError(f"{path}: not a mission (a YAML mapping expected)")
+    return mission
+
+
 def landmark_records(landmarks: Iterable[Landmark]) -> list[dict[str, Any]]:
     """Landmarks as the records of ``landmarks.json``: ``id``, ``class``, ``position``,
     ``covariance`` (nulls where not finite: a backend without uncertainty), ``observations`` and,

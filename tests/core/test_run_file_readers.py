@@ -19,6 +19,7 @@ from amslam.rundir import (
     read_jsonl,
     read_landmarks,
     read_metrics,
+    read_run_mission,
     read_tum,
     tum_values,
     write_landmarks,
@@ -127,6 +128,22 @@ def test_a_bad_saved_map_is_one_error_naming_it(tmp_path: Path, arrays, expected
         np.savez(path, **arrays)
     with pytest.raises(RunFileError, match=expected):
         read_saved_map(path)
+
+
+def test_a_run_mission_reads_as_plain_data_and_a_bad_one_is_named(tmp_path: Path):
+    RunFiles(tmp_path).write_yaml("mission.yaml", {"name": "x", "planner": {"plugin": "not_installed_here"}})
+    assert read_run_mission(tmp_path) == read_run_mission(tmp_path / "mission.yaml")
+    assert read_run_mission(tmp_path)["planner"] == {"plugin": "not_installed_here"}
+    for text, expected in (
+        ("- a\n- b\n", "not a mission"),
+        ("a: [\n", "not readable YAML"),
+        ("", "not a mission"),
+    ):
+        (tmp_path / "mission.yaml").write_text(text)
+        with pytest.raises(RunFileError, match=rf"mission.yaml: {expected}"):
+            read_run_mission(tmp_path)
+    with pytest.raises(RunFileError, match=r"missing: cannot be read"):
+        read_run_mission(tmp_path / "missing")
 
 
 def test_metrics_read_from_the_folder_or_the_file_and_a_bad_one_is_named(tmp_path: Path):

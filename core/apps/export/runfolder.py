@@ -21,13 +21,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from amslam.apps.mapformats import read_map_ply
 from amslam.errors import AmslamError, RunFileError
 from amslam.lib.voxel_map import DEFAULT_P_OCC, read_saved_map
 from amslam.measurements import read_measurements_header
-from amslam.rundir import TRAJECTORIES, Trajectory, read_jsonl, read_landmarks, read_metrics, read_tum
+from amslam.rundir import (
+    TRAJECTORIES,
+    Trajectory,
+    read_jsonl,
+    read_landmarks,
+    read_metrics,
+    read_run_mission,
+    read_tum,
+)
 from amslam.types import CameraModel
 
 
@@ -275,12 +282,9 @@ def _read_mission(file: Path, warnings: list[str]) -> dict[str, Any] | None:
         warnings.append(f"{file} missing: occupancy threshold p_occ = {DEFAULT_P_OCC} assumed")
         return None
     try:
-        mission = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ExportError(f"{file}: not readable YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(mission, dict):
-        raise ExportError(f"{file}: not a mission (a YAML mapping expected)")
-    return mission
+        return read_run_mission(file)
+    except RunFileError as exc:
+        raise ExportError(str(exc)) from None
 
 
 def _nested(data: dict[str, Any] | None, *keys: str, default: Any = None) -> Any:

@@ -25,12 +25,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from amslam.apps.mapformats import read_map_ply
 from amslam.errors import RunFileError
 from amslam.lib.class_colours import class_hex
-from amslam.rundir import TRAJECTORIES, read_landmarks, read_metrics, tum_values
+from amslam.rundir import TRAJECTORIES, read_landmarks, read_metrics, read_run_mission, tum_values
 
 log = logging.getLogger(__name__)
 
@@ -206,13 +205,12 @@ def floor_heights(run_dir: Path, points: np.ndarray) -> list[float]:
         if metrics.get("floor_heights"):
             return [float(h) for h in metrics["floor_heights"]]
     try:
-        mission = yaml.safe_load((run_dir / "mission.yaml").read_text()) or {}
-        world = (mission.get("platform") or {}).get("world") or {}
+        world = (read_run_mission(run_dir).get("platform") or {}).get("world") or {}
         if world.get("floor_heights"):
             return [float(h) for h in world["floor_heights"]]
         if world.get("floors") and world.get("floor_height"):
             return [i * float(world["floor_height"]) for i in range(int(world["floors"]))]
-    except (OSError, yaml.YAMLError, AttributeError, TypeError, ValueError):
+    except (RunFileError, AttributeError, TypeError, ValueError):  # the next source
         pass
     return floors_from_map(points)
 
@@ -361,7 +359,7 @@ def mission_info(run_dir: Path) -> dict[str, Any]:
     """Name and floors from ``mission.yaml`` (known from the start of a run, unlike the map)."""
     info: dict[str, Any] = {"folder": Path(run_dir).resolve().name}
     try:
-        mission = yaml.safe_load((Path(run_dir) / "mission.yaml").read_text()) or {}
+        mission = read_run_mission(run_dir)
         info["mission"] = mission.get("name")
         info["description"] = mission.get("description")
         info["plugins"] = {
@@ -369,7 +367,7 @@ def mission_info(run_dir: Path) -> dict[str, Any]:
             for kind in ("platform", "mapping", "slam", "detector", "planner")
             if isinstance(mission.get(kind), dict)
         }
-    except (OSError, yaml.YAMLError, AttributeError):
+    except RunFileError:  # the page shows what the other files hold
         pass
     info["floor_heights"] = floor_heights(Path(run_dir), np.zeros((0, 3)))
     return info
