@@ -408,87 +408,117 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
     raw = copy.deepcopy(raw)
     for assignment in overrides:
         apply_override(raw, assignment)
-    lines = _line_index(text)
-    problems: list[str] = []
-
-    def report(loc: tuple, message: str) -> None:
-        dotted = ".".join(str(p) for p in loc) or "(top level)"
-        line = _line_of(lines, loc)
-        problems.append(f"{path}:{line}: {dotted}: {message}" if line else f"{path}: {dotted}: {message}")
-
+    problems = _Problems(path, _line_index(text))
+    context = {"mission_dir": path.resolve().parent}  # relative file parameters resolve against it
     try:
-        model = MissionModel.model_validate(raw, context={"mission_dir": path.resolve().parent})
+        model = MissionModel.model_validate(raw, context=context)
     except ValidationError as exc:
         for err in exc.errors():
-            report(_data_loc(raw, err), _describe(err, MissionModel, err["loc"]))
+            problems.report(_data_loc(raw, err), _describe(err, MissionModel, err["loc"]))
         model = None
+    _check_plugins(model, registry, problems)
+    backends: dict[str, BackendChoice] = {}
+    for kind in BACKEND_KINDS:
+        if (choice := _backend_choice(kind, raw, model, registry, context, problems)) is not None:
+            backends[kind] = choice
+    if model is not None and "platform" in backends:
+        _check_waypoints_fit_the_fence(model, backends["platform"].params, problems)
+    if problems.lines:
+        raise MissionError(problems.lines)
+    assert model is not None
+    return Mission(model=model, backends=backends, source=path.resolve(), raw=raw)
 
+
+@dataclass
+class _Problems:
+    """Every problem of one mission file, each named by file, line and dotted key."""
+
+    path: Path
+    line_index: Any
+    lines: list[str] = field(default_factory=list)
+
+    def report(self, loc: tuple, message: str) -> None:
+        dotted = ".".join(str(p) for p in loc) or "(top level)"
+        line = _line_of(self.line_index, loc)
+        where = f"{self.path}:{line}" if line else f"{self.path}"
+        self.lines.append(f"{where}: {dotted}: {message}")
+
+
+def _check_plugins(model: MissionModel | None, registry: Registry, problems: _Problems) -> None:
+    """The mission's tree exists; no plugin failed to load unless the mission marks it optional."""
     if model is not None:
         try:
             registry.tree(model.tree)
         except PluginError as exc:
-            report(("tree",), str(exc))
+            problems.report(("tree",), str(exc))
     optional = set(model.plugins.optional) if model is not None else set()
     for name, error in sorted(registry.load_errors.items()):
         if name not in optional:
-            report(
+            problems.report(
                 ("plugins",),
                 f"{error} — fix or uninstall it, or list it under plugins.disable or plugins.optional",
             )
 
-    backends: dict[str, BackendChoice] = {}
-    for kind in BACKEND_KINDS:
-        section = raw.get(kind) or {}
-        if not isinstance(section, dict):
-            continue  # already reported by MissionModel
-        section = dict(section)
-        plugin = section.pop("plugin", DEFAULT_PLUGINS[kind])
-        if not isinstance(plugin, str):
-            report((kind, "plugin"), f"expected a plugin name (text), got {plugin!r}")
-            continue
-        try:
-            cls = registry.backend_class(kind, plugin)
-        except PluginError as exc:
-            report((kind, "plugin"), str(exc))
-            continue
-        if missing := missing_modules(cls.requires):
-            needs = ", ".join(repr(m) for m in missing)
-            report(
-                (kind, "plugin"),
-                f"{plugin!r} needs the Python module{'s' * (len(missing) > 1)} {needs}, not installed here",
+
+def _backend_choice(
+    kind: str,
+    raw: dict[str, Any],
+    model: MissionModel | None,
+    registry: Registry,
+    context: dict[str, Any],
+    problems: _Problems,
+) -> BackendChoice | None:
+    """The backend a section chooses, its parameters validated; None (reported) if it cannot be."""
+    section = raw.get(kind) or {}
+    if not isinstance(section, dict):
+        return None  # already reported by MissionModel
+    section = dict(section)
+    plugin = section.pop("plugin", DEFAULT_PLUGINS[kind])
+    if not isinstance(plugin, str):
+        problems.report((kind, "plugin"), f"expected a plugin name (text), got {plugin!r}")
+        return None
+    try:
+        cls = registry.backend_class(kind, plugin)
+    except PluginError as exc:
+        problems.report((kind, "plugin"), str(exc))
+        return None
+    if missing := missing_modules(cls.requires):
+        needs = ", ".join(repr(m) for m in missing)
+        problems.report(
+            (kind, "plugin"),
+            f"{plugin!r} needs the Python module{'s' * (len(missing) > 1)} {needs}, not installed here",
+        )
+    try:
+        params = cls.Params.model_validate(section, context=context)
+    except ValidationError as exc:
+        for err in exc.errors():
+            problems.report((kind, *_data_loc(section, err)), _describe(err, cls.Params, err["loc"]))
+        return None
+    if kind == "platform" and model is not None and model.robot.base is not None and cls.simulated:
+        problems.report(
+            ("robot", "base"),
+            f"the {plugin!r} platform is simulated: its odometry frame is the world frame already; "
+            "robot.base is for real vehicles (platform.start chooses where a simulated robot takes off)",
+        )
+    return BackendChoice(kind, plugin, params)
+
+
+def _check_waypoints_fit_the_fence(model: MissionModel, platform: Any, problems: _Problems) -> None:
+    """Waypoints are relative to the take-off spot and the fence is in the odometry frame: wherever
+    the vehicle takes off, the pattern (take-off spot included) must fit inside the fence."""
+    fence = getattr(platform, "geofence", None)
+    if fence is None or not model.waypoints.points:
+        return
+    pts = [(0.0, 0.0, 0.0), *model.waypoints.points]
+    for axis, name in enumerate("xyz"):
+        span = max(p[axis] for p in pts) - min(p[axis] for p in pts)
+        room = fence.hi[axis] - fence.lo[axis]
+        if span > room:
+            problems.report(
+                ("waypoints", "points"),
+                f"the pattern spans {span:g} m in {name}, more than the geofence's {room:g} m "
+                f"(platform.geofence): it cannot lie inside the fence",
             )
-        try:
-            # Backends resolve relative file parameters (a model, a mesh) against the mission's folder.
-            params = cls.Params.model_validate(section, context={"mission_dir": path.resolve().parent})
-        except ValidationError as exc:
-            for err in exc.errors():
-                report((kind, *_data_loc(section, err)), _describe(err, cls.Params, err["loc"]))
-            continue
-        backends[kind] = BackendChoice(kind, plugin, params)
-        if kind == "platform" and model is not None and model.robot.base is not None and cls.simulated:
-            report(
-                ("robot", "base"),
-                f"the {plugin!r} platform is simulated: its odometry frame is the world frame already; "
-                "robot.base is for real vehicles (platform.start chooses where a simulated robot takes off)",
-            )
-    fence = getattr(backends["platform"].params, "geofence", None) if "platform" in backends else None
-    if model is not None and fence is not None and model.waypoints.points:
-        # waypoints are relative to the take-off spot, the fence is in the odometry frame: wherever
-        # the vehicle takes off, the pattern (take-off spot included) must fit inside the fence
-        pts = [(0.0, 0.0, 0.0), *model.waypoints.points]
-        for axis, name in enumerate("xyz"):
-            span = max(p[axis] for p in pts) - min(p[axis] for p in pts)
-            room = fence.hi[axis] - fence.lo[axis]
-            if span > room:
-                report(
-                    ("waypoints", "points"),
-                    f"the pattern spans {span:g} m in {name}, more than the geofence's {room:g} m "
-                    f"(platform.geofence): it cannot lie inside the fence",
-                )
-    if problems:
-        raise MissionError(problems)
-    assert model is not None
-    return Mission(model=model, backends=backends, source=path.resolve(), raw=raw)
 
 
 def _data_loc(data: Any, err: dict) -> tuple:
