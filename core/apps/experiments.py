@@ -290,25 +290,56 @@ def pams_comparison(
 ) -> Path:
     """Fly every mission (one simulated world each) with PAMS and the baseline for each seed.
 
-    The missions name a prior map of objects (``planner.prior_objects``); the ``objects`` block
-    of each run's metrics (shape landmarks against the world's true shapes) fills a table like
-    paper 2 Fig. 9: dimension error mean and standard deviation and the share of objects mapped,
-    per world, per class and over all data.
+    The prior map both planners visit is one amslam built: first an overhead survey of the world
+    (paper 2 §V: a prior map "which could come from the high-altitude UAV"; the multi-robot
+    experiment's overhead robot, :func:`amslam.apps.multirobot.team_overrides`), then each
+    planner flight with ``planner.prior_objects`` set to the survey's ``landmarks.json``. The
+    ``objects`` block of each run's metrics (shape landmarks against the world's true shapes)
+    fills a table like paper 2 Fig. 9: dimension error mean and standard deviation and the share
+    of objects mapped, per world, per class and over all data.
     """
+    from amslam.apps.multirobot import team_overrides
+
     folder = experiment_folder(out, "pams", specs[0] if len(specs) == 1 else "worlds", resume)
-    cases = [(spec, seed, planner) for spec in specs for seed in seeds for planner in planners]
+    worlds = [(m, s) for m in specs for s in seeds]
+    surveys = [
+        Flight(m, tuple(team_overrides(m, registry, 1, "heterogeneous", s, overrides, scratch=folder)[0]))
+        for m, s in worlds
+    ]
+    log("  overhead surveys (the prior maps):")
+    surveyed = fly_all(surveys, folder, runner, log, registry)
+    priors = {world: _prior_map(rec) for world, rec in zip(worlds, surveyed, strict=True)}
+    cases = [(m, s, p) for m, s in worlds for p in planners if priors[(m, s)] is not None]
     flights = [
-        Flight(spec, (*overrides, f"seed={seed}", f"planner.plugin={planner}"))
-        for spec, seed, planner in cases
+        Flight(m, (*overrides, f"seed={s}", f"planner.plugin={p}", f"planner.prior_objects={priors[(m, s)]}"))
+        for m, s, p in cases
     ]
-    flown = fly_all(flights, folder, runner, log, registry)
-    rows = [
-        {"world": Path(spec).stem, "seed": seed, "planner": planner, **rec}
-        for (spec, seed, planner), rec in zip(cases, flown, strict=True)
-    ]
+    log("  planner flights:")
+    flown = dict(zip(cases, fly_all(flights, folder, runner, log, registry), strict=True))
+    rows = []
+    for (m, s), survey in zip(worlds, surveyed, strict=True):
+        for p in planners:
+            # no prior map, no flight: the survey's failure is each planner's row
+            rec = flown.get((m, s, p)) or {"overrides": [], "run_dir": None, "metrics": _no_prior(survey)}
+            rows.append({"world": Path(m).stem, "seed": s, "planner": p, "survey": survey["run_dir"], **rec})
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(pams_table(rows, planners))
     return folder
+
+
+def _prior_map(survey: dict[str, Any]) -> str | None:
+    """The survey's ``landmarks.json`` (absolute), or None when the survey left none."""
+    if survey["run_dir"] is None:
+        return None
+    path = (Path(survey["run_dir"]) / "landmarks.json").resolve()
+    return str(path) if path.is_file() else None
+
+
+def _no_prior(survey: dict[str, Any]) -> dict[str, Any]:
+    why = (
+        survey["metrics"].get("error") or f"the survey ended {survey['metrics'].get('verdict')} without a map"
+    )
+    return {"verdict": "failed", "error": f"no prior map: {why}"}
 
 
 def pool_errors(blocks: list[dict], metric: str = "dims_error", mapped: str = "mapped") -> dict[str, float]:

@@ -1,10 +1,12 @@
 """The ``pams`` planner (paper 2 §IV-D) and the ``prior_visit`` baseline (paper 2 §V-A).
 
 **Targets.** The objects of a prior map: ``prior_objects`` names a ``landmarks.json`` of an earlier
-run (or ``world``: the simulated world's ground truth); without one, the objects the SLAM backend
-has mapped so far (``PlanRequest.landmarks``). Only ``target_classes`` (default: every class the
-uncertainty models know) are targets. Their visiting order is an open travelling-salesman tour
-from the robot (exact below 13 targets, 2-opt beyond: :mod:`amslam.lib.tours`).
+run (paper 2 §V: a prior map "which could come from the high-altitude UAV"; ``amslam experiment
+pams`` flies that survey first); without one, the objects the SLAM backend has mapped so far
+(``PlanRequest.landmarks``). Never the simulator's truth: a real robot has none. Only
+``target_classes`` (default: every class the uncertainty models know) are targets. Their visiting
+order is an open travelling-salesman tour from the robot (exact below 13 targets, 2-opt beyond:
+:mod:`amslam.lib.tours`).
 
 **Viewpoints per target.** Around the current target a polar grid of candidate positions (horizontal
 distance × bearing, at the flight height) is scored with the fitted models
@@ -135,26 +137,6 @@ def load_prior_objects(path: Path, default_radius: float = 0.5) -> list[Target]:
     return out
 
 
-def world_objects(world, default_radius: float = 0.5) -> list[Target]:
-    """Targets from a simulated world's ground truth (:class:`~amslam.types.WorldSummary`)."""
-    out = []
-    for i, (name, pos) in enumerate(sorted(world.object_positions.items())):
-        shape = world.object_shapes.get(name)
-        radius, yaw = _shape_radius_yaw(shape, default_radius)
-        out.append(
-            Target(
-                i,
-                world.object_classes[name],
-                _shape_position(shape, pos),
-                yaw,
-                radius,
-                _shape_top(shape),
-                _shaped(shape),
-            )
-        )
-    return out
-
-
 def target_order(start: np.ndarray, positions: np.ndarray, exact_max: int = 12) -> list[int]:
     """Open TSP tour from ``start`` over ``positions`` (Euclidean), as indices into ``positions``."""
     if len(positions) == 0:
@@ -203,8 +185,14 @@ def count_paths(a: int, T: int) -> int:
 
 
 def _prior_objects_file(value: str | None, info: ValidationInfo) -> str | None:
-    """``prior_objects``: 'world', or a landmarks file that is there and readable."""
-    return value if value == "world" else check_mission_file(value, info)
+    """``prior_objects``: a landmarks file that is there and readable."""
+    if value == "world":  # what earlier versions accepted: said plainly, not "no such file"
+        raise ValueError(
+            "'world' (the simulator's true objects) is no longer a prior map: a real robot has no such "
+            "thing. Name the landmarks.json of a survey flight (amslam experiment pams flies one first), "
+            "or leave prior_objects out to target the objects SLAM has mapped"
+        )
+    return check_mission_file(value, info)
 
 
 class PamsParams(BackendParams):
@@ -229,8 +217,8 @@ class PamsParams(BackendParams):
     )
     prior_objects: str | None = Field(
         None,
-        description="landmarks.json of an earlier run (relative to the mission file), or 'world' for the "
-        "simulated world's truth; None = the objects SLAM has mapped so far",
+        description="landmarks.json of an earlier run, e.g. an overhead survey (relative to the mission"
+        " file); None = the objects SLAM has mapped so far",
     )
     target_classes: list[str] | None = Field(None, description="classes to map; None = every modelled class")
     horizon: int = Field(3, ge=1, le=5, description="planning horizon T (viewpoints per path)")
@@ -303,7 +291,7 @@ class PriorVisitParams(BackendParams):
     """Parameters of the ``prior_visit`` baseline."""
 
     prior_objects: str | None = Field(
-        None, description="landmarks.json of an earlier run (relative to the mission file), or 'world'"
+        None, description="landmarks.json of an earlier run (relative to the mission file); None = SLAM's map"
     )
     target_classes: list[str] | None = Field(None, description="classes to visit; None = every class")
     standoff: float = Field(
@@ -374,11 +362,7 @@ class _TargetPlanner(Planner):
     def _load_targets(self, request: PlanRequest) -> None:
         """Read the prior map once; without one, take SLAM's current map at every request."""
         p, ctx = self.params, self.context
-        if p.prior_objects == "world":
-            if ctx is None or ctx.world is None:
-                raise PlanningError("prior_objects: world needs a simulated world")
-            found = world_objects(ctx.world, p.default_radius)
-        elif p.prior_objects is not None:
+        if p.prior_objects is not None:
             base = ctx.mission_dir if ctx is not None else Path.cwd()
             found = load_prior_objects((base / p.prior_objects).resolve(), p.default_radius)
         else:

@@ -78,3 +78,63 @@ def test_table_scores_vehicles_by_the_fig9_error_and_cylinders_by_their_diameter
     assert "| Obj. mapped | 100 % / 100 % |" in text  # of the vehicles
     assert "| Err. mean — car | 0.10 m / 0.30 m |" in text
     assert "| Err. mean — pole | 0.02 m / 0.04 m |" in text
+
+
+def test_the_planners_visit_the_map_of_an_overhead_survey_flown_first(tmp_path, monkeypatch):
+    """No simulator truth in the loop: both planners get the survey's landmarks.json as prior map;
+    a survey that left no map gives its planner rows as failed, without flying them."""
+    import json
+    from pathlib import Path
+
+    from amslam.apps import experiments, multirobot
+
+    monkeypatch.setattr(
+        multirobot,
+        "team_overrides",
+        lambda spec, registry, n, mode, seed, overrides, scratch: [["tree=waypoints", f"overhead={seed}"]],
+    )
+    batches = []
+
+    def fly_all(flights, folder, runner, log, registry):
+        batches.append(list(flights))
+        out = []
+        for f in flights:
+            if "tree=waypoints" in f.overrides and "overhead=2" in f.overrides:  # seed 2's survey crashes
+                out.append(
+                    {"overrides": list(f.overrides), "run_dir": None, "metrics": {"verdict": "failed"}}
+                )
+                continue
+            run = Path(folder) / "runs" / f"r{len(out)}-{len(batches)}"
+            run.mkdir(parents=True)
+            (run / "landmarks.json").write_text("[]")
+            out.append(
+                {"overrides": list(f.overrides), "run_dir": str(run), "metrics": {"verdict": "completed"}}
+            )
+        return out
+
+    monkeypatch.setattr(experiments, "fly_all", fly_all)
+    folder = experiments.pams_comparison(["lot.yaml"], None, [1, 2], tmp_path, log=lambda line: None)
+    surveys, planned = batches
+    expected = [("tree=waypoints", "overhead=1"), ("tree=waypoints", "overhead=2")]
+    assert [f.overrides for f in surveys] == expected
+    assert len(planned) == 2  # seed 1 with each planner; seed 2 has no prior map
+    prior = [o for o in planned[0].overrides if o.startswith("planner.prior_objects=")]
+    assert prior and prior[0].endswith("landmarks.json") and Path(prior[0].split("=", 1)[1]).is_file()
+    assert {o for f in planned for o in f.overrides if o.startswith("planner.plugin=")} == {
+        "planner.plugin=pams",
+        "planner.plugin=prior_visit",
+    }
+    rows = json.loads((folder / "results.json").read_text())
+    failed = [r for r in rows if r["seed"] == 2]
+    assert len(failed) == 2 and all(r["metrics"]["verdict"] == "failed" for r in failed)
+    assert all("no prior map" in r["metrics"]["error"] for r in failed)
+
+
+def test_the_simulators_truth_is_refused_as_a_prior_map():
+    from pydantic import ValidationError
+
+    from amslam.plugins.pams.planner import PamsParams, PriorVisitParams
+
+    for params in (PamsParams, PriorVisitParams):
+        with pytest.raises(ValidationError, match="a real robot has no such thing"):
+            params(prior_objects="world")
