@@ -68,8 +68,9 @@ $(STAMP): pyproject.toml | system-deps
 demo: setup
 	$(BIN)/amslam run demo
 
+# --durations: the slowest tests at the end of every log (CI's too), where a faster suite starts (issue #20)
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
