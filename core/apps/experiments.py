@@ -72,38 +72,68 @@ def slc_ablation(
     return folder
 
 
+def _xyz(offset: Any) -> str:
+    """A per-axis error ``(x, y, z)`` in metres, or "—" for runs that did not record it."""
+    if not offset:
+        return "—"
+    return "(" + ", ".join(f"{v:+.2f}" for v in offset) + ")"
+
+
+def _yaw_deg(err: dict[str, Any], name: str) -> float | None:
+    """The signed final yaw error in degrees; runs from before it was recorded give |yaw|."""
+    if err.get(f"{name}_yaw_deg") is not None:
+        return float(err[f"{name}_yaw_deg"])
+    rad = err.get(f"{name}_yaw_rad")
+    return None if rad is None else float(np.degrees(rad))
+
+
 def slc_tables(rows: list[dict]) -> str:
-    """Markdown tables like paper 1 Tables I and II from the runs of an ablation."""
+    """Markdown tables like paper 1 Tables I and II from the runs of an ablation.
+
+    Table I (SLC on): the end position error of VIO and SLAM with its X/Y/Z components (estimate
+    minus truth), VIO's drift as a share of the trajectory, the yaw errors in degrees (signed) and
+    the trajectory length. Table II: the mean pose covariance trace's drop across each accepted
+    SLC ("upon SLC"), and the final mean pose and landmark traces with SLC against without.
+    """
     lines = [
         "## End-of-mission errors with SLC on (like paper 1 Table I)",
         "",
-        "| seed | distance (m) | SLC accepted | VIO pos. err (m) | SLAM pos. err (m) | reduction | "
-        "VIO yaw err (rad) | SLAM yaw err (rad) | reduction |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| seed | traj. len. (m) | SLC accepted | VIO pos. err (m) (X, Y, Z) | SLAM pos. err (m) (X, Y, Z) | "
+        "reduction | VIO drift (% of traj.) | VIO yaw err (°) | SLAM yaw err (°) | reduction |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    pos_red, yaw_red, pose_unc_red, lm_unc_red = [], [], [], []
+    pos_red, yaw_red, drift, pose_unc_red, lm_unc_red, upon = [], [], [], [], [], []
     for row in rows:
         m = row["on"]["metrics"]
         err = m.get("final_error", {})
         vio_p, slam_p = err.get("vio_position_m"), err.get("slam_position_m")
-        vio_y, slam_y = err.get("vio_yaw_rad"), err.get("slam_yaw_rad")
+        vio_y, slam_y = _yaw_deg(err, "vio"), _yaw_deg(err, "slam")
         rp = _pct_reduction(vio_p, slam_p) if vio_p is not None else float("nan")
-        ry = _pct_reduction(vio_y, slam_y) if vio_y is not None else float("nan")
+        ry = (
+            _pct_reduction(abs(vio_y), abs(slam_y))
+            if vio_y is not None and slam_y is not None
+            else float("nan")
+        )
+        length = m.get("distance_m")
+        d = 100.0 * vio_p / length if vio_p is not None and length else float("nan")
         pos_red.append(rp)
         yaw_red.append(ry)
+        drift.append(d)
         lines.append(
-            f"| {row['seed']} | {_fmt(m.get('distance_m'), 1)} | {m.get('slc', {}).get('accepted', 0)} | "
-            f"{_fmt(vio_p)} | {_fmt(slam_p)} | {_fmt(rp, 1)} % | "
-            f"{_fmt(vio_y)} | {_fmt(slam_y)} | {_fmt(ry, 1)} % |"
+            f"| {row['seed']} | {_fmt(length, 1)} | {m.get('slc', {}).get('accepted', 0)} | "
+            f"{_fmt(vio_p, 2)} {_xyz(err.get('vio_offset_m'))} | "
+            f"{_fmt(slam_p, 2)} {_xyz(err.get('slam_offset_m'))} | "
+            f"{_fmt(rp, 1)} % | {_fmt(d, 2)} % | {_fmt(vio_y, 2)} | {_fmt(slam_y, 2)} | {_fmt(ry, 1)} % |"
         )
     lines += [
-        f"| **mean** | | | | | **{_fmt(_mean(pos_red), 1)} %** | | | **{_fmt(_mean(yaw_red), 1)} %** |",
+        f"| **mean** | | | | | **{_fmt(_mean(pos_red), 1)} %** | {_fmt(_mean(drift), 2)} % | | | "
+        f"**{_fmt(_mean(yaw_red), 1)} %** |",
         "",
-        "## Final mean uncertainty, SLC on vs off (like paper 1 Table II / Fig. 7)",
+        "## Uncertainty reduction, upon SLC and SLC on vs off (like paper 1 Table II / Fig. 7)",
         "",
-        "| seed | pose tr(Σ) on | pose tr(Σ) off | reduction | "
-        "landmark tr(Σ) on | landmark tr(Σ) off | reduction |",
-        "|---|---|---|---|---|---|---|",
+        "| seed | avg. pose upon SLC | pose tr(Σ) on | pose tr(Σ) off | reduction | "
+        "landmark tr(Σ) on | landmark tr(Σ) off | reduction | traj. len. on (m) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         on = row["on"]["metrics"].get("uncertainty", {})
@@ -112,14 +142,19 @@ def slc_tables(rows: list[dict]) -> str:
         l_on, l_off = on.get("final_mean_landmark_trace"), off.get("final_mean_landmark_trace")
         rp = _pct_reduction(p_off, p_on) if p_on is not None and p_off else float("nan")
         rl = _pct_reduction(l_off, l_on) if l_on is not None and l_off else float("nan")
+        drops = on.get("pose_reduction_upon_slc_percent") or []
+        upon += drops
         pose_unc_red.append(rp)
         lm_unc_red.append(rl)
         lines.append(
-            f"| {row['seed']} | {_fmt(p_on, 4)} | {_fmt(p_off, 4)} | {_fmt(rp, 1)} % | "
-            f"{_fmt(l_on, 4)} | {_fmt(l_off, 4)} | {_fmt(rl, 1)} % |"
+            f"| {row['seed']} | {'; '.join(f'{x:.1f} %' for x in drops) or '—'} | "
+            f"{_fmt(p_on, 4)} | {_fmt(p_off, 4)} | {_fmt(rp, 1)} % | "
+            f"{_fmt(l_on, 4)} | {_fmt(l_off, 4)} | {_fmt(rl, 1)} % | "
+            f"{_fmt(row['on']['metrics'].get('distance_m'), 1)} |"
         )
     lines += [
-        f"| **mean** | | | **{_fmt(_mean(pose_unc_red), 1)} %** | | | **{_fmt(_mean(lm_unc_red), 1)} %** |",
+        f"| **mean** | {_fmt(_mean(upon), 1)} % | | | **{_fmt(_mean(pose_unc_red), 1)} %** | | | "
+        f"**{_fmt(_mean(lm_unc_red), 1)} %** | |",
         "",
     ]
     return "\n".join(lines)

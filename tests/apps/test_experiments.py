@@ -13,11 +13,16 @@ def metrics(vio: float, slam: float, pose: float, landmark: float, accepted: int
             "slam_position_m": slam,
             "vio_yaw_rad": 0.1,
             "slam_yaw_rad": 0.05,
+            "vio_offset_m": [0.6 * vio, -0.8 * vio, 0.0],
+            "slam_offset_m": [0.0, 0.0, slam],
+            "vio_yaw_deg": -4.0,
+            "slam_yaw_deg": 1.0,
         },
         "uncertainty": {
             "final_mean_pose_trace": pose,
             "final_mean_landmark_trace": landmark,
             "series": [[0, 0, 0.0, 0.0], [10, 20, pose, landmark]],
+            "pose_reduction_upon_slc_percent": [40.0, 20.0],
         },
         "slc": {"accepted": accepted, "events": [{"distance": 15.0, "accepted": True}]},
     }
@@ -37,9 +42,15 @@ def test_slc_tables_compute_reductions(tmp_path):
         },
     ]
     table = slc_tables(rows)
-    assert "| 1 | 100.0 | 1 | 1.000 | 0.200 | 80.0 % |" in table
+    # per axis (estimate - truth), VIO drift as a share of the trajectory, signed yaw in degrees
+    assert (
+        "| 1 | 100.0 | 1 | 1.00 (+0.60, -0.80, +0.00) | 0.20 (+0.00, +0.00, +0.20) | 80.0 % | 1.00 % |"
+        in table
+    )
+    assert "| -4.00 | 1.00 | 75.0 % |" in table  # |yaw| 4° -> 1°
     assert "**65.0 %**" in table  # mean of 80 % and 50 % position-error reduction
-    assert "| 1 | 0.5000 | 1.0000 | 50.0 % | 0.4000 | 0.8000 | 50.0 % |" in table
+    assert "| 1 | 40.0 %; 20.0 % | 0.5000 | 1.0000 | 50.0 % | 0.4000 | 0.8000 | 50.0 % | 100.0 |" in table
+    assert "| **mean** | 30.0 % |" in table  # the drops upon SLC of all flights
     plot_fig7(rows, tmp_path / "fig7.png")
     assert (tmp_path / "fig7.png").stat().st_size > 10_000
 
@@ -71,3 +82,21 @@ def test_planner_table_and_plot(tmp_path):
     assert "| greedy | 1 | 90.0 | 125.0 | 300.0 | 100.0 | 100.0 |" in table
     plot_exploration(rows, tmp_path / "p.png")
     assert (tmp_path / "p.png").exists()
+
+
+def test_slc_tables_read_runs_from_before_the_per_axis_errors():
+    old = metrics(1.0, 0.5, 0.5, 0.4)
+    for key in ("vio_offset_m", "slam_offset_m", "vio_yaw_deg", "slam_yaw_deg"):
+        del old["final_error"][key]
+    del old["uncertainty"]["pose_reduction_upon_slc_percent"]
+    table = slc_tables([{"seed": 3, "on": {"metrics": old}, "off": {"metrics": old}}])
+    assert "| 3 | 100.0 | 1 | 1.00 — | 0.50 — | 50.0 % | 1.00 % | 5.73 | 2.86 | 50.0 % |" in table
+    assert "| 3 | — |" in table
+
+
+def test_the_pose_trace_drop_across_each_accepted_slc():
+    from amslam.apps.report import reduction_upon_slc
+
+    series = [(0.0, 0.0, 0.1, 0.0), (5.0, 3.0, 0.2, 0.0), (10.0, 6.0, 0.05, 0.0), (15.0, 9.0, 0.06, 0.0)]
+    assert reduction_upon_slc(series, [7.5]) == [75.0]  # 0.2 before, 0.05 after
+    assert reduction_upon_slc(series, [10.0, 20.0, -1.0]) == [75.0]  # no sample after 20 s or before -1 s
