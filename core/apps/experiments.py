@@ -358,8 +358,31 @@ def pams_comparison(
             rec = flown.get((m, s, p)) or {"overrides": [], "run_dir": None, "metrics": _no_prior(survey)}
             rows.append({"world": Path(m).stem, "seed": s, "planner": p, "survey": survey["run_dir"], **rec})
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
-    (folder / "table.md").write_text(pams_table(rows, planners))
+    surveys_md = survey_table([(Path(m).stem, s) for m, s in worlds], surveyed)
+    (folder / "table.md").write_text(pams_table(rows, planners) + "\n" + surveys_md)
     return folder
+
+
+def survey_table(worlds: list[tuple[str, int]], surveyed: list[dict[str, Any]]) -> str:
+    """The prior maps the planners were given: per world and seed, the survey's verdict and, per
+    shaped class, its landmarks, the true objects they mapped and their duplicates (a prior map's
+    duplicates and misses are targets visited twice or never)."""
+    lines = [
+        "Prior maps (overhead surveys): landmarks / objects mapped of objects / duplicates, per class",
+        "",
+        "| world | seed | survey | classes |",
+        "|---|---|---|---|",
+    ]
+    for (world, seed), rec in zip(worlds, surveyed, strict=True):
+        m = rec["metrics"]
+        per_class = "; ".join(
+            f"{c}: {b.get('landmarks', '?')} / {b.get('mapped', '?')} of {b.get('objects', '?')} / "
+            f"{b.get('duplicates', '?')}"
+            for c, b in sorted((m.get("objects") or {}).items())
+            if c != "overall"
+        )
+        lines.append(f"| {world} | {seed} | {m.get('verdict', '?')} | {per_class or '—'} |")
+    return "\n".join(lines) + "\n"
 
 
 def _prior_map(survey: dict[str, Any]) -> str | None:

@@ -107,9 +107,9 @@ def test_the_planners_visit_the_map_of_an_overhead_survey_flown_first(tmp_path, 
             run = Path(folder) / "runs" / f"r{len(out)}-{len(batches)}"
             run.mkdir(parents=True)
             (run / "landmarks.json").write_text("[]")
-            out.append(
-                {"overrides": list(f.overrides), "run_dir": str(run), "metrics": {"verdict": "completed"}}
-            )
+            car = {"landmarks": 5, "mapped": 3, "objects": 4, "duplicates": 1}
+            metrics = {"verdict": "completed", "objects": {"car": car}}
+            out.append({"overrides": list(f.overrides), "run_dir": str(run), "metrics": metrics})
         return out
 
     monkeypatch.setattr(experiments, "fly_all", fly_all)
@@ -128,6 +128,9 @@ def test_the_planners_visit_the_map_of_an_overhead_survey_flown_first(tmp_path, 
     failed = [r for r in rows if r["seed"] == 2]
     assert len(failed) == 2 and all(r["metrics"]["verdict"] == "failed" for r in failed)
     assert all("no prior map" in r["metrics"]["error"] for r in failed)
+    table = (folder / "table.md").read_text()
+    assert "| lot | 1 | completed | car: 5 / 3 of 4 / 1 |" in table
+    assert "| lot | 2 | failed | — |" in table
 
 
 def test_the_simulators_truth_is_refused_as_a_prior_map():
