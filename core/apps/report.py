@@ -58,7 +58,7 @@ def landmark_accuracy(landmarks: list, world: WorldSummary, gate: float = 1.0) -
     within ``gate`` metres). ``duplicates`` are unpaired landmarks within ``gate`` of an object of
     their class (a second landmark for a mapped object); ``spurious`` are landmarks with no object
     of their class within ``gate``; ``off_by_more_than_0_5_m`` counts paired landmarks more than
-    0.5 m from their object.
+    0.5 m from their object. ``by_class`` gives the same per class (issue #23's benchmark).
     """
     from scipy.optimize import linear_sum_assignment
 
@@ -76,15 +76,33 @@ def landmark_accuracy(landmarks: list, world: WorldSummary, gate: float = 1.0) -
     err = d[r[ok], c[ok]]
     paired = set(r[ok].tolist())
     near = d.min(axis=1) <= gate
-    return {
-        "objects": len(ids),
-        "matched": int(ok.sum()),
-        "mean_error_m": round(float(err.mean()), 4) if len(err) else None,
-        "median_error_m": round(float(np.median(err)), 4) if len(err) else None,
-        "off_by_more_than_0_5_m": int((err > 0.5).sum()),
-        "duplicates": int(sum(1 for i in range(len(Q)) if i not in paired and near[i])),
-        "spurious": int((~near).sum()),
+    duplicate = np.array([i not in paired and near[i] for i in range(len(Q))], dtype=bool)
+    pair_class, pair_err = qc[r[ok]], err
+
+    def block(objects: int, errors: np.ndarray, duplicates: int, spurious: int, landmarks: int) -> dict:
+        return {
+            "objects": objects,
+            "landmarks": landmarks,
+            "matched": len(errors),
+            "mean_error_m": round(float(errors.mean()), 4) if len(errors) else None,
+            "median_error_m": round(float(np.median(errors)), 4) if len(errors) else None,
+            "off_by_more_than_0_5_m": int((errors > 0.5).sum()),
+            "duplicates": duplicates,
+            "spurious": spurious,
+        }
+
+    out = block(len(ids), err, int(duplicate.sum()), int((~near).sum()), len(Q))
+    out["by_class"] = {
+        cls: block(
+            int((pc == cls).sum()),
+            pair_err[pair_class == cls],
+            int(duplicate[qc == cls].sum()),
+            int((~near[qc == cls]).sum()),
+            int((qc == cls).sum()),
+        )
+        for cls in sorted(set(pc.tolist()) | set(qc.tolist()))
     }
+    return out
 
 
 def _shape_ref(shape: dict) -> np.ndarray:

@@ -45,6 +45,34 @@ def test_landmark_accuracy_pairs_by_class_and_counts_duplicates_and_spurious() -
     assert acc["off_by_more_than_0_5_m"] == 1
     # one-to-one: the duplicate at 0.07 m takes chair a, landmark 0 is left as the duplicate
     assert np.isclose(acc["mean_error_m"], (np.hypot(0.05, 0.05) + 0.6 + 0.2) / 3, atol=1e-3)
+    chair, table = acc["by_class"]["chair"], acc["by_class"]["table"]
+    assert (
+        chair["objects"],
+        chair["landmarks"],
+        chair["matched"],
+        chair["duplicates"],
+        chair["spurious"],
+    ) == (
+        2,
+        3,
+        2,
+        1,
+        0,
+    )
+    assert (
+        table["objects"],
+        table["landmarks"],
+        table["matched"],
+        table["duplicates"],
+        table["spurious"],
+    ) == (
+        1,
+        2,
+        1,
+        0,
+        1,
+    )
+    assert np.isclose(table["mean_error_m"], 0.2, atol=1e-6) and chair["off_by_more_than_0_5_m"] == 1
 
 
 def test_object_accuracy_fig9_error_is_length_and_width_of_vehicles_only() -> None:

@@ -1,0 +1,51 @@
+"""benchmarks/objects.py (issue #23): its figures per flight and its tables, from metrics alone."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "objects.py"
+
+
+def _benchmark():
+    spec = importlib.util.spec_from_file_location("objects_benchmark", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _metrics(matched, objects, duplicates, spurious, err, vio, slam):
+    chair = {"objects": objects, "landmarks": matched + duplicates + spurious, "matched": matched}
+    chair |= {"duplicates": duplicates, "spurious": spurious, "mean_error_m": err}
+    accuracy = {**chair, "median_error_m": err, "off_by_more_than_0_5_m": 0, "by_class": {"chair": chair}}
+    return {
+        "landmarks": {"accuracy": accuracy},
+        "final_error": {"vio_position_m": vio, "slam_position_m": slam},
+    }
+
+
+def test_figures_and_tables_of_two_seeds():
+    b = _benchmark()
+    one = b.flight_figures(_metrics(8, 10, 1, 1, 0.2, 0.5, 0.1))
+    assert one["mapped_pct"] == 80.0 and one["duplicates_pct"] == 10.0 and one["spurious_pct"] == 10.0
+    assert one["slam_below_vio"] is True
+    two = b.flight_figures(_metrics(10, 10, 0, 0, 0.1, 0.3, 0.4))
+    rows = [
+        {"building": "demo", "detector": "sim", "seed": 1, "figures": one},
+        {"building": "demo", "detector": "sim", "seed": 2, "figures": two},
+        {"building": "demo", "detector": "sim", "seed": 3, "figures": None},  # a failed flight
+    ]
+    text = b.tables(rows)
+    assert "| demo | sim | 2 of 3 | 90.00 ± 10.00 | 5.00 ± 5.00 | 5.00 ± 5.00 | 0.15 ± 0.05 |" in text
+    assert text.split("\n")[2].endswith("| 1 of 2 |")  # SLAM ended below VIO on one flight of two
+    # per class, pooled: 20 objects, 18 mapped, mean error weighted by the mapped objects
+    assert "| demo | sim | chair | 20 | 18 | 1 | 1 | 0.144 |" in text
+    assert b.flight_figures({"verdict": "failed"}) is None
+
+
+def test_unknown_building_is_one_error_line(capsys):
+    assert _benchmark().main(["--buildings", "castle"]) == 2
+    assert (
+        capsys.readouterr().err.strip() == "error: unknown castle; choose from floors1, demo, floors3, house"
+    )
