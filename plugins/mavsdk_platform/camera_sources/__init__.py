@@ -8,7 +8,9 @@ the platform's ``camera.source`` parameter:
 * ``realsense`` — an Intel RealSense (D435i and kin) through ``pyrealsense2``, an optional extra
   imported only when this source is opened;
 * ``replay`` — recorded frames (``.npz`` files with ``depth`` and optionally ``rgb`` and ``K``),
-  played back in name order at the camera rate, for bench tests without a camera.
+  played back in name order at the camera rate, for bench tests without a camera;
+* ``stream`` — frames sent over TCP by another process (``amslam sitl``'s rendered camera), with
+  their intrinsics in each frame (:mod:`.stream`).
 """
 
 from __future__ import annotations

@@ -26,12 +26,18 @@ class RgbdImage:
         depth: H×W float32 depth along the optical axis in metres, 0 where there is no return.
         K: 3×3 intrinsics of ``depth`` (and of ``rgb``, which is aligned to it).
         rgb: H×W×3 uint8, if the source has colour.
+        instance, class_id: H×W int32 instance and class masks, from a rendering sender only
+            (``stream`` from ``amslam sitl``: what the simulator's detector reads).
+        class_names: names of the class ids, index 0 unused.
     """
 
     stamp: float
     depth: np.ndarray
     K: np.ndarray
     rgb: np.ndarray | None = None
+    instance: np.ndarray | None = None
+    class_id: np.ndarray | None = None
+    class_names: tuple[str, ...] = ()
 
 
 #: an offset on the vehicle's body, m
@@ -43,8 +49,10 @@ class CameraSourceParams(BaseModel):
 
     model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, allow_inf_nan=False)
 
-    source: Literal["none", "realsense", "replay"] = Field(
-        "none", description="none (no frames), realsense (pyrealsense2), replay (a folder of .npz frames)"
+    source: Literal["none", "realsense", "replay", "stream"] = Field(
+        "none",
+        description="none (no frames), realsense (pyrealsense2), replay (a folder of .npz frames),"
+        " stream (frames sent over TCP from host:port, e.g. by amslam sitl)",
     )
     width: int = Field(640, gt=0, le=4096, description="image width, px")
     height: int = Field(480, gt=0, le=4096, description="image height, px")
@@ -59,6 +67,11 @@ class CameraSourceParams(BaseModel):
     mount_pitch_deg: float = Field(0.0, ge=-90, le=90, description="downward tilt of the camera, degrees")
     serial: str | None = Field(None, description="realsense: the device serial number (default: the first)")
     folder: str | None = Field(None, description="replay: folder of .npz frames (relative to the mission)")
+    host: str = Field("127.0.0.1", min_length=1, description="stream: the sender's host")
+    port: int = Field(5600, ge=1, le=65535, description="stream: the sender's TCP port")
+    stream_timeout: float = Field(
+        15.0, gt=0, le=3600, description="stream: wait this long for the sender and its first frame, s"
+    )
 
     @model_validator(mode="after")
     def _replay_folder(self, info: ValidationInfo) -> CameraSourceParams:
@@ -164,6 +177,10 @@ def make_camera_source(params: CameraSourceParams, base: Path) -> CameraSource |
         return None
     if params.source == "replay":
         return ReplaySource(params, base)
+    if params.source == "stream":
+        from amslam.plugins.mavsdk_platform.camera_sources.stream import StreamSource
+
+        return StreamSource(params)
     from amslam.plugins.mavsdk_platform.camera_sources.realsense import RealSenseSource
 
     return RealSenseSource(params)
