@@ -391,7 +391,7 @@ class MavlinkVehiclePeer:
             self._note("failsafe: offboard setpoints lost, landing")
             self._set_mode("LAND")
         if not self.armed:
-            self.landed = self.position[2] >= -1e-6
+            self.landed = self._resting()
             return
         target, yaw_target = self._hold, self.yaw
         vz_max = self.max_vertical_speed
@@ -412,6 +412,27 @@ class MavlinkVehiclePeer:
             target = self.position.copy()  # sticks centred: stay
         if self.landed and target[2] >= -1e-6:
             target = self.position.copy()  # on the ground and not asked up: motors idle
+        descending = self._move(target, yaw_target, vz_max, dt)
+        on_ground = self._on_ground()
+        if self.landed and not on_ground:
+            self.landed = False
+        if not self.landed and on_ground and descending and self.mode in ("LAND", "OFFBOARD", "LOITER"):
+            self.landed = True
+            self.position[2] = 0.0
+            self._touchdown = now
+            self._note("touched down")
+        if self.landed and self._touchdown is not None and now - self._touchdown >= self.disarm_after_landing:
+            self.armed = False
+            self._touchdown = None
+            self._set_mode("LOITER")
+            self._note("disarmed after landing")
+
+    # -- the vehicle model: a subclass flies another one (amslam.apps.sitl: the simulator's) -----
+
+    def _move(self, target: np.ndarray, yaw_target: float, vz_max: float, dt: float) -> bool:
+        """Move ``dt`` towards ``target`` (NED) and ``yaw_target`` with climb/descent at most
+        ``vz_max``; True unless climbing. Updates :attr:`position` and :attr:`yaw`, which the
+        telemetry reports. Here: the point mass, its estimate exact."""
         err = target - self.position
         v = self.position_gain * err
         horizontal = float(np.linalg.norm(v[:2]))
@@ -424,19 +445,15 @@ class MavlinkVehiclePeer:
         self.yaw = math.remainder(
             self.yaw + float(np.clip(yaw_err, -self.max_yaw_rate * dt, self.max_yaw_rate * dt)), 2 * math.pi
         )
-        on_ground = self.position[2] >= -0.01
-        if self.landed and not on_ground:
-            self.landed = False
-        if not self.landed and on_ground and v[2] >= 0 and self.mode in ("LAND", "OFFBOARD", "LOITER"):
-            self.landed = True
-            self.position[2] = 0.0
-            self._touchdown = now
-            self._note("touched down")
-        if self.landed and self._touchdown is not None and now - self._touchdown >= self.disarm_after_landing:
-            self.armed = False
-            self._touchdown = None
-            self._set_mode("LOITER")
-            self._note("disarmed after landing")
+        return bool(v[2] >= 0)
+
+    def _on_ground(self) -> bool:
+        """Whether the vehicle's land detector sees it on the ground (in flight)."""
+        return bool(self.position[2] >= -0.01)
+
+    def _resting(self) -> bool:
+        """Whether a disarmed vehicle stands on the ground."""
+        return bool(self.position[2] >= -1e-6)
 
     def _landed_state(self) -> int:
         if self.landed:

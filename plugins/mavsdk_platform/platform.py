@@ -140,6 +140,12 @@ class MavsdkPlatform(Platform):
             60.0, gt=0, le=3600, description="give up confirming a landing after this, s"
         )
         camera: CameraSourceParams = Field(default_factory=CameraSourceParams)
+        world: dict[str, Any] | None = Field(
+            None,
+            description="software in the loop: the simulated world `amslam sitl MISSION` flies this"
+            " mission's vehicle in (the sim platform's world section: procedural or mesh); the"
+            " platform itself does not read it",
+        )
 
         @model_validator(mode="after")
         def _battery_ordered(self) -> MavsdkPlatform.Params:
