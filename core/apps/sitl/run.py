@@ -12,6 +12,9 @@ import numpy as np
 
 from amslam.errors import AmslamError, MissionError
 
+#: ``--once``: seconds the vehicle keeps talking after its landing, so that amslam hears it disarmed
+ONCE_LINGER = 4.0
+
 
 def _mavlink_peer_address(url: str) -> tuple[str, int]:
     """Where the vehicle sends: the ``udpin://HOST:PORT`` amslam listens on (0.0.0.0: this host)."""
@@ -50,7 +53,10 @@ def _sim_params(mission, platform_params):
     except ValidationError as exc:
         problems = []
         for err in exc.errors():
-            where = ".".join(str(p) for p in err["loc"])
+            loc = [str(p) for p in err["loc"]]
+            if loc[:1] == ["world"] and len(loc) > 1 and loc[1] in ("procedural", "mesh", "outdoor"):
+                del loc[1]  # the kind pydantic tried, not a key of the mission
+            where = ".".join(loc)
             key = f"platform.{where}" if where.startswith("world") else f"platform.camera ({where})"
             problems.append(f"{mission.source}: {key}: {err['msg']}")
         raise MissionError(problems) from None
@@ -113,15 +119,22 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
         offboard_loss_timeout=1.0,  # PX4's COM_OF_LOSS_T default
         params={"MIS_TAKEOFF_ALT": mission.model.robot.altitude},
     )
-    streamer = CameraStreamer(
-        sim.world,
-        p.camera.nominal_model(),
-        sim_params.camera,
-        vehicle.true_pose,
-        p.camera.host,
-        p.camera.port,
-        seed=mission.model.seed,
-    )
+    try:
+        streamer = CameraStreamer(
+            sim.world,
+            p.camera.nominal_model(),
+            sim_params.camera,
+            vehicle.true_pose,
+            p.camera.host,
+            p.camera.port,
+            seed=mission.model.seed,
+        )
+    except OSError as exc:
+        vehicle.stop()
+        raise AmslamError(
+            f"cannot serve camera frames on {p.camera.host}:{p.camera.port} ({exc.strerror or exc});"
+            " choose another with --set platform.camera.port=PORT (and the same for amslam fly)"
+        ) from None
     start = T_world_local[:3, 3]
     print(
         f"SITL vehicle in world {summary_of_world.name!r} at ({start[0]:.2f}, {start[1]:.2f}, {start[2]:.2f})"
@@ -171,6 +184,9 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
                     flush=True,
                 )
                 if args.once:
+                    # PX4 heartbeats say "disarmed" twice a second here: amslam waits up to 3 s to
+                    # hear it before it sends a disarm itself, which nobody would answer any more
+                    time.sleep(ONCE_LINGER)
                     break
     except KeyboardInterrupt:
         pass  # SIGINT, SIGTERM: stop serving, keep the record

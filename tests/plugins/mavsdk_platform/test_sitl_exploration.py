@@ -113,7 +113,7 @@ def test_exploration_over_mavlink_completes_explores_and_lands(tmp_path):
     assert found["explored_percent"] >= 80.0, found
     assert_down_safely(summary)
     names = [e["event"] for e in events(run)]
-    assert "failsafe" not in names and names.count("touchdown") == 1
+    assert "failsafe" not in names and "disarm_failed" not in names and names.count("touchdown") == 1
     assert summary["camera"]["frames_sent"] > 50  # the map was built from the SITL's frames
     # amslam flew its exploration tree over MAVLink: offboard, then PX4's landing
     log = " ".join(summary["vehicle_log"])
@@ -152,3 +152,38 @@ def test_a_stop_signal_mid_exploration_lands_disarms_and_completes_the_run_folde
     assert_down_safely(summary)
     log = " ".join(summary["vehicle_log"])
     assert "mode LAND" in log and "failsafe" not in log  # amslam landed it, not the offboard-loss failsafe
+
+
+@pytest.mark.parametrize(
+    ("mission", "overrides", "error"),
+    [
+        ("px4_square", [], "px4_square.yaml: platform.world: the SITL vehicle needs a world to fly in"),
+        ("demo", [], "demo.yaml: platform.plugin is 'sim': amslam sitl flies a mavsdk mission"),
+        ("sitl_small", ["platform.world.size=[1, 1]"], "platform.world: Value error, building 1x1 m"),
+        ("sitl_small", ["platform.url=serial:///dev/ttyUSB0"], "platform.url 'serial:///dev/ttyUSB0'"),
+    ],
+)
+def test_a_mission_the_sitl_cannot_fly_is_one_error_line(mission, overrides, error):
+    args = [arg for o in overrides for arg in ("--set", o)]
+    done = subprocess.run([AMSLAM, "sitl", mission, *args], capture_output=True, text=True, timeout=BOUND)
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert line.startswith("error: ") and error in line, line
+
+
+def test_a_camera_port_in_use_is_one_error_line(tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        url = f"platform.url=udpin://127.0.0.1:{free_udp_port()}"
+        camera = f"platform.camera.port={port}"
+        done = subprocess.run(
+            [AMSLAM, "sitl", "sitl_small", "--out", str(tmp_path), "--set", url, "--set", camera],
+            capture_output=True,
+            text=True,
+            timeout=BOUND,
+        )
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert line.startswith(f"error: cannot serve camera frames on 127.0.0.1:{port} ("), line
