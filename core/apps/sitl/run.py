@@ -144,8 +144,7 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
     )
 
     def write_summary() -> dict:
-        status = sim.status()
-        truth = sim.ground_truth()
+        status, truth = vehicle.truth()  # the vehicle's thread may be stepping the simulator
         est = vehicle.state()
         drift = float(np.linalg.norm(truth[:3, 3] - start - np.array(est["estimate_local_enu"])))
         return record.summary(

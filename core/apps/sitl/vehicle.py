@@ -108,6 +108,12 @@ class SitlVehicle(MavlinkVehiclePeer):
         with self._lock:
             return time.monotonic(), self.sim.ground_truth()
 
+    def truth(self) -> tuple[Any, np.ndarray]:
+        """The simulator's status (contact, closest approach) and ``T_world_body``, under the lock
+        (the vehicle's thread steps the simulator; the status names the closest surface lazily)."""
+        with self._lock:
+            return self.sim.status(), self.sim.ground_truth()
+
     def state(self) -> dict[str, Any]:
         """What the vehicle is doing, for the record and the console."""
         with self._lock:
