@@ -505,6 +505,9 @@ class MavsdkPlatform(Platform):
             self._event("landing_unconfirmed", timeout=p.land_timeout)
             return
         self._event("touchdown")
+        stats = getattr(self._source, "stats", None)
+        if stats is not None:  # what a streaming source can tell of the flight's frames, before run_end
+            self._event("camera_stream", **stats())
         await self._disarm()
 
     async def _disarm(self) -> None:

@@ -164,6 +164,8 @@ class StreamSource(CameraSource):
         self.dropped = 0
         #: why the stream ended, once it has (the sender closed it, or sent garbage)
         self.ended: str | None = None
+        #: same clock only: seconds from the moment a frame was rendered for to its arrival here
+        self.latencies: list[float] = []
 
     def open(self) -> CameraModel:
         p = self.params
@@ -200,7 +202,8 @@ class StreamSource(CameraSource):
         return self.model
 
     def _keep(self, frame: StreamFrame) -> None:
-        stamp = frame.stamp if self.same_clock else time.monotonic()
+        arrival = time.monotonic()
+        stamp = frame.stamp if self.same_clock else arrival
         image = RgbdImage(
             stamp, frame.depth, frame.K, frame.rgb, frame.instance, frame.class_id, frame.class_names
         )
@@ -209,6 +212,20 @@ class StreamSource(CameraSource):
                 self.dropped += 1
             self._newest = image
             self.received += 1
+            if self.same_clock:
+                self.latencies.append(arrival - frame.stamp)
+
+    def stats(self) -> dict:
+        """Frames received and dropped (replaced before they were read), latency, how it ended."""
+        with self._lock:
+            out: dict = {"received": self.received, "dropped": self.dropped}
+            if self.latencies:
+                ms = 1000 * np.asarray(self.latencies)
+                median, most = round(float(np.median(ms)), 1), round(float(ms.max()), 1)
+                out["latency_ms"] = {"median": median, "max": most}
+        if self.ended:
+            out["ended"] = self.ended
+        return out
 
     def _read_stream(self) -> None:
         assert self._sock is not None

@@ -74,6 +74,8 @@ def test_open_takes_the_intrinsics_from_the_stream_and_read_gives_the_newest():
         assert image.stamp == 102.0  # same host: the sender's clock, the moment it rendered for
         assert image.class_names == ("", "wall", "chair") and int(image.instance[0, 0]) == 2
         assert source.dropped == 2
+        stats = source.stats()
+        assert (stats["received"], stats["dropped"]) == (3, 2) and "latency_ms" in stats
         assert source.read() is None  # nothing new
         hold.set()
         thread.join(timeout=5.0)

@@ -115,6 +115,8 @@ def test_exploration_over_mavlink_completes_explores_and_lands(tmp_path):
     names = [e["event"] for e in events(run)]
     assert "failsafe" not in names and "disarm_failed" not in names and names.count("touchdown") == 1
     assert summary["camera"]["frames_sent"] > 50  # the map was built from the SITL's frames
+    (stream,) = [e for e in events(run) if e["event"] == "camera_stream"]
+    assert 50 < stream["received"] <= summary["camera"]["frames_sent"], stream
     # amslam flew its exploration tree over MAVLink: offboard, then PX4's landing
     log = " ".join(summary["vehicle_log"])
     assert "mode OFFBOARD" in log and "mode LAND" in log and "disarmed after landing" in log
@@ -148,7 +150,7 @@ def test_a_stop_signal_mid_exploration_lands_disarms_and_completes_the_run_folde
     (run,) = (tmp_path / "runs").iterdir()
     assert_complete_run_folder(run, "aborted")
     names = [e["event"] for e in events(run)]
-    assert "aborted" in names and "touchdown" in names
+    assert "aborted" in names and "touchdown" in names and "camera_stream" in names
     assert_down_safely(summary)
     log = " ".join(summary["vehicle_log"])
     assert "mode LAND" in log and "failsafe" not in log  # amslam landed it, not the offboard-loss failsafe
