@@ -9,7 +9,11 @@ at (:mod:`amslam.plugins.mavsdk_platform.camera_sources.stream`). amslam pairs i
 give it.
 
 Thread rule: this thread takes the vehicle's pose under the vehicle's lock (a copy) and renders
-outside it; the world's ray-casting scene is only read (it is built before the threads start).
+outside it, so a render never holds up the vehicle's physics and telemetry. The world's Open3D
+ray-casting scene is only read, by this thread and the vehicle's contact check: it is built and
+committed (its first queries, choosing the start) before the threads start, and Open3D ≥ 0.18
+commits with ``rtcJoinCommitScene``, so queries from several threads are supported (Open3D
+issue #6050, PR #6051).
 """
 
 from __future__ import annotations
