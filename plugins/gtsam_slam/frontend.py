@@ -107,7 +107,9 @@ class FrontEnd:
         else:
             prev = self.kps[-1]
             dyaw = wrap_angle(yaw_of(T) - yaw_of(prev.T_odom_body))
-            self.graph.add_odometry(prev.key, key, invert(prev.T_odom_body) @ T, dyaw)
+            self.graph.add_odometry(
+                prev.key, key, invert(prev.T_odom_body) @ T, dyaw, self.T_world_odom_start @ T
+            )
         self.kps.append(KeyPoseRec(i, key, odom.stamp, T.copy(), self.distance))
         return i
 

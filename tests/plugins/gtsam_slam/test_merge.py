@@ -122,9 +122,11 @@ def test_gate_too_tight_makes_duplicates_that_fusion_removes(
     world, a, b = two_robots
     logs = [read_measurements(a), read_measurements(b)]
     # a tiny association gate: the second robot's drifted detections start new landmarks
-    loose = merge_measurements(logs, MergeParams(association_gate=0.15, fuse_gate=0.0))
-    fused = merge_measurements(logs, MergeParams(association_gate=0.15, fuse_gate=0.8))
-    assert len(loose.landmarks) > len(world.objects)
+    loose = merge_measurements(logs, MergeParams(association={"gate": 0.15}, fuse_gate=0.0))
+    fused = merge_measurements(logs, MergeParams(association={"gate": 0.15}, fuse_gate=0.8))
+    truth, classes = truth_of(world)
+    # duplicates: landmarks left over by the one-to-one matching to the objects
+    assert len(loose.landmarks) > len(position_errors(loose.landmarks, truth, classes)[1])
     assert fused.fused > 0
     assert len(fused.landmarks) < len(loose.landmarks)
 
@@ -254,3 +256,30 @@ def test_slam_odometry_replaces_the_vio_chain(
     for rel in fixed.rel[1:]:
         chained = chained @ rel
     np.testing.assert_allclose(chained, fixed.T_odom_body[-1], atol=1e-6)
+
+
+def test_the_merge_is_the_onboard_graph_with_its_noise_and_shape_factors(tmp_path: Path) -> None:
+    import gtsam
+
+    from amslam.plugins.gtsam_slam.graph import NoiseModels
+    from amslam.plugins.gtsam_slam.merge import ROBOT_CHARS
+
+    cars = np.array([[2.6 * i, 0.0, 0.0] for i in range(2)])
+    logs = [read_measurements(fly_past_cars(cars, -3.0, 1, 1, tmp_path / "a.jsonl"))]
+    params = MergeParams(landmark_models={"car": "cuboid"})
+    result = merge_measurements(logs, params)
+    factors = [result.graph.at(i) for i in range(result.graph.size())]
+    # eq. 1: every car landmark has its pose and dimension variables, tied to the robot's key poses
+    chars = [[chr(gtsam.Symbol(k).chr()) for k in f.keys()] for f in factors]  # noqa: SIM118 — a KeyVector
+    eq1 = [c for c in chars if "o" in c and "d" in c]
+    keys = [k for f in factors for k in f.keys()]  # noqa: SIM118 — a KeyVector
+    cars_in_graph = {gtsam.Symbol(k).index() for k in keys if chr(gtsam.Symbol(k).chr()) == "o"}
+    assert len(cars_in_graph) == len(result.landmarks) == len(cars)
+    assert eq1 and all(ROBOT_CHARS[0] in c for c in eq1)
+    # the odometry noise is the onboard model's: std ∝ √distance (a 4× longer step, 2× the std)
+    noise = NoiseModels(params.graph)
+    short, long = (noise.odometry(s, 0.0).sigmas()[3] for s in (1.0, 4.0))
+    assert long == pytest.approx(2 * short)
+    between = [f for f in factors if type(f).__name__ == "BetweenFactorPose3"]
+    step = float(np.linalg.norm(logs[0].rel[1][:3, 3]))
+    np.testing.assert_allclose(between[0].noiseModel().sigmas(), noise.odometry(step, 0.0).sigmas())
