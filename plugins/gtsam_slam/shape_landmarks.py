@@ -111,7 +111,16 @@ class ShapeLandmarks:
             rec = self.recs.get(lm_id)
             if cls != class_name or rec is None or rec.last_world is None:
                 continue
-            inside = self._inside(rec.last_world, points_world)
+            # the latest window fit stands for the landmark only while it agrees with the estimate
+            # (its centre inside it): a window that saw one end of a car and completed it the
+            # wrong way reaches into the next stall
+            if (
+                rec.est_world is None
+                or self._inside(rec.est_world, shapes.shape_center(rec.last_world)[None])[0]
+            ):
+                inside = self._inside(rec.last_world, points_world)
+            else:
+                inside = np.zeros(len(points_world), bool)
             if rec.est_world is not None:  # not inflated: it already holds every view
                 inside |= self._inside(rec.est_world, points_world, 0.0)
             recent = [q for t, q in rec.points if stamp - t <= self.p.window]
