@@ -29,7 +29,10 @@ onboard front end — into one :class:`.graph.SlamGraph`, robot after robot:
    ``shapes.window`` seconds of the robot's log, giving the eq. 1 / eq. 2 factors
    (:mod:`.shape_factors`) and the shape's reference point (cuboid centre, cylinder root) as the
    landmark's point. A log keeps few points per detection (24), so the merge's default
-   ``shapes`` measure from 20 points and fit them as whole clouds (extrapolated extents).
+   ``shapes`` measure from 20 points and fit them as whole clouds (extrapolated extents), and
+   weigh a car's measurements 100 times less than onboard (``shapes.class_noise``): windows of
+   24-point views put a car's centre 0.5 m off, and at onboard weight they bent the chains; the
+   chains are held by the poles and trunks, the cars enter by association.
 4. **Fusion and joint optimisation** (``refine_rounds``) — Levenberg–Marquardt on the whole graph
    (``optimizer="lm"``; ``"isam2"`` keeps the incremental solution); then landmarks that are one
    object are fused with a stiff tie (:meth:`.graph.SlamGraph.fuse`), and the graph optimised
@@ -42,9 +45,11 @@ onboard front end — into one :class:`.graph.SlamGraph`, robot after robot:
 
 The merged landmark map comes out as :class:`amslam.types.Landmark` with marginal covariances and
 is written with :func:`write_landmarks` in the run folder's ``landmarks.json`` format. A shape
-landmark carries its optimised shape; with a ``shape_fitter``, every landmark's shape is instead
-fitted to the points of all its detections moved into the world frame with the optimised key
-poses. The merge never reads the logs' ``truth``.
+landmark's shape is fitted to the points of all its detections moved into the world frame with
+the optimised key poses (by ``shape_fitter`` when given), a box then completed behind its visible
+faces with the class's size prior from the cameras of all its detections (the onboard window
+fits' rule); the graph's optimised shape is the fallback. The merge never reads the logs'
+``truth``.
 """
 
 from __future__ import annotations

@@ -170,3 +170,41 @@ def test_twins_are_boxes_holding_each_others_centre_not_neighbours() -> None:
     assert sh.twins(0, live) == [1]
     assert sh.twins(2, live) == []
     assert 3 not in sh.twins(0, live)  # its centre is in the big box, not the other way round
+
+
+def test_a_stale_window_fit_that_left_its_estimate_does_not_take_the_next_car() -> None:
+    # A window that saw one end of car 0 was completed the wrong way, 3.7 m into the next stall
+    # (lot_team seed 1: car_1 took van_2's detections): once its window is empty, a detection
+    # of the car parked there must start its own landmark, not join car 0.
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    sh = ShapeLandmarks({"car": "cuboid"}, ShapeParams(), np.random.default_rng(0))
+    estimate = S.cuboid_shape(np.eye(3), [0.0, 0.0, 0.75], [4.4, 1.8, 1.5])
+    stray = S.cuboid_shape(np.eye(3), [3.7, 0.0, 0.75], [4.4, 1.8, 1.5])  # over the next stall
+    sh.measure(0, "car", 0.0, np.zeros((1, 3)), np.eye(4))
+    sh.set_world(0, stray)
+    sh.recs[0].est_world = estimate
+    viewer = np.array([2.5, -6.0, 3.0])
+    neighbour = box_points(
+        np.eye(3), [5.0, 0.0, 0.75], [4.4, 1.8, 1.5], viewer, np.random.default_rng(1), n=200
+    )
+    later = 100.0  # the window is long empty
+    assert sh.associate("car", neighbour, neighbour, {0: "car"}, later) == -1
+    own = box_points(np.eye(3), [0.0, 0.0, 0.75], [4.4, 1.8, 1.5], viewer, np.random.default_rng(2), n=200)
+    assert sh.associate("car", own, own, {0: "car"}, later) == 0  # the car itself still joins
+
+
+def test_class_noise_scales_a_class_measurements_only() -> None:
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    box = S.cuboid_shape(np.eye(3), [0.0, 0.0, 0.75], [4.4, 1.8, 1.5])
+    pole = {"model": "cylinder", "root": [0.0, 0.0, 0.0], "axis": [0.0, 0.0, 1.0], "radius": 0.1}
+    scales = {}
+    for noise in ({}, {"car": 10.0}):
+        sh = ShapeLandmarks({"car": "cuboid", "pole": "cylinder"}, ShapeParams(class_noise=noise), None)
+        for i, (cls, s) in enumerate((("car", box), ("pole", pole))):
+            sh.measure(i, cls, 0.0, np.zeros((1, 3)), np.eye(4))
+            sh.record_slack(i, 7, s)
+        scales[bool(noise)] = (sh.point_scale(0, 7), sh.point_scale(1, 7))
+    assert scales[True][0] == pytest.approx(10 * scales[False][0])
+    assert scales[True][1] == pytest.approx(scales[False][1])
