@@ -67,7 +67,10 @@ class MeasurementLog:
         robot: the robot's name.
         T_body_cam: camera mount, to move detections into the body frame.
         T_world_odom: the robot's base: its odometry frame in the shared world frame.
-        max_points: points kept per detection (evenly subsampled); 0 keeps none.
+        max_points: points kept per detection (evenly subsampled); 0 keeps none. 128 so that a
+            landmark's window at the base (12 s at 5 Hz, up to 60 views) holds as many points as
+            the onboard window keeps (``ShapeParams.max_points``, 6000): with 24 a car's window fit
+            was 0.5 m off (docs/multirobot.md). About 18 bytes per point in the log.
     """
 
     def __init__(
@@ -76,7 +79,7 @@ class MeasurementLog:
         robot: str,
         T_body_cam: np.ndarray,
         T_world_odom: np.ndarray | None = None,
-        max_points: int = 24,
+        max_points: int = 128,
     ) -> None:
         self.path = Path(path)
         self.T_body_cam = np.asarray(T_body_cam, float)

@@ -1,0 +1,27 @@
+"""The measurement log keeps enough of a detection's points for the base's window fits."""
+
+import json
+
+import numpy as np
+
+from amslam.measurements import MeasurementLog, read_measurements
+from amslam.types import Detection, Odometry
+
+
+def _detection(n_points: int) -> Detection:
+    pts = np.column_stack([np.linspace(-1, 1, n_points), np.zeros(n_points), np.full(n_points, 4.0)])
+    return Detection(class_name="car", confidence=0.9, centroid_cam=pts.mean(0), points_cam=pts)
+
+
+def test_a_detection_keeps_128_evenly_spread_points_and_a_small_one_keeps_all(tmp_path):
+    log = MeasurementLog(tmp_path / "measurements.jsonl", "r1", np.eye(4))
+    odom = Odometry(stamp=1.0, T_odom_body=np.eye(4))
+    log.detections(odom, [_detection(1500), _detection(50)])
+    log.close()
+    lines = (tmp_path / "measurements.jsonl").read_text().splitlines()
+    objects = json.loads(lines[-1])["objects"]
+    big, small = (np.array(o["points"]) for o in objects)
+    assert len(big) == 128 and len(small) == 50
+    # evenly subsampled: the ends of the cloud are kept
+    assert big[:, 0].min() == -1.0 and big[:, 0].max() == 1.0
+    assert read_measurements(tmp_path) is not None
