@@ -147,9 +147,9 @@ def test_merge_runs_writes_landmarks_json(two_robots: tuple[LoopWorld, Path, Pat
     assert {"id", "class", "position", "covariance", "observations"} <= set(records[0])
     cov = np.array(records[0]["covariance"], float)
     assert cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(cov) > 0)
-    # the fitter got every detection's logged points (24 each), moved into the world frame
+    # the fitter got every detection's logged points (all 40 of each), moved into the world frame
     for rec, lm in zip(records, result.landmarks, strict=True):
-        assert rec["shape"]["model"] == "blob" and rec["shape"]["n"] == 24 * lm.observations
+        assert rec["shape"]["model"] == "blob" and rec["shape"]["n"] == 40 * lm.observations
         assert np.linalg.norm(np.array(rec["shape"]["center"]) - lm.position) < 0.1
 
 
