@@ -11,6 +11,7 @@ What is here, one concept a module: the voxel lattice and log-odds model (:mod:`
 the storage-independent voxel map (:mod:`.voxel_map`), frontiers and viewpoints
 (:mod:`.frontiers`), collision checks and free-space search (:mod:`.free_space`), object shapes
 (:mod:`.shapes`) and their factors (:mod:`.shape_factors`), tours over cost matrices
-(:mod:`.tours`), camera back-projection (:mod:`.camera`), and viewing angles of objects
-(:mod:`.viewing`). A plugin that needs another plugin's code needs it moved here.
+(:mod:`.tours`), camera back-projection (:mod:`.camera`), viewing angles of objects
+(:mod:`.viewing`), and the characterised uncertainty models against range and viewing angle
+(:mod:`.uncertainty`). A plugin that needs another plugin's code needs it moved here.
 """

@@ -9,6 +9,7 @@ module re-exports its own model (``graph.GraphParams``, ``shape_landmarks.ShapeP
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -103,6 +104,17 @@ class ShapeParams(BaseModel):
         " point's range-bearing and the eq. 1 / eq. 2 factor); 1 for a class not listed. For a"
         " sensor that fits a class worse than the defaults assume (the base's 24 logged points of a"
         " car)",
+    )
+    view_noise: bool = Field(
+        True,
+        description="scale every sigma of a shape measurement by how well its window's views see the"
+        " object, from the characterised uncertainty models (paper 2 §IV-C: position variance against"
+        " range and viewing angle): √(window variance / the class's best-view variance), at least 1;"
+        " the window variance is the harmonic mean over its cameras; classes without a model (nor one"
+        " of their shape) are not scaled",
+    )
+    uncertainty_models: Path | None = Field(
+        None, description="models file (`amslam characterise`); None: the packaged defaults"
     )
     sigma_rotation: float = Field(0.1, gt=0, le=math.pi, description="cuboid pose rotation std, rad")
     sigma_translation: float = Field(0.3, gt=0, le=1000, description="cuboid / root translation std, m")

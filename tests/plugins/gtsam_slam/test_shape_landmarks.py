@@ -208,3 +208,33 @@ def test_class_noise_scales_a_class_measurements_only() -> None:
         scales[bool(noise)] = (sh.point_scale(0, 7), sh.point_scale(1, 7))
     assert scales[True][0] == pytest.approx(10 * scales[False][0])
     assert scales[True][1] == pytest.approx(scales[False][1])
+
+
+def test_view_noise_grows_with_range_and_towards_head_on_views() -> None:
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    models = {"car": "cuboid", "pole": "cylinder", "tree_trunk": "cylinder"}
+    sh = ShapeLandmarks(models, ShapeParams(), None)
+    car = S.cuboid_shape(np.eye(3), [0.0, 0.0, 0.75], [4.4, 1.8, 1.5])  # length along x
+    pole = {
+        "model": "cylinder",
+        "root": [0.0, 0.0, 0.0],
+        "axis": [0.0, 0.0, 1.0],
+        "radius": 0.1,
+        "height": 5.0,
+    }
+
+    def at(r: float, angle_deg: float) -> np.ndarray:
+        a = np.radians(angle_deg)
+        return np.array([[r * np.cos(a), r * np.sin(a), 2.5]])
+
+    oblique, head_on = sh.view_scale("car", car, at(5.0, 45.0)), sh.view_scale("car", car, at(5.0, 0.0))
+    assert 1.0 <= oblique < 2.0 and head_on > 3 * oblique  # paper 2 Fig. 7a: oblique views are best
+    # a window holding one oblique view among head-on ones is nearly as good as the oblique one
+    assert sh.view_scale("car", car, np.vstack([at(5.0, 0.0), at(5.0, 0.0), at(5.0, 45.0)])) < head_on / 1.5
+    near, far = sh.view_scale("pole", pole, at(3.0, 0.0)), sh.view_scale("pole", pole, at(8.0, 0.0))
+    assert near < 1.5 and far > 2 * near
+    # a trunk (not characterised) is measured with the one cylinder class's model
+    assert sh.view_scale("tree_trunk", pole, at(8.0, 0.0)) == pytest.approx(far)
+    off = ShapeLandmarks(models, ShapeParams(view_noise=False), None)
+    assert off.view_scale("car", car, at(5.0, 0.0)) == 1.0
