@@ -28,11 +28,9 @@ onboard front end — into one :class:`.graph.SlamGraph`, robot after robot:
    window points or fitted shape, measured as a shape fitted to the points of the last
    ``shapes.window`` seconds of the robot's log, giving the eq. 1 / eq. 2 factors
    (:mod:`.shape_factors`) and the shape's reference point (cuboid centre, cylinder root) as the
-   landmark's point. A log keeps few points per detection (24), so the merge's default
-   ``shapes`` measure from 20 points and fit them as whole clouds (extrapolated extents), and
-   weigh a car's measurements 100 times less than onboard (``shapes.class_noise``): windows of
-   24-point views put a car's centre 0.5 m off, and at onboard weight they bent the chains; the
-   chains are held by the poles and trunks, the cars enter by association.
+   landmark's point, with the onboard noise: each window fit weighed by the range and viewing
+   angle of the cameras that saw it (``shapes.view_noise``, the characterised models of paper 2
+   §IV-C). A log keeps 128 points per detection, so a window holds as many points as onboard.
 4. **Fusion and joint optimisation** (``refine_rounds``) — Levenberg–Marquardt on the whole graph
    (``optimizer="lm"``; ``"isam2"`` keeps the incremental solution); then landmarks that are one
    object are fused with a stiff tie (:meth:`.graph.SlamGraph.fuse`), and the graph optimised
@@ -128,17 +126,12 @@ class MergeParams(BaseModel):
         default_factory=dict, description="landmark model per class (default centroid), as onboard"
     )
     shapes: ShapeParams = Field(
-        default_factory=lambda: ShapeParams(
-            min_points=20, percentile=1.0, extrapolate=True, class_noise={"car": 100.0}
-        ),
-        description="shape landmarks: onboard's, but fitted as the library fits a whole cloud (1st"
-        " percentiles extrapolated to the edges) from 20 points: a log keeps 24 per detection, and"
+        default_factory=lambda: ShapeParams(min_points=20, percentile=1.0, extrapolate=True),
+        description="shape landmarks: onboard's, with the same noise (view_noise: each window fit"
+        " weighed by the range and viewing angle of its cameras, paper 2 IV-C), but fitted as the"
+        " library fits a whole cloud (1st percentiles extrapolated to the edges) from 20 points:"
         " trimming 2.5 % of a few points cuts a car's far end short, biasing every box towards its"
-        " viewer (measured: the two chains of test_merge's car pair bent 0.25 m towards the cars);"
-        " and a car's measurements 100 times as noisy: a window of 24-point views puts a car's"
-        " centre 0.5 m off on average, and at onboard weight they bent the chains (lot_team pair"
-        " seed 1, robot 2 alone: 0.52 m off the truth, VIO 0.34; car noise x3 0.40, x10 0.35,"
-        " x100 0.34 m): the chains are held by the poles and trunks, the cars by association",
+        " viewer (measured: the two chains of test_merge's car pair bent 0.25 m towards the cars)",
     )
     fuse_gate: float = Field(
         0.8,

@@ -98,13 +98,6 @@ class ShapeParams(BaseModel):
         " points counts once against the odometry",
     )
     factors: bool = Field(True, description="add the eq. 1 / eq. 2 factors (False: shapes are only reported)")
-    class_noise: dict[str, Annotated[float, Field(gt=0, le=1000)]] = Field(
-        default_factory=dict,
-        description="per class, a factor on every sigma of its shape measurements (the reference"
-        " point's range-bearing and the eq. 1 / eq. 2 factor); 1 for a class not listed. For a"
-        " sensor that fits a class worse than the defaults assume (the base's 24 logged points of a"
-        " car)",
-    )
     view_noise: bool = Field(
         True,
         description="scale every sigma of a shape measurement by how well its window's views see the"

@@ -288,7 +288,7 @@ class ShapeLandmarks:
         """
         rec = self.recs[lm_id]
         rec.scale[kp] = float(np.sqrt(len(rec.fits))) if self.p.decorrelate and rec.fits else 1.0
-        rec.scale[kp] *= self.p.class_noise.get(rec.cls, 1.0) * rec.view_scale
+        rec.scale[kp] *= rec.view_scale
         if shape["model"] != "cuboid":
             rec.slack[kp] = np.zeros(3)
             return rec.slack[kp]

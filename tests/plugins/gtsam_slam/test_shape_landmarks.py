@@ -194,22 +194,6 @@ def test_a_stale_window_fit_that_left_its_estimate_does_not_take_the_next_car() 
     assert sh.associate("car", own, own, {0: "car"}, later) == 0  # the car itself still joins
 
 
-def test_class_noise_scales_a_class_measurements_only() -> None:
-    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
-
-    box = S.cuboid_shape(np.eye(3), [0.0, 0.0, 0.75], [4.4, 1.8, 1.5])
-    pole = {"model": "cylinder", "root": [0.0, 0.0, 0.0], "axis": [0.0, 0.0, 1.0], "radius": 0.1}
-    scales = {}
-    for noise in ({}, {"car": 10.0}):
-        sh = ShapeLandmarks({"car": "cuboid", "pole": "cylinder"}, ShapeParams(class_noise=noise), None)
-        for i, (cls, s) in enumerate((("car", box), ("pole", pole))):
-            sh.measure(i, cls, 0.0, np.zeros((1, 3)), np.eye(4))
-            sh.record_slack(i, 7, s)
-        scales[bool(noise)] = (sh.point_scale(0, 7), sh.point_scale(1, 7))
-    assert scales[True][0] == pytest.approx(10 * scales[False][0])
-    assert scales[True][1] == pytest.approx(scales[False][1])
-
-
 def test_view_noise_grows_with_range_and_towards_head_on_views() -> None:
     from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
 
