@@ -29,7 +29,8 @@ import dataclasses
 import numpy as np
 import py_trees
 from py_trees.common import Access, Status
-from py_trees.decorators import EternalGuard
+from py_trees.composites import Sequence
+from py_trees.decorators import EternalGuard, FailureIsSuccess
 
 import amslam
 from amslam.geometry import wrap_angle
@@ -102,8 +103,9 @@ class WithinLimits(EternalGuard):
     short is stopped (a flight leaf's ``terminate`` holds position).
     """
 
-    uses = ("flight",)
+    uses = ("flight", "events")
     flight: Flight
+    events: Events
 
     def __init__(self, name: str = "WithinLimits", child: py_trees.behaviour.Behaviour | None = None):
         if child is None:
@@ -119,6 +121,9 @@ class WithinLimits(EternalGuard):
         if reason:
             self.feedback_message = reason
             self.blackboard.set("/exploration", f"stopped: {reason}")
+            # the run's log says when and why the mission was cut short (the guard fires once:
+            # its parent moves on to the return home)
+            self.events.emit("limit_reached", reason=reason, behaviour=self.decorated.name)
             return False
         return True
 
@@ -473,6 +478,25 @@ def go_to(behaviours: dict, name: str, **options) -> py_trees.behaviour.Behaviou
     """The registered ``GoTo`` leaf named ``name`` (``options`` to its constructor) under the
     registered ``GiveUpGoal`` decorator: how every stock tree flies to a goal."""
     return behaviours["GiveUpGoal"](f"{name}OrGiveUp", behaviours["GoTo"](name, **options))
+
+
+def return_home(
+    behaviours: dict, ex: ExplorationSection = DEFAULTS, then: tuple[py_trees.behaviour.Behaviour, ...] = ()
+) -> py_trees.behaviour.Behaviour:
+    """``ReturnHome`` (failure is success): SetHomeGoal → GoHome [→ ``then``], how every stock tree
+    comes back before it lands; a home out of reach lands the robot where it is."""
+    b = behaviours
+    home = go_to(
+        b,
+        "GoHome",
+        goal_key="/home",
+        early_exit=False,
+        goal_tolerance=ex.goal_tolerance,
+        yaw_tolerance=ex.yaw_tolerance,
+        replan_period=ex.replan_period,
+    )
+    steps = Sequence("GoHomeSteps", memory=True, children=[b["SetHomeGoal"]("SetHomeGoal"), home, *then])
+    return FailureIsSuccess("ReturnHome", steps)
 
 
 class Panorama(RobotBehaviour):

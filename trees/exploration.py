@@ -41,7 +41,7 @@ from py_trees.decorators import FailureIsSuccess, Repeat, Retry
 
 import amslam
 from amslam.mission import MissionModel
-from amslam.trees.behaviours import IsGoalKind, go_to
+from amslam.trees.behaviours import IsGoalKind, go_to, return_home
 from amslam.trees.flight import with_failsafe_guard
 from amslam.types import TourItemKind
 
@@ -103,24 +103,16 @@ def build_exploration_tree(model: MissionModel, behaviours: Behaviours) -> py_tr
     children: list[py_trees.behaviour.Behaviour] = [b["TakeOff"]("TakeOff")]
     if ex.look_around:
         children.append(b["Panorama"]("LookAround", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance))
-    home = go_to(
-        b,
-        "GoHome",
-        goal_key="/home",
-        early_exit=False,
-        goal_tolerance=ex.goal_tolerance,
-        yaw_tolerance=ex.yaw_tolerance,
-        replan_period=ex.replan_period,
-    )
-    home_steps = [b["SetHomeGoal"]("SetHomeGoal"), home]
-    if ex.slc:
-        home_steps += [
+    home_slc = (
+        (
             b["Panorama"]("HomePanorama", steps=ex.panorama_steps, yaw_tolerance=ex.yaw_tolerance),
             b["AttemptSLC"]("HomeSLC"),
-        ]
-    go_home = Sequence("GoHomeSteps", memory=True, children=home_steps)
+        )
+        if ex.slc
+        else ()
+    )
     explore = FailureIsSuccess("ExploreUntilDone", loop)
-    children += [explore, FailureIsSuccess("ReturnHome", go_home), b["Land"]("Land")]
+    children += [explore, return_home(b, ex, then=home_slc), b["Land"]("Land")]
     return Sequence("Mission", memory=True, children=children)
 
 

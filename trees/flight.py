@@ -16,7 +16,10 @@ them, built from py_trees composites only::
     │       └── FailsafeEnd          FAILURE naming the failsafe: the run's verdict
     └── Mission                      the exploration tree, or the waypoint flight:
         ├── TakeOff
-        ├── FlyWaypoints             straight lines through ``waypoints.points`` (from take-off)
+        ├── FlyWaypointsInTime (selector)
+        │   ├── WithinLimits         the mission's time and distance limits (event limit_reached)
+        │   │   └── FlyWaypoints     straight lines through ``waypoints.points`` (from take-off)
+        │   └── ReturnHome           once a limit cut the waypoints short, as exploration does
         └── Land
 
 The guard is ticked first at every tick, so a failsafe pre-empts whatever the mission was doing
@@ -45,7 +48,7 @@ from py_trees.decorators import Inverter
 import amslam
 from amslam.geometry import wrap_angle
 from amslam.mission import MissionModel, WaypointsSection
-from amslam.trees.behaviours import RobotBehaviour
+from amslam.trees.behaviours import RobotBehaviour, return_home
 from amslam.types import Failsafe
 
 
@@ -234,19 +237,17 @@ def failsafe_branch(
 
 
 def build_waypoint_tree(
-    section: WaypointsSection, behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]]
+    model: MissionModel, behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]]
 ) -> py_trees.behaviour.Behaviour:
-    """Take off, fly the waypoints, land."""
+    """Take off, fly the waypoints within the mission's limits (else return home), land."""
     b = behaviours
-    return Sequence(
-        "Mission",
-        memory=True,
-        children=[
-            b["TakeOff"]("TakeOff"),
-            b["FlyWaypoints"]("FlyWaypoints", section=section),
-            b["Land"]("Land"),
-        ],
-    )
+    # The mission's time and distance limits bound the waypoints as they bound exploration (the
+    # same WithinLimits guard and return home): a waypoint the vehicle cannot reach (a drifting
+    # estimate, a wind it cannot beat) otherwise held it hovering until the battery or the
+    # operator ended the flight (a lot_team overhead robot hovered 110 s past its 240 s budget).
+    within = b["WithinLimits"]("WithinLimits", b["FlyWaypoints"]("FlyWaypoints", section=model.waypoints))
+    fly = Selector("FlyWaypointsInTime", memory=True, children=[within, return_home(b, model.exploration)])
+    return Sequence("Mission", memory=True, children=[b["TakeOff"]("TakeOff"), fly, b["Land"]("Land")])
 
 
 def with_failsafe_guard(
@@ -268,7 +269,7 @@ def waypoints_tree(
     failsafe: bool = False,
 ) -> py_trees.behaviour.Behaviour:
     """The ``waypoints`` mission tree (``amslam_mission_trees``)."""
-    return with_failsafe_guard(build_waypoint_tree(model.waypoints, behaviours), model, behaviours, failsafe)
+    return with_failsafe_guard(build_waypoint_tree(model, behaviours), model, behaviours, failsafe)
 
 
 def build_mission_tree(

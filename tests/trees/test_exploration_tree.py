@@ -159,11 +159,12 @@ def test_within_limits_cuts_its_child_short_once_a_limit_is_reached():
     robot = FakeRobot([])
     child = Forever()
     guard = WithinLimits("WithinLimits", child)
-    guard.setup(flight=robot)
+    guard.setup(flight=robot, events=robot)
     assert tick(guard) == Status.RUNNING
     robot.limit = "time limit 300 s"
     assert tick(guard) == Status.FAILURE and child.stopped
     assert py_trees.blackboard.Blackboard.storage["/exploration"] == "stopped: time limit 300 s"
+    assert robot.events == ["limit_reached"]
 
 
 class Scripted(py_trees.behaviour.Behaviour):

@@ -39,7 +39,8 @@ def test_guard_only_on_real_vehicles():
     model = load_mission("demo", registry, OVERRIDES).model
     plain = build_mission_tree(model, registry.behaviours, failsafe=False)
     guarded = build_mission_tree(model, registry.behaviours, failsafe=True)
-    assert plain.name == "Mission" and [c.name for c in plain.children] == ["TakeOff", "FlyWaypoints", "Land"]
+    assert plain.name == "Mission"
+    assert [c.name for c in plain.children] == ["TakeOff", "FlyWaypointsInTime", "Land"]
     assert [c.name for c in guarded.children] == ["FailsafeGuard", "Mission"]
     exploring = build_mission_tree(load_mission("demo", registry).model, registry.behaviours, failsafe=True)
     assert exploring.children[1].children[0].name == "TakeOff"  # the exploration tree, guarded

@@ -1,0 +1,41 @@
+"""The waypoint tree keeps to the mission's limits: a waypoint it cannot reach does not hold it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from amslam.mission import load_mission
+from amslam.registry import build_plugin_manager
+from amslam.runner import Runner
+
+MAX_TIME = 12.0
+
+
+def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
+    # 100 m up, above the flight area's ceiling (2.2 m, under the first floor's slab): the
+    # setpoint guard holds the vehicle under it, so the second waypoint is never reached
+    overrides = [
+        "tree=waypoints",
+        "waypoints.points=[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0]]",
+        "area.lo=[-100.0, -100.0, -1.0]",
+        "area.hi=[100.0, 100.0, 2.2]",
+        f"limits.max_time={MAX_TIME}",
+        "platform.camera.width=64",
+        "platform.camera.height=48",
+    ]
+    registry = build_plugin_manager()
+    result = Runner(load_mission("demo", registry, overrides), registry, tmp_path).run()
+
+    events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
+    assert result.verdict == "completed", result.verdict
+    assert [e["index"] for e in events if e["event"] == "waypoint_reached"] == [0]
+    (limit,) = [e for e in events if e["event"] == "limit_reached"]
+    assert limit["reason"] == f"time limit {MAX_TIME:.0f} s" and limit["behaviour"] == "FlyWaypoints"
+    assert MAX_TIME <= limit["t"] < MAX_TIME + 1.0
+    (end,) = [e for e in events if e["event"] == "mission_end"]
+    assert end["exploration"] == f"stopped: time limit {MAX_TIME:.0f} s" and end["landing"] == "landed"
+    # it came back over the take-off point before landing (the return home, as exploration does)
+    truth = np.loadtxt(result.run_dir / "ground_truth.tum", ndmin=2)
+    assert np.linalg.norm(truth[-1, 1:3] - truth[0, 1:3]) < 0.5
