@@ -32,7 +32,7 @@ onboard front end — into one :class:`.graph.SlamGraph`, robot after robot:
    angle of the cameras that saw it (``shapes.view_noise``, the characterised models of paper 2
    §IV-C). A log keeps 128 points per detection, so a window holds as many points as onboard.
 4. **Fusion and joint optimisation** (``refine_rounds``) — Levenberg–Marquardt on the whole graph
-   (``optimizer="lm"``; ``"isam2"`` keeps the incremental solution); then landmarks that are one
+   (the replay's iSAM2 estimate is its starting point); then landmarks that are one
    object are fused with a stiff tie (:meth:`.graph.SlamGraph.fuse`), and the graph optimised
    again, until nothing changes. Centroid classes: the onboard rule after a loop closure
    (:meth:`.graph.SlamGraph.fuse_duplicates`: closer than ``fuse_gate`` and within the
@@ -144,7 +144,6 @@ class MergeParams(BaseModel):
         description="largest single object of a cuboid class (length, width, height), m: two landmarks "
         "whose points fit in one such box are fused (cars and vans are <= 5.5 x 2.05 x 2.3 m)",
     )
-    optimizer: Literal["lm", "isam2"] = Field("lm", description="joint optimisation after the replay")
     refine_rounds: int = Field(
         8, ge=0, le=1000, description="rounds of duplicate fusion + joint optimisation"
     )
@@ -392,17 +391,11 @@ class _Merger:
             )
         return pos, cov
 
-    def optimise(self) -> gtsam.Values:
-        if self.p.optimizer == "isam2":
-            self.graph.flush()
-            return gtsam.Values(self.graph.estimate)
-        return self.graph.optimise()
-
     def run(self, shape_fitter: ShapeFitter | None) -> MergeResult:
         g = self.graph
         for r in range(len(self.logs)):
             self.add_robot(r)
-        values = self.optimise()
+        values = g.optimise()
         fused = 0
         for _ in range(self.p.refine_rounds):
             n = 0
@@ -422,7 +415,7 @@ class _Merger:
                 break
             fused += n
             g.flush()
-            values = self.optimise()
+            values = g.optimise()
         return self.result(values, fused, shape_fitter)
 
     # ---------------------------------------------------------------- result

@@ -157,7 +157,7 @@ def test_known_base_places_the_chain(two_robots: tuple[LoopWorld, Path, Path]) -
     _, a, _ = two_robots
     shift = np.eye(4)
     shift[:3, 3] = [100.0, -50.0, 0.0]
-    result = merge_runs([a], bases=[shift], params=MergeParams(optimizer="isam2"))
+    result = merge_runs([a], bases=[shift], params=MergeParams())
     start = result.trajectories[0][0][:3, 3]
     np.testing.assert_allclose(start, [100.0, -50.0, 1.2], atol=0.05)
 
