@@ -186,6 +186,8 @@ class LoggedDetection:
         p_body: centroid in the key pose's body frame.
         points: M×3 object points in the key pose's body frame (may be empty).
         shape: shape parameters the detection carried, if any.
+        stamp: time of its camera frame; several frames share a key pose when the robot did not
+            move between them (a hover), and only their stamps tell the frames apart.
     """
 
     keypose: int
@@ -194,6 +196,7 @@ class LoggedDetection:
     p_body: np.ndarray
     points: np.ndarray
     shape: dict | None = None
+    stamp: float = float("nan")
 
 
 @dataclass
@@ -295,6 +298,7 @@ def read_measurements(path: Path) -> RobotMeasurements:
                             np.asarray(o["p_body"], float),
                             np.asarray(o.get("points", []), float).reshape(-1, 3),
                             o.get("shape"),
+                            float(rec.get("t", "nan")),
                         )
                     )
         except RunFileError:

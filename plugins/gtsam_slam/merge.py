@@ -211,10 +211,14 @@ class _Merger:
         )
         self.fronts.append(front)
         T_cam_body = invert(log.T_body_cam)
-        by_kp: dict[int, list[Detection]] = {}
+        # key pose -> its camera frames in log order (stamp -> detections): a hovering robot logs
+        # several frames at one key pose, and each is associated on its own, as onboard (one
+        # batch made a landmark of every extra view of an object, kept apart as "seen from one
+        # key pose": a stalled overhead robot's log gave 13 spurious cars)
+        frames: dict[int, dict[float, list[Detection]]] = {}
         for d in log.detections:
             points = np.asarray(d.points, float).reshape(-1, 3)
-            by_kp.setdefault(d.keypose, []).append(
+            frames.setdefault(d.keypose, {}).setdefault(d.stamp, []).append(
                 Detection(
                     d.class_name,
                     d.confidence,
@@ -227,10 +231,13 @@ class _Merger:
             odom = Odometry(float(stamp), T)
             front.add_keypose(odom)
             since_update += 1
-            dets = by_kp.get(i)
-            if dets:
-                front.add_detections(odom, log.T_body_cam, dets, keypose=i, flush=False)
-            if dets or since_update >= self.p.update_every:
+            at_keypose = frames.get(i, {})
+            for frame, (t, dets) in enumerate(at_keypose.items()):
+                frame_odom = Odometry(float(t), T) if np.isfinite(t) else odom
+                front.add_detections(frame_odom, log.T_body_cam, dets, keypose=i, flush=False)
+                if frame < len(at_keypose) - 1:
+                    g.flush()  # the next frame associates against this one's landmarks
+            if at_keypose or since_update >= self.p.update_every:
                 g.flush()
                 since_update = 0
         g.flush()

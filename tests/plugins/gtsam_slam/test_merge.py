@@ -312,3 +312,32 @@ def test_a_car_seen_at_one_end_only_is_completed_behind_it(tmp_path: Path) -> No
 
     assert merged(complete=False).min() > 1.0
     assert merged(complete=True).max() < 0.35
+
+
+def test_frames_logged_at_one_key_pose_are_associated_frame_by_frame(tmp_path: Path) -> None:
+    # A hovering robot: its pose does not change between camera frames, so the log writes no new
+    # key pose and several frames' detections share one. Replayed as one frame, the views of an
+    # object competed for its landmark (one-to-one association): here every view became a
+    # tentative landmark of its own and none reached the graph (0 landmarks); on seed 2's
+    # overhead robot, stalled at a waypoint with 109 frames sharing key poses, such duplicates
+    # reached the graph and stayed apart as "seen from one key pose" (13 spurious, 6 now).
+    world = LoopWorld.rectangle(np.random.default_rng(3), width=WIDTH, height=HEIGHT)
+    w = LoopWorld(world.objects, world.classes, np.random.default_rng(5))
+    w.T_true = w.T_vio = pose_from(np.array([WIDTH / 2, -1.0, 1.2]), np.pi / 2)
+    log = MeasurementLog(tmp_path / "hover.jsonl", "hover", camera_mount())
+    for k in range(6):  # six key poses 5 mm apart ...
+        w.move_to(pose_from(np.array([WIDTH / 2 + 0.005 * k, -1.0, 1.2]), np.pi / 2))
+        for _ in range(3):  # ... three camera frames at each, the pose unchanged
+            log.detections(w.odometry(), w.detect(), w.T_true)
+            w.move_to(w.T_true)
+    log.close()
+    hover = read_measurements(tmp_path / "hover.jsonl")
+    assert len(hover.stamps) == 6 and len({d.stamp for d in hover.detections}) == 18
+    in_view = len(w.detect())
+    assert in_view >= 2
+
+    merged = merge_measurements([hover])
+
+    truth, classes = truth_of(world)
+    _, pairs = position_errors(merged.landmarks, truth, classes)
+    assert len(merged.landmarks) == len(pairs) == in_view  # one landmark per object in view
