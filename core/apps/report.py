@@ -661,7 +661,24 @@ def _figure_rows(m: dict[str, Any]) -> list[str]:
         row(
             "semantic loop closures (accepted / attempts)", f"{m['slc']['accepted']} / {m['slc']['attempts']}"
         )
+    if (interval := m.get("control_tick_interval_ms")) and "control_tick_overruns" in m:
+        # a real-time run (the realtime observer's figures): how often the control loop was late
+        load = m.get("host_load") or {}
+        row(
+            f"control ticks late (interval > 1.25 × {m.get('control_period_ms')} ms)",
+            f"{m['control_tick_overruns']} of {m.get('control_ticks')}"
+            f" ({m.get('control_tick_overrun_percent')} %);"
+            f" interval median {interval['median']}, p95 {interval['p95']}, max {interval['max']} ms;"
+            f" host load {_load_text(load)}",
+        )
     return lines
+
+
+def _load_text(load: dict[str, Any]) -> str:
+    """``host_load`` as "4.1 → 3.2 (1-min average) on 2 CPUs" (what made a run late is often not amslam)."""
+    one = [v[0] if isinstance(v, list | tuple) and v else v for v in (load.get("start"), load.get("end"))]
+    text = " → ".join(f"{v:.1f}" for v in one if isinstance(v, int | float))
+    return f"{text or '?'} (1-min average) on {load.get('cpus', '?')} CPUs"
 
 
 @amslam.hookimpl

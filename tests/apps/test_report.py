@@ -183,3 +183,23 @@ def test_the_reports_file_list_names_only_files_the_run_wrote(tmp_path):
         assert name in text
     for name in ("tree.jsonl", "ground_truth.tum)", "slam.tum)", "landmarks.json", "map.ply", "map.npz"):
         assert name not in text
+
+
+def test_a_real_time_runs_late_control_ticks_are_a_row_of_the_report() -> None:
+    from amslam.apps.report import _figure_rows
+
+    m = {
+        "control_ticks": 788,
+        "control_period_ms": 100.0,
+        "control_tick_overruns": 79,
+        "control_tick_overrun_percent": 10.03,
+        "control_tick_interval_ms": {"median": 100.0, "p95": 186.0, "p99": 295.0, "max": 1950.0},
+        "host_load": {"start": [8.4, 7.0, 6.0], "end": [9.0, 7.5, 6.2], "cpus": 2},
+    }
+    (line,) = [r for r in _figure_rows(m) if r.startswith("| control ticks")]
+    assert line == (
+        "| control ticks late (interval > 1.25 × 100.0 ms) | 79 of 788 (10.03 %); interval median 100.0,"
+        " p95 186.0, max 1950.0 ms; host load 8.4 → 9.0 (1-min average) on 2 CPUs |"
+    )
+    # a simulated run has no such figures
+    assert not [r for r in _figure_rows({"control_ticks": 3}) if r.startswith("| control ticks")]
