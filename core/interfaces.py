@@ -18,7 +18,7 @@ from __future__ import annotations
 import abc
 import importlib.util
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
@@ -263,6 +263,16 @@ class Mapping(Backend):
     @abc.abstractmethod
     def plan_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Collision-free waypoints (K×3, world frame) from start to goal, or None."""
+
+    def rebuild_global(self, frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> bool:
+        """Build the global map anew from ``(depth, K, T_world_cam)`` frames, on top of a loaded
+        prior map; True when done.
+
+        The runtime calls it when ``exploration.reanchor_map`` is on and SLAM corrected the
+        odometry frame: surfaces integrated at poses a loop closure moved stand where the robot
+        thought it was. Optional: the default False keeps the map as it is.
+        """
+        return False
 
     def plan_local_path(
         self, start: np.ndarray, goal: np.ndarray, *, margin: float = 1.0

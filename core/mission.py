@@ -164,6 +164,15 @@ class ExplorationSection(_Strict):
     )
     trajectory_rate_hz: float = Field(10.0, gt=0, le=1000, description="rate of the trajectory files")
     uncertainty_period: float = Field(5.0, gt=0, le=1e6, description="period of covariance-trace samples, s")
+    reanchor_map: bool = Field(
+        False,
+        description="keep the depth frames (at about 80 px across) and rebuild the global map from them at"
+        " the corrected poses when SLAM moves the odometry frame by more than reanchor_min_shift"
+        " (a loop closure); runs on the control thread: for the simulator",
+    )
+    reanchor_min_shift: float = Field(
+        0.2, gt=0, le=100, description="odometry-frame correction that rebuilds the global map, m"
+    )
 
 
 class WaypointsSection(_Strict):

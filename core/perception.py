@@ -78,6 +78,48 @@ class Rates:
     sample: float = 0.0
 
 
+#: width (px) a frame is kept at for a rebuild of the global map: the global map's 0.25 m voxels
+#: take every 4th pixel of 320 and every 8th of 640 (``auto_stride``), about 80 across
+KEPT_FRAME_WIDTH = 80
+
+
+@dataclass(frozen=True)
+class KeptFrame:
+    """A depth frame as kept for rebuilding the global map (``exploration.reanchor_map``)."""
+
+    stamp: float
+    depth: np.ndarray  # float16, every ``f``-th pixel
+    K: np.ndarray  # the intrinsics of that subsampled image
+    T_odom_cam: np.ndarray
+
+    @classmethod
+    def of(cls, frame: Frame) -> KeptFrame:
+        f = max(1, int(np.ceil(frame.depth.shape[1] / KEPT_FRAME_WIDTH)))
+        K = np.array(frame.K, dtype=float)
+        K[:2] /= f  # pixel u' of the kept image is pixel f·u' of the frame
+        K[2] = [0.0, 0.0, 1.0]
+        depth = np.asarray(frame.depth)[::f, ::f].astype(np.float16)
+        return cls(float(frame.stamp), depth, K, np.array(frame.T_odom_cam, dtype=float))
+
+
+def keypose_corrections(
+    stamps: np.ndarray, keyposes: list, keypose_odometry: dict[float, np.ndarray], fallback: np.ndarray
+) -> list[np.ndarray]:
+    """The odometry-to-world correction at each of ``stamps``: that of the latest key pose at or
+    before it (the first key pose's before any), ``T_world_body`` as SLAM optimised it times the
+    inverse of the odometry pose the key pose was made at; ``fallback`` without key poses."""
+    corr, times = [], []
+    for kp in keyposes:
+        T_odom = keypose_odometry.get(float(kp.stamp))
+        if T_odom is not None:
+            corr.append(np.asarray(kp.T_world_body, float) @ invert(T_odom))
+            times.append(float(kp.stamp))
+    if not corr:
+        return [fallback for _ in stamps]
+    index = np.clip(np.searchsorted(np.array(times), np.asarray(stamps, float), side="right") - 1, 0, None)
+    return [corr[i] for i in index]
+
+
 class Perception:
     """Owns module order and rates, the trajectories, samples and distance travelled."""
 
@@ -106,6 +148,12 @@ class Perception:
         self.samples: dict[str, list] = {"uncertainty": [], "explored": []}
         self._viewpoints: tuple[Viewpoint, ...] = ()
         self._refresh = False
+        # exploration.reanchor_map: the frames, the odometry pose of each key pose, the correction
+        # the global map stands at
+        self._kept: list[KeptFrame] = []
+        self._kept_at: list[np.ndarray] = []  # the correction each kept frame is in the map at
+        self._keypose_odometry: dict[float, np.ndarray] = {}
+        self._anchored: np.ndarray | None = None
         with check.calling("platform", "odometry()"):
             odom = check.odometry(platform.odometry())
         self._last_position = odom.T_odom_body[:3, 3].copy()
@@ -139,6 +187,8 @@ class Perception:
             keyposed = self.slam.add_odometry(odom)
         if keyposed:
             self.measurements.keypose(odom, truth)
+            if self.exploration.reanchor_map:
+                self._keypose_odometry[float(odom.stamp)] = odom.T_odom_body.copy()
             keyposes = self.slam.keyposes()
             if keyposes:
                 self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
@@ -167,6 +217,10 @@ class Perception:
             T_world_odom = check.pose("slam", "T_world_odom()", self.slam.T_world_odom())
         with check.calling("mapping", "integrate_local()"):
             self.mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
+        if self.exploration.reanchor_map:
+            self._reanchor_if_moved(frame.stamp, T_world_odom)
+            self._kept.append(KeptFrame.of(frame))
+            self._kept_at.append(T_world_odom)
         with check.calling("mapping", "integrate_global()"):
             self.mapping.integrate_global(frame.depth, frame.K, T_world_odom @ frame.T_odom_cam)
         if frame.stamp >= self.rates.viewpoints or self._refresh:
@@ -182,6 +236,50 @@ class Perception:
                 self._feed(frame, detections)
             else:
                 self._detecting = (self._pool.submit(self.detector.detect, frame), frame)
+
+    def _reanchor_if_moved(self, t: float, T_world_odom: np.ndarray) -> None:
+        """Rebuild the global map from the kept frames at SLAM's corrected key poses when SLAM
+        moved where they belong (a loop closure): surfaces integrated before it stand where the
+        robot thought it was, e.g. a phantom wall through home (demo seed 3).
+
+        Cheap test first: the odometry frame's correction moved by ``reanchor_min_shift`` since
+        the last check. SLAM's correction also follows the current drift as it grows, which moves
+        no earlier frame; so the map is rebuilt only when at least 5 % of the kept frames now
+        belong more than ``reanchor_min_shift`` from where they were integrated.
+        """
+        if self._anchored is None:
+            self._anchored = T_world_odom
+        shift = float(np.linalg.norm(T_world_odom[:3, 3] - self._anchored[:3, 3]))
+        if shift <= self.exploration.reanchor_min_shift or not self._kept:
+            return
+        self._anchored = T_world_odom
+        check = self.boundary
+        with check.calling("slam", "keyposes()"):
+            keyposes = self.slam.keyposes()
+        stamps = np.array([k.stamp for k in self._kept])
+        corrections = keypose_corrections(stamps, keyposes, self._keypose_odometry, T_world_odom)
+        moved = np.array(
+            [np.linalg.norm(C[:3, 3] - U[:3, 3]) for C, U in zip(corrections, self._kept_at, strict=True)]
+        )
+        far = int(np.count_nonzero(moved > self.exploration.reanchor_min_shift))
+        if far < max(1, 0.05 * len(moved)):
+            return
+        frames = (
+            (k.depth.astype(np.float32), k.K, C @ k.T_odom_cam)
+            for k, C in zip(self._kept, corrections, strict=True)
+        )
+        with check.calling("mapping", "rebuild_global()"):
+            rebuilt = self.mapping.rebuild_global(frames)
+        if rebuilt:
+            self._kept_at = list(corrections)
+            self._refresh = True
+            self.rundir.event(
+                t,
+                "map_reanchored",
+                frames=len(self._kept),
+                moved=far,
+                max_move_m=round(float(moved.max()), 3),
+            )
 
     def _feed(self, frame: Frame, detections: list[Detection]) -> None:
         """Detections to SLAM at the pose of the frame they were made in, and to the base's log."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 import abc
 import math
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Protocol
@@ -417,7 +417,9 @@ class VoxelMapBase(Mapping):
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)
-        self.global_map = self._make_storage(v, lo, tuple(int(s) for s in hi - lo), local=False)
+        self._global_extent = (lo, tuple(int(s) for s in hi - lo))
+        self.global_map = self._make_storage(v, *self._global_extent, local=False)
+        self._prior_global: dict[str, np.ndarray] | None = None  # a loaded map, the base of a rebuild
         lshape = tuple(int(np.ceil(s / p.local_voxel)) for s in p.local_size)
         self.local_map = self._make_storage(p.local_voxel, -(np.array(lshape) // 2), lshape, local=True)
         self._local_centre: np.ndarray | None = None
@@ -470,6 +472,29 @@ class VoxelMapBase(Mapping):
             self._pending = union(self._pending, box)
             self._version += 1
         return box
+
+    def rebuild_global(self, frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> bool:
+        """Build the global map anew from ``(depth, K, T_world_cam)`` frames (on a loaded prior map).
+
+        After SLAM moved the poses earlier frames were integrated at (a loop closure), the
+        surfaces they put in the map stand where the robot thought it was: a wall drawn 0.5 m off
+        through a corridor, a slab carved away. Integrating the same frames at the corrected poses
+        is the only exact repair with log-odds (taking a frame's update back is not, once values
+        were clamped). Frontiers are recomputed over the whole map.
+        """
+        self._require()
+        store = self._make_storage(self.params.global_voxel, *self._global_extent, local=False)
+        if self._prior_global is not None:
+            store.from_arrays(self._prior_global)
+        p = self.params
+        for depth, K, T_world_cam in frames:
+            stride = p.global_stride or auto_stride(K, p.global_voxel, p.max_range)
+            store.integrate_depth(depth, K, T_world_cam, stride, p.max_range)
+        self.global_map = store
+        self._version += 1
+        self._graph = None
+        self.recompute_frontiers()
+        return True
 
     def integrate_local(self, depth: np.ndarray, K: np.ndarray, T_odom_cam: np.ndarray) -> BoundingBox:
         """Fuse a depth image into the local window (VIO pose), re-centring it first if needed."""
@@ -738,6 +763,7 @@ class VoxelMapBase(Mapping):
                     f"{path}: {name} voxel {grid.voxel} m does not match the configured {store.voxel} m"
                 )
             store.from_arrays({"index": grid.index, "logodds": grid.logodds})
+        self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None
         self.recompute_frontiers()
@@ -746,6 +772,7 @@ class VoxelMapBase(Mapping):
         index, occupied = read_bt(path, self.global_map.voxel)
         logodds = np.where(occupied, logit(self.params.p_max), logit(self.params.p_min)).astype(np.float32)
         self.global_map.from_arrays({"index": index, "logodds": logodds})
+        self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None
         self.recompute_frontiers()

@@ -150,6 +150,20 @@ class MappingContract:
         pts = np.array([[2.15, 0.05, 0.05], [3.05, 0.05, 0.05], [3.05, 1.55, 0.05], [1.05, 0.05, 0.05]])
         np.testing.assert_array_equal(mapping.states(pts), [OCCUPIED, UNKNOWN, FREE, FREE])
 
+    def test_a_rebuild_at_corrected_poses_moves_what_was_drawn_off(self, mapping: Mapping) -> None:
+        """Optional (``rebuild_global``): a wall integrated from a pose 0.5 m off (a drifted
+        estimate) stands 0.5 m off; rebuilt from the same frame at the corrected pose, it stands
+        where it is and nothing is left where it was drawn."""
+        drifted, true = camera_pose((0.5, 0.0, 0.0)), camera_pose()
+        mapping.integrate_global(wall_depth(), CAMERA.K, drifted)
+        phantom, wall = np.array([[WALL_X + 0.55, 0.05, 0.05]]), np.array([[WALL_X + 0.05, 0.05, 0.05]])
+        assert mapping.states(phantom)[0] == OCCUPIED
+        if not mapping.rebuild_global([(wall_depth(), CAMERA.K, true)]):
+            return  # the backend keeps its map as it is
+        assert mapping.states(wall)[0] == OCCUPIED
+        assert mapping.states(phantom)[0] == UNKNOWN  # behind the wall: never seen
+        assert len(mapping.viewpoints()) > 0  # frontiers follow the rebuilt map
+
     def test_repeated_misses_clear_an_obstacle(self, mapping: Mapping) -> None:
         mapping.integrate_global(wall_depth(), CAMERA.K, camera_pose())
         p = np.array([[WALL_X, 0.05, 0.05]])
