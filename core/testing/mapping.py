@@ -159,7 +159,7 @@ class MappingContract:
         phantom, wall = np.array([[WALL_X + 0.55, 0.05, 0.05]]), np.array([[WALL_X + 0.05, 0.05, 0.05]])
         assert mapping.states(phantom)[0] == OCCUPIED
         if not mapping.rebuild_global([(wall_depth(), CAMERA.K, true)]):
-            return  # the backend keeps its map as it is
+            pytest.skip("rebuild_global is optional: this backend keeps its map as it is")
         assert mapping.states(wall)[0] == OCCUPIED
         assert mapping.states(phantom)[0] == UNKNOWN  # behind the wall: never seen
         assert len(mapping.viewpoints()) > 0  # frontiers follow the rebuilt map
