@@ -235,6 +235,13 @@ class Platform(Backend):
 class Mapping(Backend):
     """Volumetric occupancy mapping: a global world-frame map and a local odometry-frame map."""
 
+    #: True when the local map's calls (``integrate_local``, ``plan_local_path`` and ``states``,
+    #: ``segment_free``, ``blocked`` with ``local=True``) read and write no state the other calls
+    #: touch. On a real vehicle the runtime then lets the control thread fly by the local map while
+    #: the mapper thread updates the global map (docs/architecture.md, "Threads"); with the
+    #: default False every call waits for the one lock, and a slow global update delays a tick.
+    separate_local_map: ClassVar[bool] = False
+
     @abc.abstractmethod
     def integrate_global(self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> BoundingBox:
         """Fuse a depth image into the global map; return the box it touched."""

@@ -10,18 +10,29 @@ Each control tick :meth:`Perception.step` runs, on the control thread:
 3. the detector at its own rate → ``slam.add_detections`` at the pose of the frame it saw;
 4. trajectories, uncertainty and explored-volume samples at their rates;
 
-and publishes what it knows as an immutable :class:`Snapshot`. With a simulated platform the
-detector runs inline (the clock waits, runs stay repeatable); on a real vehicle it runs on the
-detector thread, frames arriving while it is busy are skipped, and its detections are fed to SLAM
-on the control thread once they are ready.
+and publishes what it knows as an immutable :class:`Snapshot`. With a simulated platform
+everything runs inline (the clock waits, runs stay repeatable). On a real vehicle the clock does
+not wait, so two steps leave the control thread:
+
+* the detector runs on the detector thread; frames arriving while it is busy are skipped, and
+  its detections are fed to SLAM on the control thread once they are ready;
+* the global map's update (``integrate_global``, a rebuild, ``viewpoints()`` and the explored
+  volume) runs on the mapper thread, newest frame first: a frame waiting for it is replaced by a
+  newer one (and counted). The local map, which the setpoint guard reads, is still updated on the
+  control thread at once. The control thread then ticks on time while the global map takes a
+  tenth of a second or more per frame (issue #17: 10 % of ticks overran with both on it).
+
+:class:`PipelineHealth` counts the frames and times each one's way from its stamp to the maps and
+to SLAM on the platform's clock (a real vehicle's run has them in ``metrics.json``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -76,6 +87,85 @@ class Rates:
     viewpoints: float = 0.0
     trajectory: float = 0.0
     sample: float = 0.0
+
+
+@dataclass
+class PipelineHealth:
+    """What became of the camera's frames on a real vehicle, on the platform's clock.
+
+    Latencies are seconds from a frame's stamp (the telemetry time it was taken at) to the moment
+    it was in the local map, in the global map, and its detections in SLAM.
+    """
+
+    frames: int = 0  # frames the platform handed over
+    mapped: int = 0  # frames integrated into the global map
+    skipped_by_mapper: int = 0  # replaced by a newer frame while the mapper was busy
+    detected: int = 0  # frames the detector saw
+    local_latency: list[float] = field(default_factory=list)
+    global_latency: list[float] = field(default_factory=list)
+    detection_latency: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class _GlobalUpdate:
+    frame: Frame
+    T_world_odom: np.ndarray
+    refresh: bool  # recompute viewpoints whatever their period
+
+
+class _Mapper:
+    """The mapper thread: one global-map update at a time, the newest waiting frame next.
+
+    Written by hand, not a ``ThreadPoolExecutor``: an executor queues every frame, and a frame
+    that waited behind slower updates is worth less than the one after it. An exception ends the
+    thread and is raised on the control thread at its next :meth:`check`.
+    """
+
+    def __init__(self, update: Callable[[_GlobalUpdate], None], health: PipelineHealth):
+        self._update, self._health = update, health
+        self._wake = threading.Condition()
+        self._next: _GlobalUpdate | None = None
+        self._error: BaseException | None = None
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name="amslam-mapper", daemon=True)
+        self._thread.start()
+
+    def submit(self, job: _GlobalUpdate) -> None:
+        with self._wake:
+            if self._next is not None:
+                self._health.skipped_by_mapper += 1
+                job = dataclasses.replace(job, refresh=job.refresh or self._next.refresh)
+            self._next = job
+            self._wake.notify()
+
+    def check(self) -> None:
+        """Raise, on the caller's thread, what ended the mapper thread."""
+        with self._wake:
+            error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def _run(self) -> None:
+        while True:
+            with self._wake:
+                while self._next is None and not self._stop:
+                    self._wake.wait()
+                if self._stop:
+                    return
+                job, self._next = self._next, None
+            try:
+                self._update(job)
+            except BaseException as exc:  # noqa: BLE001 — handed to the control thread
+                with self._wake:
+                    self._error, self._stop = exc, True
+                return
+
+    def close(self) -> None:
+        with self._wake:
+            self._stop = True
+            self._next = None
+            self._wake.notify()
+        self._thread.join()
 
 
 #: width (px) a frame is kept at for a rebuild of the global map: the global map's 0.25 m voxels
@@ -147,7 +237,8 @@ class Perception:
         self.vio: list[tuple[float, np.ndarray]] = []
         self.samples: dict[str, list] = {"uncertainty": [], "explored": []}
         self._viewpoints: tuple[Viewpoint, ...] = ()
-        self._refresh = False
+        self._refresh = False  # set by the control thread, handed to the next global update
+        self._refresh_after_rebuild = False  # set and read where the global map is updated
         # exploration.reanchor_map: the frames, the odometry pose of each key pose, the correction
         # the global map stands at
         self._kept: list[KeptFrame] = []
@@ -157,11 +248,15 @@ class Perception:
         with check.calling("platform", "odometry()"):
             odom = check.odometry(platform.odometry())
         self._last_position = odom.T_odom_body[:3, 3].copy()
-        # On a real vehicle the network runs beside the control loop; in the simulator inline.
+        self._explored_volume = 0.0  # the mapper's latest (real vehicle)
+        self.health = PipelineHealth()
+        # On a real vehicle the network and the global map run beside the control loop; in the
+        # simulator inline.
         self._pool = (
             None if platform.simulated else ThreadPoolExecutor(1, thread_name_prefix="amslam-detector")
         )
         self._detecting: tuple[Future, Frame] | None = None
+        self._mapper = None if platform.simulated else _Mapper(self._update_global, self.health)
         self.snapshot = self._publish(platform.time(), platform.odometry())
 
     def refresh_viewpoints(self) -> None:
@@ -192,6 +287,8 @@ class Perception:
             keyposes = self.slam.keyposes()
             if keyposes:
                 self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
+        if self._mapper is not None:
+            self._mapper.check()
         with check.calling("platform", "capture()"):
             frame = check.frame(self.platform.capture())
         if frame is not None:
@@ -206,6 +303,8 @@ class Perception:
         return self.snapshot
 
     def close(self) -> None:
+        if self._mapper is not None:
+            self._mapper.close()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
 
@@ -213,21 +312,17 @@ class Perception:
 
     def _integrate(self, frame: Frame) -> None:
         check = self.boundary
+        self.health.frames += 1
         with check.calling("slam", "T_world_odom()"):
             T_world_odom = check.pose("slam", "T_world_odom()", self.slam.T_world_odom())
         with check.calling("mapping", "integrate_local()"):
             self.mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
-        if self.exploration.reanchor_map:
-            self._reanchor_if_moved(frame.stamp, T_world_odom)
-            self._kept.append(KeptFrame.of(frame))
-            self._kept_at.append(T_world_odom)
-        with check.calling("mapping", "integrate_global()"):
-            self.mapping.integrate_global(frame.depth, frame.K, T_world_odom @ frame.T_odom_cam)
-        if frame.stamp >= self.rates.viewpoints or self._refresh:
-            self._refresh = False
-            self.rates.viewpoints = frame.stamp + self.exploration.viewpoint_period
-            with check.calling("mapping", "viewpoints()"):
-                self._viewpoints = self._within_band(check.viewpoints(self.mapping.viewpoints()))
+        job, self._refresh = _GlobalUpdate(frame, T_world_odom, self._refresh), False
+        if self._mapper is None:
+            self._update_global(job)
+        else:
+            self.health.local_latency.append(self.platform.time() - frame.stamp)
+            self._mapper.submit(job)
         if frame.stamp >= self.rates.detect and self._detecting is None:
             self.rates.detect = frame.stamp + self.detect_period
             if self._pool is None:
@@ -236,6 +331,28 @@ class Perception:
                 self._feed(frame, detections)
             else:
                 self._detecting = (self._pool.submit(self.detector.detect, frame), frame)
+
+    def _update_global(self, job: _GlobalUpdate) -> None:
+        """The global map's part of a frame: on the control thread in the simulator, on the
+        mapper thread on a real vehicle (the only thread that writes the global map there)."""
+        check, frame, T_world_odom = self.boundary, job.frame, job.T_world_odom
+        if self.exploration.reanchor_map:
+            self._reanchor_if_moved(frame.stamp, T_world_odom)
+            self._kept.append(KeptFrame.of(frame))
+            self._kept_at.append(T_world_odom)
+        with check.calling("mapping", "integrate_global()"):
+            self.mapping.integrate_global(frame.depth, frame.K, T_world_odom @ frame.T_odom_cam)
+        if frame.stamp >= self.rates.viewpoints or job.refresh or self._refresh_after_rebuild:
+            self._refresh_after_rebuild = False
+            self.rates.viewpoints = frame.stamp + self.exploration.viewpoint_period
+            with check.calling("mapping", "viewpoints()"):
+                self._viewpoints = self._within_band(check.viewpoints(self.mapping.viewpoints()))
+            if self._mapper is not None:  # the control thread's samples read this, not the map
+                with check.calling("mapping", "explored_volume()"):
+                    self._explored_volume = self.mapping.explored_volume()
+        if self._mapper is not None:
+            self.health.mapped += 1
+            self.health.global_latency.append(self.platform.time() - frame.stamp)
 
     def _reanchor_if_moved(self, t: float, T_world_odom: np.ndarray) -> None:
         """Rebuild the global map from the kept frames at SLAM's corrected key poses when SLAM
@@ -272,7 +389,7 @@ class Perception:
             rebuilt = self.mapping.rebuild_global(frames)
         if rebuilt:
             self._kept_at = list(corrections)
-            self._refresh = True
+            self._refresh_after_rebuild = True
             self.rundir.event(
                 t,
                 "map_reanchored",
@@ -286,6 +403,9 @@ class Perception:
         frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(self.T_body_cam))
         with self.boundary.calling("slam", "add_detections()"):
             self.slam.add_detections(frame_odom, self.T_body_cam, detections)
+        if self._pool is not None:
+            self.health.detected += 1
+            self.health.detection_latency.append(self.platform.time() - frame.stamp)
         T_truth = frame.T_world_cam_truth
         body_truth = None if T_truth is None else T_truth @ invert(self.T_body_cam)
         self.measurements.detections(frame_odom, detections, body_truth)
@@ -304,7 +424,8 @@ class Perception:
             self.rates.sample = t + ex.uncertainty_period
             pose_trace, landmark_trace = self.slam.uncertainty()
             self.samples["uncertainty"].append((t, self.distance, pose_trace, landmark_trace))
-            self.samples["explored"].append((t, self.distance, self.mapping.explored_volume()))
+            explored = self.mapping.explored_volume() if self._mapper is None else self._explored_volume
+            self.samples["explored"].append((t, self.distance, explored))
 
     def _publish(self, t: float, odom: Odometry) -> Snapshot:
         explored = self.samples["explored"]

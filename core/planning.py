@@ -82,9 +82,10 @@ class Plan:
 class PlanJob:
     """A plan being made; :meth:`result` hands over the tour and adopts the plan's bookkeeping."""
 
-    def __init__(self, future: Future, service: PlanningService):
+    def __init__(self, future: Future, service: PlanningService, requested_at: float):
         self._future = future
         self._service = service
+        self.requested_at = requested_at  # the time of the snapshot it plans from
 
     def done(self) -> bool:
         return self._future.done()
@@ -116,6 +117,8 @@ class PlanJob:
             raise
         service.failures = 0
         service._adopt(plan)
+        if service.clock is not None:
+            service.plan_latency.append(service.clock() - self.requested_at)
         return plan.tour
 
 
@@ -143,6 +146,10 @@ class PlanningService:
     failures: int = 0  # plans that failed in a row
     last_error: str = ""  # why the last one failed
     fault: BackendOutputError | None = None  # the planner broke its contract: the run ends
+    #: the platform's clock when threaded: each adopted plan's latency (s from the snapshot it was
+    #: planned from to its adoption) goes to ``plan_latency``
+    clock: Callable[[], float] | None = None
+    plan_latency: list[float] = field(default_factory=list)
     _executor: ThreadPoolExecutor | None = None
 
     def observe(self, snapshot: Snapshot) -> None:
@@ -241,10 +248,10 @@ class PlanningService:
                 future.set_result(self.plan(inputs))
             except Exception as exc:  # delivered through the job, like the threaded path
                 future.set_exception(exc)
-            return PlanJob(future, self)
+            return PlanJob(future, self, inputs.snapshot.t)
         if self._executor is None:
             self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="amslam-planner")
-        return PlanJob(self._executor.submit(self.plan, inputs), self)
+        return PlanJob(self._executor.submit(self.plan, inputs), self, inputs.snapshot.t)
 
     def plan(self, inputs: PlanInputs) -> Plan:
         """Ask the planner for a tour over the inputs' viewpoints (and SLC candidates).

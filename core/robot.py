@@ -23,6 +23,7 @@ backend maps one into the other at the moment a setpoint is sent; every setpoint
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -59,10 +60,18 @@ class Flight(Protocol):
     def landing_spot_world(self) -> np.ndarray | None: ...
 
 
+class PathHandle(Protocol):
+    """A path being planned (:meth:`Robot.request_path`); its result is the path or None."""
+
+    def done(self) -> bool: ...
+    def cancel(self) -> bool: ...
+    def result(self) -> np.ndarray | None: ...
+
+
 class Navigation(Protocol):
     """Paths through the maps."""
 
-    def plan_path(self, goal_world: np.ndarray) -> np.ndarray | None: ...
+    def request_path(self, goal_world: np.ndarray) -> PathHandle: ...
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool: ...
     def plan_local_path(self, start_world: np.ndarray, goal_world: np.ndarray) -> np.ndarray | None: ...
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None: ...
@@ -124,6 +133,8 @@ class Robot:
     setpoints: SetpointFilter
     odometer: Callable[[], float] = lambda: 0.0  # distance travelled so far (perception's), m
     home_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: the path thread on a real vehicle (the runtime's, which closes it); None: paths at once
+    path_thread: Executor | None = None
 
     # -- state ---------------------------------------------------------------------------------
 
@@ -217,9 +228,23 @@ class Robot:
 
     # -- navigation ----------------------------------------------------------------------------
 
-    def plan_path(self, goal_world: np.ndarray) -> np.ndarray | None:
-        """Waypoints from here to the goal through known free space, or None."""
-        return self.mapping.plan_path(self.position_world(), np.asarray(goal_world, float))
+    def request_path(self, goal_world: np.ndarray) -> Future:
+        """Waypoints from here to the goal through known free space, or None, as a future.
+
+        On a real vehicle the path is planned on the path thread: a path through the global map
+        rebuilds its search graph whenever the map changed (every frame), 0.1-0.4 s that a
+        control tick cannot wait (docs/flight.md, late ticks). In the simulator it is planned at
+        once and the future is done when returned.
+        """
+        start, goal = self.position_world(), np.asarray(goal_world, float)
+        if self.path_thread is not None:
+            return self.path_thread.submit(self.mapping.plan_path, start, goal)
+        future: Future = Future()
+        try:
+            future.set_result(self.mapping.plan_path(start, goal))
+        except Exception as exc:  # delivered through the future, like the threaded path
+            future.set_exception(exc)
+        return future
 
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None:
         """``goal_world`` if the global map has a path to it from here, else the nearest point

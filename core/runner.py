@@ -22,6 +22,7 @@ import json
 import traceback
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -320,6 +321,7 @@ class Runner:
             exploration=ex,
             camera=platform.camera,
             threaded=not platform.simulated,
+            clock=None if platform.simulated else platform.time,
             refresh_viewpoints=perception.refresh_viewpoints,
             snapshot=perception.snapshot,
             boundary=self.boundary,
@@ -339,6 +341,7 @@ class Runner:
             ),
             odometer=lambda: perception.distance,
             home_world=odom0.T_odom_body[:3, 3].copy(),
+            path_thread=None if platform.simulated else ThreadPoolExecutor(1, "amslam-paths"),
         )
         events = EventSink(lambda name, **f: self.rundir.event(self._now(), name, **f), self._hook)
         py_trees.blackboard.Blackboard.clear()
@@ -528,6 +531,11 @@ class Runner:
                 slc_log=tuple(runtime.planning.slc_log),
                 home_world=runtime.robot.home_world,
             )
+            if not platform.simulated:
+                flown["pipeline"] = {
+                    **dataclasses.asdict(perception.health),
+                    "plan_latency": list(runtime.planning.plan_latency),
+                }
         ask = self._ask
         check = self.boundary
         if slam is not None:
@@ -580,8 +588,10 @@ class Runtime:
     mapping: Mapping
 
     def close(self) -> None:
-        """Stop the detector and planner threads, close the streams."""
+        """Stop the detector, mapper, planner and path threads, close the streams."""
         self.perception.close()
         self.planning.close()
+        if self.robot.path_thread is not None:
+            self.robot.path_thread.shutdown(wait=True, cancel_futures=True)
         self.recorder.close()
         self.measurements.close()

@@ -10,6 +10,11 @@ hands both threads the same :class:`Shared` wrapper of each of these backends, a
 into it holds the backend's one re-entrant lock: a call sees the backend between two whole
 calls of the other thread, never in the middle of one.
 
+A mapping backend whose local map is separate from its global map
+(``Mapping.separate_local_map``) gets two locks: the local map's calls take one, every other call
+the other. The control thread then checks setpoints against the local map while the mapper
+thread updates the global map and its viewpoints (a tenth of a second and more per frame).
+
 The cost is waiting, not copying: while the planner holds the map for a tour's path costs, a
 control tick that integrates a frame waits for it (the vehicle holds its last setpoint). Copying
 a map or a factor graph per plan would cost more than the wait, and a snapshot of either would
@@ -26,6 +31,12 @@ from typing import Any, Generic, TypeVar
 B = TypeVar("B")
 
 
+#: the calls of a mapping backend that touch only its local map; ``LOCAL_WHEN_ASKED`` only with
+#: ``local=True``
+LOCAL_MAP_CALLS = frozenset({"integrate_local", "plan_local_path"})
+LOCAL_WHEN_ASKED = frozenset({"states", "segment_free", "blocked"})
+
+
 class Shared(Generic[B]):
     """A backend whose every method call holds its lock (attributes are read as they are)."""
 
@@ -34,6 +45,15 @@ class Shared(Generic[B]):
         self._methods: dict[str, Callable[..., Any]] = {}
         #: held by every call; a caller may hold it across several calls to see them as one
         self.lock = threading.RLock()
+        #: held by the local map's calls instead, when the backend keeps that map apart
+        self.local_lock = threading.RLock() if getattr(backend, "separate_local_map", False) else self.lock
+
+    def _lock_for(self, name: str, kwargs: dict[str, Any]) -> threading.RLock:
+        if self.local_lock is self.lock:
+            return self.lock
+        if name in LOCAL_MAP_CALLS or (name in LOCAL_WHEN_ASKED and kwargs.get("local", False)):
+            return self.local_lock
+        return self.lock
 
     @property
     def backend(self) -> B:
@@ -48,11 +68,11 @@ class Shared(Generic[B]):
             return value
         method = self._methods.get(name)
         if method is None:
-            lock = self.lock
+            lock_for = self._lock_for
 
             @functools.wraps(value)
             def method(*args: Any, **kwargs: Any) -> Any:
-                with lock:
+                with lock_for(name, kwargs):
                     return value(*args, **kwargs)
 
             self._methods[name] = method

@@ -20,7 +20,7 @@ from collections.abc import Mapping as MappingOf
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -415,6 +415,10 @@ class RunSummary:
         home_world: the take-off point in the world frame.
         mapping: the mapping backend, for the explored share and the map files; read it only
             after the flight, as the report does.
+        pipeline: a real vehicle's camera pipeline (None in the simulator): frame counts
+            (``frames``, ``mapped``, ``skipped_by_mapper``, ``detected``) and latency samples in
+            seconds from a frame's stamp (``local_latency``, ``global_latency``,
+            ``detection_latency``) and from a plan's snapshot to its adoption (``plan_latency``).
     """
 
     mission: Mission
@@ -437,6 +441,7 @@ class RunSummary:
     robot_radius: float | None = None
     home_world: np.ndarray | None = None
     mapping: Mapping | None = None
+    pipeline: MappingOf[str, Any] | None = None
 
     @property
     def trajectory(self) -> np.ndarray:

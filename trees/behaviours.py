@@ -35,7 +35,7 @@ from py_trees.decorators import EternalGuard, FailureIsSuccess
 import amslam
 from amslam.geometry import wrap_angle
 from amslam.mission import ExplorationSection
-from amslam.robot import Events, Exploring, Flight, Navigation, PlanHandle
+from amslam.robot import Events, Exploring, Flight, Navigation, PathHandle, PlanHandle
 from amslam.trees.decorators import GiveUpGoal, PathProgress, SkipUnreachable
 from amslam.trees.services import require_services
 from amslam.types import TourItem, TourItemKind
@@ -305,12 +305,28 @@ class GoTo(RobotBehaviour):
         self.goal: TourItem = self.bb.get(self.goal_key)
         self.arrived = False
         self.replanned = 0
+        self._path_job: PathHandle | None = None
         self._plan()
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
 
     def _plan(self) -> None:
-        self.path = self.navigation.plan_path(self.goal.position)
+        """Ask for a path to the goal. On a real vehicle it is planned beside the control loop
+        and the robot holds meanwhile; in the simulator it is there at once."""
+        self.path = None
+        self._path_job = self.navigation.request_path(self.goal.position)
+        self._take_path()
+
+    def _take_path(self) -> bool:
+        """Adopt the requested path once it is planned; False while it is still being planned."""
+        job = self._path_job
+        if job is None:
+            return True
+        if not job.done():
+            return False
+        self._path_job = None
+        self.path = job.result()
         self.index = self.first_index = 1 if self.path is not None and len(self.path) > 1 else 0
+        return True
 
     def progress(self, here: np.ndarray) -> PathProgress:
         """How far it got (for :class:`GiveUpGoal`): paths replanned, waypoints passed, distance left
@@ -378,6 +394,10 @@ class GoTo(RobotBehaviour):
         return None
 
     def update(self) -> Status:
+        if not self._take_path():
+            self.flight.hold()
+            self.feedback_message = "planning a path"
+            return Status.RUNNING
         if self.path is None:
             return self._fail("no path through known free space")
         here = self.flight.position_world()
@@ -423,7 +443,11 @@ class GoTo(RobotBehaviour):
                 return Status.RUNNING
             self._plan()
             self.feedback_message = f"blocked near {np.round(ahead, 2).tolist()}: new path"
-            return Status.RUNNING if self.path is not None else self._fail("blocked, no other path")
+            if self.path is None and self._path_job is None:
+                return self._fail("blocked, no other path")
+            if self._path_job is not None:
+                self.flight.hold()  # the old path runs into what blocks it
+            return Status.RUNNING
         horizontal = np.linalg.norm(to_target[:2])
         heading = float(np.arctan2(to_target[1], to_target[0])) if horizontal > 0.3 else self.goal.yaw
         yaw_err = abs(wrap_angle(heading - self.flight.yaw_world()))
@@ -470,6 +494,9 @@ class GoTo(RobotBehaviour):
         return True
 
     def terminate(self, new_status: Status) -> None:
+        if getattr(self, "_path_job", None) is not None:  # a path no one will fly
+            self._path_job.cancel()
+            self._path_job = None
         if new_status == Status.INVALID and getattr(self, "flight", None) is not None:
             self.flight.hold()
 

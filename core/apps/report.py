@@ -664,13 +664,26 @@ def _figure_rows(m: dict[str, Any]) -> list[str]:
     if (interval := m.get("control_tick_interval_ms")) and "control_tick_overruns" in m:
         # a real-time run (the realtime observer's figures): how often the control loop was late
         load = m.get("host_load") or {}
+        late_after = m.get("control_tick_overruns_by_behaviour") or {}
         row(
             f"control ticks late (interval > 1.25 × {m.get('control_period_ms')} ms)",
             f"{m['control_tick_overruns']} of {m.get('control_ticks')}"
             f" ({m.get('control_tick_overrun_percent')} %);"
             f" interval median {interval['median']}, p95 {interval['p95']}, max {interval['max']} ms;"
-            f" host load {_load_text(load)}",
+            f" host load {_load_text(load)}"
+            + "".join(f"; {n} after {name}" for name, n in late_after.items()),
         )
+    if pipeline := m.get("pipeline"):
+        row(
+            "camera frames (received / in the global map / skipped by the busy mapper / detected)",
+            " / ".join(str(pipeline[k]) for k in ("frames", "mapped", "skipped_by_mapper", "detected")),
+        )
+        for key, figures in pipeline.get("latency_ms", {}).items():
+            row(
+                f"latency {key.replace('_', ' ')} (ms)",
+                f"median {figures['median']}, p95 {figures['p95']}, max {figures['max']}"
+                f" ({figures['n']} samples)",
+            )
     return lines
 
 

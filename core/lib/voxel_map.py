@@ -367,6 +367,10 @@ class VoxelMapBase(Mapping):
 
     Params: ClassVar[type[BackendParams]] = VoxelMapParams
 
+    #: the local window (``local_map``, ``_local_centre``) and the global map (``global_map``,
+    #: the frontier tracker, the search graph) share only the read-only parameters
+    separate_local_map = True
+
     def __init__(self) -> None:
         self.params: VoxelMapParams = VoxelMapParams()
         self.context: RunContext | None = None

@@ -203,3 +203,16 @@ def test_a_real_time_runs_late_control_ticks_are_a_row_of_the_report() -> None:
     )
     # a simulated run has no such figures
     assert not [r for r in _figure_rows({"control_ticks": 3}) if r.startswith("| control ticks")]
+    pipeline = {
+        "frames": 50,
+        "mapped": 40,
+        "skipped_by_mapper": 10,
+        "detected": 12,
+        "latency_ms": {"frame_to_global_map": {"median": 200.0, "p95": 290.0, "max": 300.0, "n": 3}},
+    }
+    rows = [r for r in _figure_rows({**m, "pipeline": pipeline}) if r.startswith(("| camera", "| latency"))]
+    assert rows == [
+        "| camera frames (received / in the global map / skipped by the busy mapper / detected)"
+        " | 50 / 40 / 10 / 12 |",
+        "| latency frame to global map (ms) | median 200.0, p95 290.0, max 300.0 (3 samples) |",
+    ]

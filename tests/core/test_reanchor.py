@@ -72,7 +72,7 @@ def _perception(keyposes):
         _kept_at=[np.eye(4)] * len(frames),
         _keypose_odometry={0.0: _pose(0.0), 5.0: _pose(0.5)},
         _anchored=np.eye(4),
-        _refresh=False,
+        _refresh_after_rebuild=False,
     )
     return fake, rec, Perception._reanchor_if_moved
 
@@ -83,7 +83,7 @@ def test_growing_drift_alone_rebuilds_nothing_and_a_loop_closure_rebuilds_at_the
     still = [KeyPose(0, 0.0, _pose(0.0), 0.0), KeyPose(1, 5.0, _pose(0.5), 0.0)]
     fake, rec, reanchor = _perception(still)
     reanchor(fake, 10.0, _pose(-0.5))
-    assert rec.rebuilt == [] and not fake._refresh
+    assert rec.rebuilt == [] and not fake._refresh_after_rebuild
     # a loop closure moved the second key pose back 0.4 m: frames 5..9 belong 0.4 m off
     closed = [KeyPose(0, 0.0, _pose(0.0), 0.0), KeyPose(1, 5.0, _pose(0.1), 0.0)]
     fake, rec, reanchor = _perception(closed)
@@ -92,4 +92,4 @@ def test_growing_drift_alone_rebuilds_nothing_and_a_loop_closure_rebuilds_at_the
     shifts = [round(float(T[0, 3]), 6) for _, _, T in frames]
     assert shifts == [0.0] * 5 + [-0.4] * 5
     assert rec.events == [("map_reanchored", {"frames": 10, "moved": 5, "max_move_m": 0.4})]
-    assert fake._refresh and [round(float(C[0, 3]), 6) for C in fake._kept_at] == shifts
+    assert fake._refresh_after_rebuild and [round(float(C[0, 3]), 6) for C in fake._kept_at] == shifts

@@ -234,9 +234,13 @@ class StuckRobot(FakeRobot):
     def time(self):
         return self.t
 
-    def plan_path(self, goal):
+    def request_path(self, goal):
+        from concurrent.futures import Future
+
         self.paths += 1
-        return np.array([[0.0, 0.0, 1.0], goal])
+        future = Future()
+        future.set_result(np.array([[0.0, 0.0, 1.0], goal]))
+        return future
 
     def position_world(self):
         return np.array([0.0, 0.0, 1.0])
