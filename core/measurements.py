@@ -81,6 +81,10 @@ class MeasurementLog:
         T_world_odom: np.ndarray | None = None,
         max_points: int = 128,
     ) -> None:
+        # scipy's rotations, which every record needs, imported before the flight: the first key
+        # pose on a real vehicle's control loop paid 0.15 s for it (a SITL flight's late_ticks)
+        from scipy.spatial.transform import Rotation  # noqa: F401
+
         self.path = Path(path)
         self.T_body_cam = np.asarray(T_body_cam, float)
         self.max_points = max_points

@@ -267,6 +267,10 @@ def samples_clear(
     return bool(np.all(np.sqrt((gap**2).sum(-1)) >= radius))
 
 
+#: sources per Dijkstra call in :meth:`FreeSpaceGraph.costs`
+DIJKSTRA_BATCH = 4
+
+
 class FreeSpaceGraph:
     """26-connected graph over the traversable voxels of a dense block, for shortest paths.
 
@@ -409,7 +413,15 @@ class FreeSpaceGraph:
         if not ok_s.any() or not ok_t.any() or self.n_nodes == 0:
             return out
         uniq, inverse = np.unique(s_nodes[ok_s], return_inverse=True)
-        dist = csgraph.dijkstra(self.graph, directed=False, indices=uniq)
+        # A few sources per call: between two calls another thread gets the interpreter (a real
+        # vehicle's control loop ticks while the planner thread asks for a tour's costs; one call
+        # for 60 sources held it for up to 0.3 s: late_ticks.jsonl of a SITL flight).
+        dist = np.vstack(
+            [
+                csgraph.dijkstra(self.graph, directed=False, indices=uniq[i : i + DIJKSTRA_BATCH])
+                for i in range(0, len(uniq), DIJKSTRA_BATCH)
+            ]
+        )
         s_off = np.linalg.norm(sources[ok_s] - self.node_position(s_nodes[ok_s]), axis=1)
         t_off = np.linalg.norm(targets[ok_t] - self.node_position(t_nodes[ok_t]), axis=1)
         sub = dist[inverse][:, t_nodes[ok_t]] + s_off[:, None] + t_off[None, :]

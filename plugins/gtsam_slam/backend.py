@@ -154,6 +154,13 @@ class GtsamSlam(Slam):
         self.params = params
         self._context = context
         self._build(params, context.rng, context.emit)
+        # What association, shape fitting and SLC candidates import on first use, imported now,
+        # before take-off: on a real vehicle the first SLC candidates imported scikit-learn on the
+        # planner thread holding this backend's lock, and the control loop waited 1.4 s for it
+        # (a SITL flight's late_ticks.jsonl).
+        import scipy.optimize  # noqa: F401
+        import scipy.spatial  # noqa: F401
+        import sklearn.cluster  # noqa: F401
 
     def close(self) -> None:
         """Nothing to release (the graph lives in memory); safe to call twice."""

@@ -241,9 +241,13 @@ class CopPlanner(Planner):
         self._emit = None
 
     def configure(self, params: CopParams, context: RunContext) -> None:
-        """Keep the validated parameters."""
+        """Keep the validated parameters; import what the first plan samples with."""
         self.params = params
         self._emit = context.emit
+        # Here, before take-off, not at the first plan: on a real vehicle that import (0.3-0.6 s
+        # of scipy.stats) ran on the planner thread in flight and stalled the control loop 1.6 s
+        # (a SITL flight's late_ticks.jsonl). Not at module load either: listing plugins stays fast.
+        from scipy.stats import qmc  # noqa: F401
 
     def plan(self, request: PlanRequest) -> list[TourItem]:
         """COP tour, then Algorithm 1 when ``slc`` is on and candidates were given.
