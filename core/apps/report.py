@@ -375,6 +375,9 @@ def write_outputs(summary: RunSummary, metrics: dict[str, Any], rundir: RunFiles
         write_landmarks(rundir.path / "landmarks.json", summary.landmarks)
         kps = summary.keyposes
         if kps and summary.slam_optimises:
+            # in time order: on a real vehicle a key pose made for a detection has its frame's
+            # stamp, older than the latest odometry's (a SITL flight's slam.tum went back 0.17 s)
+            kps = sorted(kps, key=lambda k: k.stamp)
             rundir.write_trajectory("slam", [k.stamp for k in kps], [k.T_world_body for k in kps])
     plots = []
     if mapping is not None:

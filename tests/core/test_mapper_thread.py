@@ -25,6 +25,7 @@ from amslam.plugins.voxel_numpy import NumpyVoxelMap
 from amslam.sharing import Shared
 from amslam.testing.mapping import CAMERA, camera_pose, make_context, wall_depth
 from amslam.types import Frame, Odometry, Viewpoint, VoxelState
+from tests.core.pausing import PauseAtCall
 
 WAIT = 10.0  # s; a generous bound for what must happen at once, never a measured time
 
@@ -160,22 +161,8 @@ def test_a_failing_global_update_ends_the_run_on_the_control_thread_naming_the_b
         p.close()
 
 
-class PauseInFrontierUpdate:
-    """Stops the thread that traces it inside the global map's frontier update."""
-
-    def __init__(self) -> None:
-        self.paused = threading.Event()
-        self.resume = threading.Event()
-
-    def __call__(self, frame, event, arg):
-        if event == "call" and frame.f_code.co_name == "update" and not self.paused.is_set():
-            self.paused.set()
-            self.resume.wait(timeout=WAIT)
-        return None
-
-
-def _mapper_paused_in_viewpoints(shared: Shared) -> tuple[threading.Thread, PauseInFrontierUpdate]:
-    pause = PauseInFrontierUpdate()
+def _mapper_paused_in_viewpoints(shared: Shared) -> tuple[threading.Thread, PauseAtCall]:
+    pause = PauseAtCall("update", timeout=WAIT)  # the global map's frontier update
 
     def mapper() -> None:
         sys.settrace(pause)

@@ -20,6 +20,7 @@ from amslam.lib.voxel_map import VoxelMapParams
 from amslam.plugins.voxel_numpy import NumpyVoxelMap
 from amslam.sharing import Shared
 from amslam.testing.mapping import CAMERA, camera_pose, make_context, wall_depth
+from tests.core.pausing import PauseAtCall
 
 #: from the origin to 2 m ahead (seen by the first frame) and to 2 m left (seen only by the second)
 PLACES = np.array([[0.5, 0.0, 0.0], [2.0, 0.0, 0.0], [0.5, 2.0, 0.0]])
@@ -35,28 +36,14 @@ def fused(tmp_path, *frames) -> NumpyVoxelMap:
     return mapping
 
 
-class PauseInGraphBuild:
-    """Stops the thread that traces it where the search graph is built from voxels already read."""
-
-    def __init__(self) -> None:
-        self.paused = threading.Event()
-        self.resume = threading.Event()
-
-    def __call__(self, frame, event, arg):
-        # the search graph's obstacles are computed from the dense states the map just read
-        if event == "call" and frame.f_code.co_name == "obstacles" and not self.paused.is_set():
-            self.paused.set()
-            self.resume.wait(timeout=10.0)
-        return None
-
-
 def test_a_frame_fused_during_a_path_query_reaches_the_next_query(tmp_path):
     expected = fused(tmp_path / "both", AHEAD, LEFT).path_costs(PLACES, PLACES)
     stale = fused(tmp_path / "ahead", AHEAD).path_costs(PLACES, PLACES)
     assert not np.array_equal(expected, stale), "the second frame must change the path costs"
 
     shared = Shared(fused(tmp_path / "shared", AHEAD))
-    pause = PauseInGraphBuild()
+    # the search graph's obstacles are computed from the dense states the map just read
+    pause = PauseAtCall("obstacles")
 
     def planner() -> None:
         sys.settrace(pause)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -97,15 +98,27 @@ class TruthRecord:
 
 
 def judge(sitl_dir: Path, run_dir: Path) -> dict[str, Any]:
-    """A flight judged by its truth: explored share of amslam's ``map.npz`` over the world's
-    reachable cells (a cell counts when the map knows its voxel, free or occupied, as the
-    simulator's report counts it), contacts and closest approach, the vehicle's last state."""
-    sitl = json.loads((Path(sitl_dir) / "sitl.json").read_text())
-    with np.load(Path(sitl_dir) / "reachable.npz", allow_pickle=False) as data:
+    """A flight judged by its truth, with the figures the simulator's report gives a simulated run:
+    explored share of amslam's ``map.npz`` over the world's reachable cells (a cell counts when the
+    map knows its voxel, free or occupied, as the simulator's report counts it), contacts and
+    closest approach, the vehicle's last state, the position error of the estimate (VIO) and of
+    amslam's SLAM at touchdown, and the landmarks against the world's objects (the report's
+    :func:`~amslam.apps.report.landmark_accuracy`)."""
+    from amslam.apps.report import landmark_accuracy
+    from amslam.errors import RunFileError
+    from amslam.rundir import read_landmarks, read_tum
+
+    sitl_dir, run_dir = Path(sitl_dir), Path(run_dir)
+    sitl = json.loads((sitl_dir / "sitl.json").read_text())
+    with np.load(sitl_dir / "reachable.npz", allow_pickle=False) as data:
         points = data["reachable_points"]
-    grid = read_saved_map(Path(run_dir) / "map.npz").global_map
+        T_world_local = data["T_world_local"]
+        ids = [str(i) for i in data["object_ids"]]
+        classes = [str(c) for c in data["object_classes"]]
+        positions = data["object_positions"]
+    grid = read_saved_map(run_dir / "map.npz").global_map
     known = np.isin(encode(to_index(points, grid.voxel)), encode(grid.index))
-    return {
+    out = {
         "explored_percent": round(100.0 * float(known.mean()), 2) if len(points) else None,
         "contacts": len(sitl.get("contacts", [])),
         "closest_approach_m": sitl.get("closest_approach_m"),
@@ -113,3 +126,37 @@ def judge(sitl_dir: Path, run_dir: Path) -> dict[str, Any]:
         "armed": sitl.get("vehicle", {}).get("armed"),
         "true_distance_m": sitl.get("true_distance_m"),
     }
+    truth = read_tum(sitl_dir / "ground_truth.tum")
+    if len(truth):
+        # the truth is in the simulator's world frame; the estimate and SLAM in the local one
+        end = (np.linalg.inv(T_world_local) @ truth.matrices()[-1])[:3, 3]
+        errors: dict[str, Any] = {}
+        for name, path in (("vio", sitl_dir / "estimate.tum"), ("slam", run_dir / "slam.tum")):
+            try:
+                track = read_tum(path) if path.exists() else None
+            except RunFileError as exc:  # the other figures stand; the problem is said
+                errors.setdefault("problems", []).append(str(exc))
+                continue
+            if track is not None and len(track):
+                errors[f"{name}_position_m"] = round(float(np.linalg.norm(track.poses[-1, :3] - end)), 4)
+        out["final_error"] = errors
+    if (run_dir / "landmarks.json").exists():
+        world = WorldSummary(
+            name="sitl",
+            bounds_lo=np.zeros(3),
+            bounds_hi=np.zeros(3),
+            reachable_free_volume=0.0,
+            floor_heights=(),
+            reachable_free_volume_per_floor=(),
+            objects_by_class={},
+            object_positions=dict(zip(ids, positions, strict=True)),
+            object_classes=dict(zip(ids, classes, strict=True)),
+        )
+        landmarks = [
+            SimpleNamespace(position=np.asarray(r["position"], float), class_name=r["class"])
+            for r in read_landmarks(run_dir / "landmarks.json")
+        ]
+        accuracy = landmark_accuracy(landmarks, world)
+        accuracy.pop("by_class", None)
+        out["landmarks"] = accuracy
+    return out

@@ -111,6 +111,17 @@ def test_exploration_over_mavlink_completes_explores_and_lands(tmp_path):
     assert_complete_run_folder(run, "completed")
     found = judge(sitl.truth, run)
     assert found["explored_percent"] >= 80.0, found
+    # the figures a simulated run's report gives, judged against the SITL's truth: slam.tum reads
+    # (in time order, although key poses made for detections carry older frame stamps)
+    assert set(found["final_error"]) == {"vio_position_m", "slam_position_m"}, found
+    assert found["landmarks"]["matched"] >= 1, found
+    # the real-time figures of a real vehicle's run: the frames' way and the late ticks, logged
+    metrics = json.loads((run / "metrics.json").read_text())
+    pipeline = metrics["pipeline"]
+    assert pipeline["frames"] > 50 and 0 < pipeline["mapped"] <= pipeline["frames"], pipeline
+    assert {"frame_to_local_map", "frame_to_global_map"} <= set(pipeline["latency_ms"]), pipeline
+    late = (run / "late_ticks.jsonl").read_text().splitlines() if (run / "late_ticks.jsonl").exists() else []
+    assert len(late) == metrics["control_tick_overruns"]  # each late tick is a line
     assert_down_safely(summary)
     names = [e["event"] for e in events(run)]
     assert "failsafe" not in names and "disarm_failed" not in names and names.count("touchdown") == 1
