@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -257,6 +258,7 @@ class Perception:
         )
         self._detecting: tuple[Future, Frame] | None = None
         self._mapper = None if platform.simulated else _Mapper(self._update_global, self.health)
+        self._mapper_events: deque[tuple[float, str, dict]] = deque()  # for the control thread to write
         self.snapshot = self._publish(platform.time(), platform.odometry())
 
     def refresh_viewpoints(self) -> None:
@@ -289,6 +291,9 @@ class Perception:
                 self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
         if self._mapper is not None:
             self._mapper.check()
+            while self._mapper_events:
+                when, name, fields = self._mapper_events.popleft()
+                self.rundir.event(when, name, **fields)
         with check.calling("platform", "capture()"):
             frame = check.frame(self.platform.capture())
         if frame is not None:
@@ -390,13 +395,21 @@ class Perception:
         if rebuilt:
             self._kept_at = list(corrections)
             self._refresh_after_rebuild = True
-            self.rundir.event(
+            self._event(
                 t,
                 "map_reanchored",
                 frames=len(self._kept),
                 moved=far,
                 max_move_m=round(float(moved.max()), 3),
             )
+
+    def _event(self, t: float, name: str, **fields) -> None:
+        """An event of the global map's update: the run folder is the control thread's (the
+        thread rule), so the mapper thread leaves it for the next step to write."""
+        if self._mapper is None:
+            self.rundir.event(t, name, **fields)
+        else:
+            self._mapper_events.append((t, name, fields))
 
     def _feed(self, frame: Frame, detections: list[Detection]) -> None:
         """Detections to SLAM at the pose of the frame they were made in, and to the base's log."""

@@ -97,7 +97,7 @@ class FrameAtItsStamp(WallClockPlatform):
         return Frame(self.t, np.full((4, 4), 2.0, np.float32), np.eye(3), T)
 
 
-def perception(mapping) -> Perception:
+def perception(mapping, rundir=None) -> Perception:
     slam = SimpleNamespace(
         add_odometry=lambda odom: False,
         keyposes=list,
@@ -106,7 +106,7 @@ def perception(mapping) -> Perception:
         uncertainty=lambda: (0.0, 0.0),
     )
     detector = SimpleNamespace(detect=lambda frame: [], rate_hz=0.001)
-    rundir = SimpleNamespace(pose=lambda *a: None, event=lambda *a, **k: None)
+    rundir = rundir or SimpleNamespace(pose=lambda *a: None, event=lambda *a, **k: None)
     measurements = SimpleNamespace(keypose=lambda *a: None, detections=lambda *a: None)
     return Perception(
         FrameAtItsStamp(),
@@ -208,3 +208,23 @@ def test_the_local_maps_calls_wait_for_the_global_maps_lock_only_when_the_backen
     finally:
         pause.resume.set()
         thread.join()
+
+
+def test_an_event_of_the_mapper_thread_is_written_by_the_control_thread():
+    written = []
+    rundir = SimpleNamespace(
+        pose=lambda *a: None,
+        event=lambda t, name, **f: written.append((t, name, f, threading.current_thread().name)),
+    )
+    mapping = SlowGlobalMap()
+    mapping.release.set()
+    p = perception(mapping, rundir)
+    try:
+        mapper = threading.Thread(target=p._event, args=(1.5, "map_reanchored"), kwargs={"frames": 3})
+        mapper.start()
+        mapper.join()
+        assert written == []  # the run folder is the control thread's
+        p.step(0.1)
+        assert written == [(1.5, "map_reanchored", {"frames": 3}, threading.current_thread().name)]
+    finally:
+        p.close()

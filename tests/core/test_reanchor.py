@@ -73,6 +73,7 @@ def _perception(keyposes):
         _keypose_odometry={0.0: _pose(0.0), 5.0: _pose(0.5)},
         _anchored=np.eye(4),
         _refresh_after_rebuild=False,
+        _event=rec.event,
     )
     return fake, rec, Perception._reanchor_if_moved
 
