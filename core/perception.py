@@ -34,6 +34,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -98,13 +99,27 @@ class PipelineHealth:
     it was in the local map, in the global map, and its detections in SLAM.
     """
 
-    frames: int = 0  # frames the platform handed over
-    mapped: int = 0  # frames integrated into the global map
     skipped_by_mapper: int = 0  # replaced by a newer frame while the mapper was busy
-    detected: int = 0  # frames the detector saw
-    local_latency: list[float] = field(default_factory=list)
-    global_latency: list[float] = field(default_factory=list)
-    detection_latency: list[float] = field(default_factory=list)
+    local_latency: list[float] = field(default_factory=list)  # one per frame handed over
+    global_latency: list[float] = field(default_factory=list)  # one per frame in the global map
+    detection_latency: list[float] = field(default_factory=list)  # one per frame the detector saw
+
+    @property
+    def frames(self) -> int:
+        return len(self.local_latency)
+
+    @property
+    def mapped(self) -> int:
+        return len(self.global_latency)
+
+    @property
+    def detected(self) -> int:
+        return len(self.detection_latency)
+
+    def figures(self) -> dict[str, Any]:
+        """The counts and the latency samples, as ``RunSummary.pipeline`` holds them."""
+        counts = {"frames": self.frames, "mapped": self.mapped, "detected": self.detected}
+        return {**counts, **dataclasses.asdict(self)}
 
 
 @dataclass(frozen=True)
@@ -317,7 +332,6 @@ class Perception:
 
     def _integrate(self, frame: Frame) -> None:
         check = self.boundary
-        self.health.frames += 1
         with check.calling("slam", "T_world_odom()"):
             T_world_odom = check.pose("slam", "T_world_odom()", self.slam.T_world_odom())
         with check.calling("mapping", "integrate_local()"):
@@ -356,7 +370,6 @@ class Perception:
                 with check.calling("mapping", "explored_volume()"):
                     self._explored_volume = self.mapping.explored_volume()
         if self._mapper is not None:
-            self.health.mapped += 1
             self.health.global_latency.append(self.platform.time() - frame.stamp)
 
     def _reanchor_if_moved(self, t: float, T_world_odom: np.ndarray) -> None:
@@ -417,7 +430,6 @@ class Perception:
         with self.boundary.calling("slam", "add_detections()"):
             self.slam.add_detections(frame_odom, self.T_body_cam, detections)
         if self._pool is not None:
-            self.health.detected += 1
             self.health.detection_latency.append(self.platform.time() - frame.stamp)
         T_truth = frame.T_world_cam_truth
         body_truth = None if T_truth is None else T_truth @ invert(self.T_body_cam)

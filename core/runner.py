@@ -533,7 +533,7 @@ class Runner:
             )
             if not platform.simulated:
                 flown["pipeline"] = {
-                    **dataclasses.asdict(perception.health),
+                    **perception.health.figures(),
                     "plan_latency": list(runtime.planning.plan_latency),
                 }
         ask = self._ask
