@@ -25,7 +25,8 @@ import time
 
 import numpy as np
 
-from amslam.plugins.mavsdk_platform.camera_sources.stream import StreamFrame, send_frame
+from amslam.plugins.mavsdk_platform.camera_sources.base import RgbdImage
+from amslam.plugins.mavsdk_platform.camera_sources.stream import send_frame
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.world import World
 from amslam.types import CameraModel
@@ -94,7 +95,7 @@ class CameraStreamer:
             began = time.perf_counter()
             frame = self.renderer.render(self.world, T_world_body @ self.camera.T_body_cam, self.rng)
             self.render_seconds.append(time.perf_counter() - began)
-            message = StreamFrame(
+            message = RgbdImage(
                 stamp,
                 frame.depth,
                 self.camera.K,

@@ -26,13 +26,13 @@ Thread rule: the reader thread owns the socket; it hands the control thread immu
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import ipaddress
 import socket
 import struct
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,20 +46,7 @@ _LENGTH = struct.Struct(">Q")
 MAX_MESSAGE = 512 * 1024 * 1024
 
 
-@dataclass(frozen=True)
-class StreamFrame:
-    """A frame as it travels: what the sender knows of it."""
-
-    stamp: float
-    depth: np.ndarray
-    K: np.ndarray
-    rgb: np.ndarray | None = None
-    instance: np.ndarray | None = None
-    class_id: np.ndarray | None = None
-    class_names: tuple[str, ...] = ()
-
-
-def encode_frame(frame: StreamFrame) -> bytes:
+def encode_frame(frame: RgbdImage) -> bytes:
     """One message (length prefix + ``.npz``) for :func:`send_frame` or a socket of your own."""
     arrays: dict[str, np.ndarray] = {
         "stamp": np.float64(frame.stamp),
@@ -78,7 +65,7 @@ def encode_frame(frame: StreamFrame) -> bytes:
     return _LENGTH.pack(len(body)) + body
 
 
-def decode_frame(body: bytes) -> StreamFrame:
+def decode_frame(body: bytes) -> RgbdImage:
     """The frame of one message body (without its length prefix).
 
     Raises:
@@ -100,13 +87,13 @@ def decode_frame(body: bytes) -> StreamFrame:
         raise ValueError(f"rgb {rgb.shape} does not match depth {depth.shape}")
     instance, class_id = arrays.get("instance"), arrays.get("class_id")
     names = tuple(str(n) for n in arrays.get("class_names", ()))
-    return StreamFrame(
+    return RgbdImage(
         float(arrays["stamp"]), depth.astype(np.float32, copy=False), K.astype(float),
         rgb, instance, class_id, names,
     )  # fmt: skip
 
 
-def send_frame(sock: socket.socket, frame: StreamFrame) -> None:
+def send_frame(sock: socket.socket, frame: RgbdImage) -> None:
     """Send one frame on a connected socket (blocks until it is written)."""
     sock.sendall(encode_frame(frame))
 
@@ -123,7 +110,7 @@ def _receive_exactly(sock: socket.socket, n: int) -> bytes | None:
     return b"".join(chunks)
 
 
-def receive_frame(sock: socket.socket) -> StreamFrame | None:
+def receive_frame(sock: socket.socket) -> RgbdImage | None:
     """The next frame on a connected socket, or None when the sender closed the stream.
 
     Raises:
@@ -201,12 +188,10 @@ class StreamSource(CameraSource):
         self._thread.start()
         return self.model
 
-    def _keep(self, frame: StreamFrame) -> None:
+    def _keep(self, frame: RgbdImage) -> None:
         arrival = time.monotonic()
         stamp = frame.stamp if self.same_clock else arrival
-        image = RgbdImage(
-            stamp, frame.depth, frame.K, frame.rgb, frame.instance, frame.class_id, frame.class_names
-        )
+        image = dataclasses.replace(frame, stamp=stamp)  # on the wire: the sender's clock
         with self._lock:
             if self._newest is not None:
                 self.dropped += 1

@@ -11,8 +11,8 @@ import pytest
 
 from amslam.errors import PlatformError
 from amslam.plugins.mavsdk_platform.camera_sources import CameraSourceParams, make_camera_source
+from amslam.plugins.mavsdk_platform.camera_sources.base import RgbdImage
 from amslam.plugins.mavsdk_platform.camera_sources.stream import (
-    StreamFrame,
     StreamSource,
     decode_frame,
     encode_frame,
@@ -20,12 +20,12 @@ from amslam.plugins.mavsdk_platform.camera_sources.stream import (
 )
 
 
-def _frame(i: int, shape=(6, 8)) -> StreamFrame:
+def _frame(i: int, shape=(6, 8)) -> RgbdImage:
     depth = np.full(shape, 1.0 + i, np.float32)
     K = np.array([[5.0, 0, 3.5], [0, 5.0, 2.5], [0, 0, 1]])
     rgb = np.full((*shape, 3), i, np.uint8)
     instance = np.full(shape, i, np.int32)
-    return StreamFrame(100.0 + i, depth, K, rgb, instance, instance * 0 + 2, ("", "wall", "chair"))
+    return RgbdImage(100.0 + i, depth, K, rgb, instance, instance * 0 + 2, ("", "wall", "chair"))
 
 
 def _sender(frames: list[bytes], hold: threading.Event) -> tuple[int, threading.Thread]:
@@ -51,7 +51,7 @@ def test_a_frame_survives_the_wire():
     assert got.stamp == sent.stamp and got.class_names == sent.class_names
     for name in ("depth", "K", "rgb", "instance", "class_id"):
         np.testing.assert_array_equal(getattr(got, name), getattr(sent, name))
-    bare = decode_frame(encode_frame(StreamFrame(1.0, sent.depth, sent.K))[8:])
+    bare = decode_frame(encode_frame(RgbdImage(1.0, sent.depth, sent.K))[8:])
     assert bare.rgb is None and bare.instance is None and bare.class_names == ()
 
 
