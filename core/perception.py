@@ -15,12 +15,18 @@ everything runs inline (the clock waits, runs stay repeatable). On a real vehicl
 not wait, so two steps leave the control thread:
 
 * the detector runs on the detector thread; frames arriving while it is busy are skipped, and
-  its detections are fed to SLAM on the control thread once they are ready;
+  its detections are handed to SLAM once they are ready;
 * the global map's update (``integrate_global``, a rebuild, ``viewpoints()`` and the explored
   volume) runs on the mapper thread, newest frame first: a frame waiting for it is replaced by a
   newer one (and counted). The local map, which the setpoint guard reads, is still updated on the
   control thread at once. The control thread then ticks on time while the global map takes a
-  tenth of a second or more per frame (issue #17: 10 % of ticks overran with both on it).
+  tenth of a second or more per frame (issue #17: 10 % of ticks overran with both on it);
+* every SLAM call runs on the SLAM thread, in the order the control thread made them (odometry,
+  detections, uncertainty samples, loop-closure attempts). The control thread reads the
+  correction ``T_world_odom`` the SLAM thread published after its latest call, and never waits for
+  the graph: the marginals of a demo flight's 2000 key poses take a quarter of a second, and the
+  planner thread holds the graph's lock for as long while it ranks loop-closure candidates
+  (issue #17: a third of the demo flight's late ticks).
 
 :class:`PipelineHealth` counts the frames and times each one's way from its stamp to the maps and
 to SLAM on the platform's clock (a real vehicle's run has them in ``metrics.json``).
@@ -29,12 +35,13 @@ to SLAM on the platform's clock (a real vehicle's run has them in ``metrics.json
 from __future__ import annotations
 
 import dataclasses
+import queue
 import threading
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -184,6 +191,71 @@ class _Mapper:
         self._thread.join()
 
 
+T = TypeVar("T")
+
+
+class _SlamThread:
+    """The SLAM thread: every SLAM call of perception and of the tree's loop closures, in order.
+
+    A FIFO, unlike the mapper: SLAM needs every odometry reading and every detection, in the
+    order they happened. After each call it publishes the backend's ``T_world_odom``, which the
+    control thread reads instead of calling the backend. An exception ends the thread and is
+    raised on the control thread at its next :meth:`check` (or by :meth:`call`).
+    """
+
+    def __init__(self, publish: Callable[[], None]):
+        self._publish = publish
+        self._jobs: queue.SimpleQueue[tuple[Callable[[], Any], Future] | None] = queue.SimpleQueue()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="amslam-slam", daemon=True)
+        self._thread.start()
+
+    def submit(self, job: Callable[[], T]) -> Future:
+        """Queue ``job``; its future has its result once every earlier job has run."""
+        self.check()
+        future: Future = Future()
+        self._jobs.put((job, future))
+        return future
+
+    def call(self, job: Callable[[], T]) -> T:
+        """Run ``job`` after every queued job, and wait for its result (or its exception)."""
+        future = self.submit(job)
+        try:
+            return future.result()
+        except BaseException as exc:
+            if exc is self._error:  # raised here: not again at the next check
+                self._error = None
+            raise
+
+    def check(self) -> None:
+        """Raise, on the caller's thread, what ended the SLAM thread."""
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def _run(self) -> None:
+        while (item := self._jobs.get()) is not None:
+            job, future = item
+            try:
+                result = job()
+                self._publish()
+            except BaseException as exc:  # noqa: BLE001 — handed to the control thread
+                self._error = exc
+                future.set_exception(exc)
+                self._fail_queued(exc)
+                return
+            future.set_result(result)
+
+    def _fail_queued(self, exc: BaseException) -> None:
+        while (item := self._jobs.get()) is not None:
+            item[1].set_exception(exc)
+
+    def close(self) -> None:
+        """Run what is queued, then stop."""
+        self._jobs.put(None)
+        self._thread.join()
+
+
 #: width (px) a frame is kept at for a rebuild of the global map: the global map's 0.25 m voxels
 #: take every 4th pixel of 320 and every 8th of 640 (``auto_stride``), about 80 across
 KEPT_FRAME_WIDTH = 80
@@ -274,7 +346,23 @@ class Perception:
         self._detecting: tuple[Future, Frame] | None = None
         self._mapper = None if platform.simulated else _Mapper(self._update_global, self.health)
         self._mapper_events: deque[tuple[float, str, dict]] = deque()  # for the control thread to write
+        self._correction = _frozen(slam.T_world_odom())  # the SLAM thread's latest (real vehicle)
+        self._slam = None if platform.simulated else _SlamThread(self._publish_correction)
+        self._keyframes: deque[tuple[float, Any]] = deque()  # the SLAM thread's, for the observers
         self.snapshot = self._publish(platform.time(), platform.odometry())
+
+    def T_world_odom(self) -> np.ndarray:
+        """SLAM's correction of the odometry frame: the backend's now in the simulator, on a real
+        vehicle the one the SLAM thread published after its latest call (never a wait)."""
+        return self.slam.T_world_odom() if self._slam is None else self._correction
+
+    def on_slam_thread(self, job: Callable[[], T]) -> T:
+        """Run ``job`` (SLAM calls) after everything perception handed SLAM so far, and return
+        its result: a loop-closure attempt must see every detection made before it."""
+        return job() if self._slam is None else self._slam.call(job)
+
+    def _publish_correction(self) -> None:
+        self._correction = _frozen(self.slam.T_world_odom())
 
     def refresh_viewpoints(self) -> None:
         """Recompute viewpoints at the next frame (a goal was visited or found unreachable)."""
@@ -295,15 +383,13 @@ class Perception:
         here = odom.T_odom_body[:3, 3]
         self.distance += float(np.linalg.norm(here - self._last_position))
         self._last_position = here.copy()
-        with check.calling("slam", "add_odometry()"):
-            keyposed = self.slam.add_odometry(odom)
-        if keyposed:
-            self.measurements.keypose(odom, truth)
-            if self.exploration.reanchor_map:
-                self._keypose_odometry[float(odom.stamp)] = odom.T_odom_body.copy()
-            keyposes = self.slam.keyposes()
-            if keyposes:
-                self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
+        if self._slam is None:
+            self._add_odometry(t, odom, truth)
+        else:
+            self._slam.submit(lambda: self._add_odometry(t, odom, truth))
+            while self._keyframes:
+                when, keypose = self._keyframes.popleft()
+                self.hook("amslam_keyframe", t=when, keypose=keypose)
         if self._mapper is not None:
             self._mapper.check()
             while self._mapper_events:
@@ -327,13 +413,32 @@ class Perception:
             self._mapper.close()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
+        if self._slam is not None:
+            self._slam.close()
 
     # -- the modules ---------------------------------------------------------------------------
+
+    def _add_odometry(self, t: float, odom: Odometry, truth: np.ndarray | None) -> None:
+        """Odometry to SLAM; a key pose it made to the base's log and the observers."""
+        with self.boundary.calling("slam", "add_odometry()"):
+            keyposed = self.slam.add_odometry(odom)
+        if not keyposed:
+            return
+        self.measurements.keypose(odom, truth)
+        if self.exploration.reanchor_map:
+            self._keypose_odometry[float(odom.stamp)] = odom.T_odom_body.copy()
+        keyposes = self.slam.keyposes()
+        if not keyposes:
+            return
+        if self._slam is None:
+            self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
+        else:  # the observers are called on the control thread
+            self._keyframes.append((t, keyposes[-1]))
 
     def _integrate(self, frame: Frame) -> None:
         check = self.boundary
         with check.calling("slam", "T_world_odom()"):
-            T_world_odom = check.pose("slam", "T_world_odom()", self.slam.T_world_odom())
+            T_world_odom = check.pose("slam", "T_world_odom()", self.T_world_odom())
         with check.calling("mapping", "integrate_local()"):
             self.mapping.integrate_local(frame.depth, frame.K, frame.T_odom_cam)
         job, self._refresh = _GlobalUpdate(frame, T_world_odom, self._refresh), False
@@ -425,11 +530,17 @@ class Perception:
             self._mapper_events.append((t, name, fields))
 
     def _feed(self, frame: Frame, detections: list[Detection]) -> None:
+        if self._slam is None:
+            self._add_detections(frame, detections)
+        else:
+            self._slam.submit(lambda: self._add_detections(frame, detections))
+
+    def _add_detections(self, frame: Frame, detections: list[Detection]) -> None:
         """Detections to SLAM at the pose of the frame they were made in, and to the base's log."""
         frame_odom = Odometry(frame.stamp, frame.T_odom_cam @ invert(self.T_body_cam))
         with self.boundary.calling("slam", "add_detections()"):
             self.slam.add_detections(frame_odom, self.T_body_cam, detections)
-        if self._pool is not None:
+        if self._slam is not None:
             self.health.detection_latency.append(self.platform.time() - frame.stamp)
         T_truth = frame.T_world_cam_truth
         body_truth = None if T_truth is None else T_truth @ invert(self.T_body_cam)
@@ -440,24 +551,31 @@ class Perception:
         if t >= self.rates.trajectory:
             self.rates.trajectory = t + 1.0 / ex.trajectory_rate_hz
             self.rundir.pose("vio", t, odom.T_odom_body)
-            self.rundir.pose("slam", t, self.slam.T_world_odom() @ odom.T_odom_body)
+            self.rundir.pose("slam", t, self.T_world_odom() @ odom.T_odom_body)
             self.vio.append((t, odom.T_odom_body.copy()))
             if truth is not None:
                 self.rundir.pose("ground_truth", t, truth)
                 self.truth.append((t, truth.copy()))
         if t >= self.rates.sample:
             self.rates.sample = t + ex.uncertainty_period
-            pose_trace, landmark_trace = self.slam.uncertainty()
-            self.samples["uncertainty"].append((t, self.distance, pose_trace, landmark_trace))
+            distance = self.distance
+            if self._slam is None:
+                self._sample_uncertainty(t, distance)
+            else:
+                self._slam.submit(lambda: self._sample_uncertainty(t, distance))
             explored = self.mapping.explored_volume() if self._mapper is None else self._explored_volume
             self.samples["explored"].append((t, self.distance, explored))
+
+    def _sample_uncertainty(self, t: float, distance: float) -> None:
+        pose_trace, landmark_trace = self.slam.uncertainty()
+        self.samples["uncertainty"].append((t, distance, pose_trace, landmark_trace))
 
     def _publish(self, t: float, odom: Odometry) -> Snapshot:
         explored = self.samples["explored"]
         return Snapshot(
             t=t,
             odometry=Odometry(odom.stamp, _frozen(odom.T_odom_body)),
-            T_world_odom=_frozen(self.boundary.pose("slam", "T_world_odom()", self.slam.T_world_odom())),
+            T_world_odom=_frozen(self.boundary.pose("slam", "T_world_odom()", self.T_world_odom())),
             distance=self.distance,
             viewpoints=self._viewpoints,
             explored_volume=explored[-1][2] if explored else 0.0,

@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 
@@ -133,6 +134,8 @@ class PlanningService:
     camera: CameraModel
     threaded: bool  # plan on the planner thread (a real vehicle) rather than at once
     refresh_viewpoints: Callable[[], None] = lambda: None  # ask perception for fresh viewpoints
+    #: runs SLAM calls after everything perception handed SLAM (perception's SLAM thread)
+    on_slam_thread: Callable[[Callable[[], Any]], Any] = lambda job: job()
     snapshot: Snapshot | None = None  # the latest, published by the runner each tick
     unreachable: list[np.ndarray] = field(default_factory=list)
     visited: list[np.ndarray] = field(default_factory=list)
@@ -350,7 +353,9 @@ class PlanningService:
         if candidate is not None:
             for i in candidate.landmark_ids:
                 self.slc_tried_at[i] = now.distance
-        result = self.slam.try_loop_closure(now.odometry, self.camera.T_body_cam, [])
+        result = self.on_slam_thread(
+            lambda: self.slam.try_loop_closure(now.odometry, self.camera.T_body_cam, [])
+        )
         self.slc_log.append((now.t, now.distance, result))
         return result
 

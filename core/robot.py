@@ -31,7 +31,7 @@ import numpy as np
 
 from amslam.errors import AmslamError
 from amslam.geometry import invert, transform_points, yaw_of
-from amslam.interfaces import Mapping, Platform, Slam
+from amslam.interfaces import Mapping, Platform
 from amslam.mission import LimitsSection
 from amslam.setpoints import SetpointFilter
 from amslam.types import CameraModel, Failsafe, LoopClosureResult, Odometry, RobotSpec, TourItem, Viewpoint
@@ -127,7 +127,10 @@ class Robot:
 
     platform: Platform
     mapping: Mapping
-    slam: Slam
+    #: SLAM's correction ``T_world_odom`` now (:meth:`amslam.perception.Perception.T_world_odom`:
+    #: on a real vehicle the SLAM thread's latest, never a wait for the graph)
+    correction: Callable[[], np.ndarray]
+    slam_name: str  # the SLAM backend's, for errors
     spec: RobotSpec
     limits: LimitsSection
     setpoints: SetpointFilter
@@ -150,7 +153,7 @@ class Robot:
 
     def pose_world(self) -> np.ndarray:
         """Best estimate of ``T_world_body``: the SLAM correction applied to the VIO pose."""
-        return self.slam.T_world_odom() @ self.platform.odometry().T_odom_body
+        return self.correction() @ self.platform.odometry().T_odom_body
 
     def position_world(self) -> np.ndarray:
         return self.pose_world()[:3, 3]
@@ -185,13 +188,13 @@ class Robot:
         Returns the world-frame position actually sent: the guards may have moved it, and a
         behaviour waiting to reach the goal must know when it is as close as they allow.
         """
-        T_world_odom = self.slam.T_world_odom()
+        T_world_odom = self.correction()
         if not (np.all(np.isfinite(T_world_odom)) and np.all(np.isfinite(position)) and np.isfinite(yaw)):
             # A NaN setpoint would fly the vehicle nowhere the log can say (a simulated run once
             # ended in an SVD error three modules later): hold, and fail the run by name.
             self.hold()
             culprit = (
-                f"the SLAM backend {type(self.slam).__name__} returned T_world_odom {T_world_odom.tolist()}"
+                f"the SLAM backend {self.slam_name} returned T_world_odom {T_world_odom.tolist()}"
                 if not np.all(np.isfinite(T_world_odom))
                 else f"a behaviour asked for setpoint {np.asarray(position).tolist()}, yaw {yaw}"
             )
@@ -224,7 +227,7 @@ class Robot:
         spot = self.setpoints.landing_spot(here)
         if spot is None:
             return None
-        return transform_points(self.slam.T_world_odom(), spot[None])[0]
+        return transform_points(self.correction(), spot[None])[0]
 
     # -- navigation ----------------------------------------------------------------------------
 
@@ -268,7 +271,7 @@ class Robot:
 
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool:
         """Check a world-frame segment against the fresh local (odometry-frame) map."""
-        T_odom_world = invert(self.slam.T_world_odom())
+        T_odom_world = invert(self.correction())
         a, b = transform_points(T_odom_world, np.stack([a_world, b_world]))
         return self.mapping.segment_free(a, b, local=True)
 
@@ -278,7 +281,7 @@ class Robot:
     def plan_local_path(self, start_world: np.ndarray, goal_world: np.ndarray) -> np.ndarray | None:
         """Waypoints (world frame) from ``start_world`` to ``goal_world`` on the fine local map,
         planned in the odometry frame it was built in, or None (see ``Mapping.plan_local_path``)."""
-        T_world_odom = self.slam.T_world_odom()
+        T_world_odom = self.correction()
         ends = transform_points(invert(T_world_odom), np.stack([start_world, goal_world]))
         path = self.mapping.plan_local_path(ends[0], ends[1], margin=self.LOCAL_MARGIN)
         return None if path is None else transform_points(T_world_odom, np.asarray(path, float))

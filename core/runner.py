@@ -323,13 +323,15 @@ class Runner:
             threaded=not platform.simulated,
             clock=None if platform.simulated else platform.time,
             refresh_viewpoints=perception.refresh_viewpoints,
+            on_slam_thread=perception.on_slam_thread,
             snapshot=perception.snapshot,
             boundary=self.boundary,
         )
         robot = Robot(
             platform=platform,
             mapping=shared["mapping"],
-            slam=shared["slam"],
+            correction=perception.T_world_odom,
+            slam_name=type(self.backends["slam"]).__name__,
             spec=self.context.robot,
             limits=model.limits,
             setpoints=SetpointFilter(

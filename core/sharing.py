@@ -1,14 +1,15 @@
 """The thread rule's lock: a backend that two threads may call.
 
-On a real vehicle three threads run (docs/architecture.md, "Threads"): the control thread
-(perception step, behaviour tree, setpoints), the planner thread (one plan at a time) and the
-detector thread (``Detector.detect`` on a frame). The planner thread queries the SLAM and mapping
-backends (``slc_candidates``, ``landmarks``, ``path_costs``) while the control thread integrates
-frames and detections into them, and neither backend is written for that: gtsam's iSAM2 and a
-voxel map's cached search graph are rewritten by queries as well as by updates. So the runtime
-hands both threads the same :class:`Shared` wrapper of each of these backends, and every call
-into it holds the backend's one re-entrant lock: a call sees the backend between two whole
-calls of the other thread, never in the middle of one.
+On a real vehicle several threads run (docs/architecture.md, "Threads"): the control thread
+(perception step, behaviour tree, setpoints, the local map), the mapper and SLAM threads
+(the global map's update; every SLAM call of perception), the planner and path threads, and the
+detector thread. The planner thread queries the SLAM and mapping backends (``slc_candidates``,
+``landmarks``, ``path_costs``) while the others integrate frames and detections into them, and
+neither backend is written for that: gtsam's iSAM2 and a voxel map's cached search graph are
+rewritten by queries as well as by updates. So the runtime hands every thread the same
+:class:`Shared` wrapper of each of these backends, and every call into it holds the backend's
+one re-entrant lock: a call sees the backend between two whole calls of another thread, never
+in the middle of one.
 
 A mapping backend whose local map is separate from its global map
 (``Mapping.separate_local_map``) gets two locks: the local map's calls take one, every other call

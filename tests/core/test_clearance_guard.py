@@ -62,7 +62,8 @@ def make_robot(world: BoxMap, start) -> Robot:
     return Robot(
         platform=PointVehicle(start),
         mapping=world,
-        slam=SimpleNamespace(T_world_odom=lambda: np.eye(4)),
+        correction=lambda: np.eye(4),
+        slam_name="no SLAM",
         spec=RobotSpec(radius=RADIUS),
         limits=LimitsSection(),
         setpoints=SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0),
@@ -120,8 +121,8 @@ def test_a_non_finite_setpoint_holds_and_names_the_culprit():
     with pytest.raises(AmslamError, match="behaviour asked for setpoint"):
         robot.send_setpoint_world(np.array([np.nan, 0.0, 1.2]), 0.0)
     np.testing.assert_allclose(robot.platform.setpoints[-1], [1.0, 0.5, 1.2])  # held where it was
-    robot.slam = SimpleNamespace(T_world_odom=lambda: np.full((4, 4), np.nan))
-    with pytest.raises(AmslamError, match="SLAM backend"):
+    robot.correction = lambda: np.full((4, 4), np.nan)
+    with pytest.raises(AmslamError, match="SLAM backend no SLAM returned T_world_odom"):
         robot.send_setpoint_world(np.array([1.0, 0.0, 1.2]), 0.0)
 
 
@@ -158,7 +159,7 @@ def test_the_ceiling_is_placed_in_the_odometry_frame_by_the_slam_correction():
     robot.setpoints = SetpointFilter(robot.mapping, RADIUS, 0.0, 0.0, ceiling=2.0)
     T = np.eye(4)
     T[2, 3] = 0.5  # the odometry frame sits 0.5 m above the world's origin
-    robot.slam = SimpleNamespace(T_world_odom=lambda: T)
+    robot.correction = lambda: T
     sent_world = robot.send_setpoint_world(np.array([0.0, 0.0, 3.0]), 0.0)
     assert sent_world[2] == pytest.approx(2.0)
     np.testing.assert_allclose(robot.platform.setpoints[-1], [0.0, 0.0, 1.5])
@@ -206,9 +207,7 @@ def test_no_floor_in_reach_or_no_clear_spot_gives_none() -> None:
 def test_robot_lands_at_a_clear_spot_in_the_world_frame() -> None:
     world = BoxMap([FLOOR, TABLE])
     robot = make_robot(world, [0.0, 0.0, 1.2])
-    robot.slam = SimpleNamespace(
-        T_world_odom=lambda: np.array([[1, 0, 0, 10.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-    )
+    robot.correction = lambda: np.array([[1, 0, 0, 10.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
     spot = robot.landing_spot_world()
     assert spot is not None
     odom = spot - np.array([10.0, 0.0, 0.0])  # back into the odometry frame

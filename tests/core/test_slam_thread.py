@@ -1,0 +1,194 @@
+"""The SLAM thread of a real vehicle: the factor graph off the control thread.
+
+In the SITL flight of the demo building a third of the late control ticks waited for SLAM: the
+control thread computed the graph's marginals for the uncertainty samples (a quarter of a second
+at 2000 key poses), and its odometry waited for the graph's lock while the planner thread ranked
+loop-closure candidates (issue #17). These tests hold what replaces it: the control thread hands
+SLAM its calls and goes on; SLAM gets them in the order they happened; the control thread flies
+on the correction SLAM published last; a loop-closure attempt sees everything handed over before
+it; key poses reach the observers on the control thread; and a failing SLAM call ends the run on
+the control thread, naming the backend.
+"""
+
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from amslam.boundary import BackendError, Boundary
+from amslam.mission import ExplorationSection
+from amslam.perception import Perception
+from amslam.types import Detection, KeyPose, Odometry
+from tests.core.test_mapper_thread import WAIT, SlowGlobalMap, WallClockPlatform
+
+
+class RecordingSlam:
+    """Records its calls in order; ``uncertainty`` blocks until released; the correction is a
+    shift along x by the number of key poses made (a key pose at every 2nd odometry reading)."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, float]] = []
+        self.in_uncertainty = threading.Event()
+        self.release = threading.Event()
+        self.threads: set[str] = set()
+        self.fail: Exception | None = None
+        self.shift = 0.0
+
+    def add_odometry(self, odom: Odometry) -> bool:
+        if self.fail is not None:
+            raise self.fail
+        self.threads.add(threading.current_thread().name)
+        self.calls.append(("odometry", round(odom.stamp, 3)))
+        keyposed = len([c for c in self.calls if c[0] == "odometry"]) % 2 == 0
+        if keyposed:
+            self.shift += 1.0
+        return keyposed
+
+    def in_order(self) -> list[tuple[str, float]]:
+        """The calls but detections (the detector thread decides when the first one comes)."""
+        return [c for c in self.calls if c[0] != "detections"]
+
+    def keyposes(self) -> list[KeyPose]:
+        return [KeyPose(int(self.shift), 0.0, np.eye(4), 0.0)] if self.shift else []
+
+    def T_world_odom(self) -> np.ndarray:
+        T = np.eye(4)
+        T[0, 3] = self.shift
+        return T
+
+    def add_detections(self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]) -> None:
+        self.calls.append(("detections", round(odom.stamp, 3)))
+
+    def uncertainty(self) -> tuple[float, float]:
+        self.calls.append(("uncertainty", 0.0))
+        self.in_uncertainty.set()
+        assert self.release.wait(WAIT), "the test never released the uncertainty sample"
+        return (1.0, 2.0)
+
+    def try_loop_closure(self, odom, T_body_cam, detections) -> str:
+        self.calls.append(("loop closure", round(odom.stamp, 3)))
+        return "closed"
+
+
+def perception(slam: RecordingSlam, hook=lambda *a, **k: None, detect_hz: float = 0.001) -> Perception:
+    mapping = SlowGlobalMap()
+    mapping.release.set()
+    detector = SimpleNamespace(detect=lambda frame: [], rate_hz=detect_hz)
+    rundir = SimpleNamespace(pose=lambda *a: None, event=lambda *a, **k: None)
+    measurements = SimpleNamespace(keypose=lambda *a: None, detections=lambda *a: None)
+    return Perception(
+        WallClockPlatform(),
+        slam,
+        mapping,
+        detector,
+        ExplorationSection(uncertainty_period=100.0),  # one sample: at the first step
+        rundir,
+        measurements,
+        hook=hook,
+        boundary=Boundary(),
+    )
+
+
+def _until(condition) -> bool:
+    for _ in range(200):
+        if condition():
+            return True
+        threading.Event().wait(0.02)
+    return False
+
+
+def test_the_control_thread_goes_on_while_slam_samples_its_uncertainty_and_slam_gets_every_call_in_order():
+    slam = RecordingSlam()
+    p = perception(slam)
+    try:
+        p.step(0.1)  # odometry 0.1, then the uncertainty sample, which blocks the SLAM thread
+        assert slam.in_uncertainty.wait(WAIT)
+        for _ in range(4):  # the control thread goes on: odometry 0.2 .. 0.5 wait in the queue
+            snapshot = p.step(0.1)
+        assert snapshot.t == pytest.approx(0.5)
+        assert slam.in_order() == [("odometry", 0.1), ("uncertainty", 0.0)]
+        assert snapshot.T_world_odom[0, 3] == 0.0  # the correction published before the sample
+        slam.release.set()
+        assert _until(lambda: len(slam.in_order()) == 6)
+        assert slam.in_order()[2:] == [
+            ("odometry", 0.2),
+            ("odometry", 0.3),
+            ("odometry", 0.4),
+            ("odometry", 0.5),
+        ]
+        assert slam.threads == {"amslam-slam"}
+        assert p.samples["uncertainty"] == [(pytest.approx(0.1), 0.0, 1.0, 2.0)]
+        assert _until(lambda: p.T_world_odom()[0, 3] == 2.0)  # two key poses made
+        assert p.step(0.1).T_world_odom[0, 3] == 2.0  # what the control thread flies on
+    finally:
+        slam.release.set()
+        p.close()
+
+
+def test_a_loop_closure_attempt_runs_after_everything_handed_to_slam_before_it():
+    slam = RecordingSlam()
+    p = perception(slam)
+    try:
+        p.step(0.1)
+        assert slam.in_uncertainty.wait(WAIT)
+        p.step(0.1)
+        now = Odometry(0.2, np.eye(4))
+        attempt = threading.Thread(
+            target=lambda: slam.calls.append(
+                ("result", p.on_slam_thread(lambda: slam.try_loop_closure(now, None, [])))
+            )
+        )
+        attempt.start()
+        attempt.join(timeout=0.5)
+        assert attempt.is_alive()  # it waits for the queued calls, however long they take
+        slam.release.set()
+        attempt.join(timeout=WAIT)
+        names = [c[0] for c in slam.calls]
+        assert names.index("loop closure") > max(
+            i for i, n in enumerate(names) if n != "result" and n != "loop closure"
+        )
+        assert slam.calls[-1] == ("result", "closed")
+        assert [c[0] for c in slam.in_order()][-3:] == [
+            "odometry",
+            "loop closure",
+            "result",
+        ]  # 0.2 had waited
+    finally:
+        slam.release.set()
+        p.close()
+
+
+def test_key_poses_reach_the_observers_on_the_control_thread():
+    slam = RecordingSlam()
+    slam.release.set()
+    seen = []
+    p = perception(
+        slam, hook=lambda name, **k: seen.append((name, k["keypose"].id, threading.current_thread().name))
+    )
+    try:
+        for _ in range(4):
+            p.step(0.1)
+        assert _until(lambda: len([c for c in slam.calls if c[0] == "odometry"]) == 4)
+        p.step(0.1)
+        me = threading.current_thread().name
+        assert seen == [("amslam_keyframe", 1, me), ("amslam_keyframe", 2, me)]
+    finally:
+        p.close()
+
+
+def test_a_failing_slam_call_ends_the_run_on_the_control_thread_naming_the_backend():
+    slam = RecordingSlam()
+    slam.release.set()
+    p = perception(slam)
+    try:
+        p.step(0.1)
+        slam.fail = ValueError("indeterminant linear system")
+        with pytest.raises(BackendError, match=r"add_odometry\(\) raised ValueError: indeterminant"):
+            for _ in range(100):
+                p.step(0.1)
+                threading.Event().wait(0.02)
+    finally:
+        p.close()
