@@ -25,7 +25,12 @@ Each late tick is also logged, never only counted: ``late_ticks.jsonl`` in the r
 line per late tick (its time, interval, the behaviour the tick before it ended in) with what every
 thread was doing when the tick was a quarter period late. A watchdog thread (``amslam-tick-watch``)
 takes those stacks at that moment, as ``py-spy dump`` would; it needs the GIL to run, so a C++ call
-that holds the GIL for longer is seen only when it returns (``seen_after_ms`` says how late).
+that holds the GIL for longer is seen only when it returns (``seen_after_ms`` says how late). When
+the watchdog itself could not run for a quarter period or more during the tick (a C++ call held
+the GIL: a gtsam elimination, say), the line says for how long (``gil_held_ms``) and what every
+thread was doing the moment it ran again (``threads_when_released``): the thread that held the GIL
+is still at, or just after, the call. A line is written at the tick after the late one, so the
+watchdog has had its turn.
 
 A simulated run (simulated time advances by exactly one period per tick) gets none of these.
 """
@@ -65,14 +70,26 @@ class _Ticks:
         self.load_start = _load()
         self.log_path = run_dir / "late_ticks.jsonl"
         self.watch = _Watchdog(OVERRUN_FACTOR * period, threading.get_ident())
+        self.pending: dict[str, Any] | None = None  # the last late tick, written at the next
 
-    def log_late(self, t: float, interval: float) -> None:
-        record = {
+    def late(self, t: float, interval: float) -> None:
+        self.flush()
+        self.pending = {
             "t": round(t, 3),
             "interval_ms": round(1000 * interval, 1),
             "after": self.last_tip,
             **self.watch.take(),
+            "_since": time.monotonic() - interval,  # when the late tick began (not written)
         }
+
+    def flush(self) -> None:
+        """Write the pending late tick, with a GIL stall the watchdog saw during it."""
+        record, self.pending = self.pending, None
+        if record is None:
+            return
+        stall = self.watch.stall_since(record.pop("_since"))
+        if stall is not None:
+            record.update(stall)
         try:
             with self.log_path.open("a") as out:
                 out.write(json.dumps(record) + "\n")
@@ -87,6 +104,7 @@ class _Watchdog:
         self.late, self.control_thread = late, control_thread
         self.tick_wall = time.monotonic()
         self.seen: dict[str, Any] = {}
+        self.stall: tuple[float, dict[str, Any]] | None = None  # (when, what) the GIL held it off
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="amslam-tick-watch", daemon=True)
@@ -102,13 +120,34 @@ class _Watchdog:
             seen, self.seen = self.seen, {}
         return seen
 
+    def stall_since(self, since: float) -> dict[str, Any] | None:
+        """The latest time the watchdog could not run for ``late`` or more, if it ended after
+        ``since``: how long, and every thread's stack when it ran again."""
+        with self._lock:
+            stall = self.stall
+        if stall is None or stall[0] < since:
+            return None
+        return stall[1]
+
     def stop(self) -> None:
         self._stop.set()
         self._thread.join()
 
     def _run(self) -> None:
         captured_for = None
-        while not self._stop.wait(self.late / 5):
+        nap = self.late / 5
+        while True:
+            before = time.monotonic()
+            if self._stop.wait(nap):
+                return
+            now = time.monotonic()
+            if now - before - nap >= self.late:  # held off: a call held the GIL that long
+                stall = {
+                    "gil_held_ms": round(1000 * (now - before - nap), 1),
+                    "threads_when_released": _stacks(self.control_thread),
+                }
+                with self._lock:
+                    self.stall = (now, stall)
             with self._lock:
                 started = self.tick_wall
             since = time.monotonic() - started
@@ -176,7 +215,9 @@ def amslam_tick(t: float, tree: Any) -> None:
         ticks.intervals.append(t - ticks.last)
         if t - ticks.last > OVERRUN_FACTOR * ticks.period:
             ticks.late_after[ticks.last_tip] = ticks.late_after.get(ticks.last_tip, 0) + 1
-            ticks.log_late(t, t - ticks.last)
+            ticks.late(t, t - ticks.last)
+        else:
+            ticks.flush()
     ticks.watch.ticked()
     ticks.last = t
     tip = tree.tip() if tree is not None else None
@@ -190,6 +231,7 @@ def amslam_run_metrics(summary: Any) -> dict[str, Any]:
     if ticks is None:
         return {}
     ticks.watch.stop()
+    ticks.flush()
     out: dict[str, Any] = {
         "control_ticks": len(ticks.intervals) + (ticks.last is not None),
         "control_period_ms": round(1000 * ticks.period, 1),

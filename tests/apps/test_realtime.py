@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 
@@ -93,3 +94,39 @@ def test_a_late_tick_is_logged_with_what_the_control_thread_was_doing_then(tmp_p
     assert any(f.endswith(" a_slow_map_update") for f in control), control
     assert "amslam-tick-watch" not in record["threads"]
     assert not [t for t in threading.enumerate() if t.name == "amslam-tick-watch"]  # stopped
+
+
+def _hold_the_gil(at_least: float) -> None:
+    """A C call that does not let go of the GIL (the regular expression engine backtracking),
+    made longer until one has held it ``at_least`` seconds: like a long gtsam elimination."""
+    n = 16
+    while True:
+        start = time.monotonic()
+        re.match(r"(a+)+$", "a" * n + "b")
+        if time.monotonic() - start >= at_least:
+            return
+        n += 1
+
+
+def test_a_late_tick_names_the_thread_whose_c_call_held_the_gil(tmp_path):
+    realtime.amslam_run_start(tmp_path, {"exploration": {"control_rate_hz": 10}}, world=None)
+    start = time.monotonic()
+    realtime.amslam_tick(0.0, tree=_Tree("Replan"))
+
+    def a_c_call_holding_the_gil():
+        _hold_the_gil(0.3)
+        time.sleep(0.3)  # still here when the watchdog runs again
+
+    planner = threading.Thread(target=a_c_call_holding_the_gil, name="amslam-planner_0")
+    planner.start()
+    planner.join()
+    now = time.monotonic() - start
+    realtime.amslam_tick(now, tree=_Tree("GoTo"))  # late
+    realtime.amslam_tick(now + 0.1, tree=_Tree("GoTo"))  # on time: the late one is written now
+    realtime.amslam_run_metrics(summary=None)
+    (line,) = (tmp_path / "late_ticks.jsonl").read_text().splitlines()
+    record = json.loads(line)
+    assert record["after"] == "Replan"
+    assert record["gil_held_ms"] >= 125.0
+    held = record["threads_when_released"]["amslam-planner_0"]
+    assert any(f.endswith(" a_c_call_holding_the_gil") for f in held), held
