@@ -267,8 +267,11 @@ def samples_clear(
     return bool(np.all(np.sqrt((gap**2).sum(-1)) >= radius))
 
 
-#: sources per Dijkstra call in :meth:`FreeSpaceGraph.costs`
-DIJKSTRA_BATCH = 4
+#: sources per Dijkstra call in :meth:`FreeSpaceGraph.costs`: scipy's Dijkstra holds the
+#: interpreter for the whole call (about 12 ms a source on the demo's 35 000-node global map, 50 ms
+#: for four), and on a real vehicle the control thread waits that long for it each time it lets
+#: go of the interpreter; one source a call costs 7 % more than four in all
+DIJKSTRA_BATCH = 1
 
 
 class FreeSpaceGraph:
@@ -331,7 +334,11 @@ class FreeSpaceGraph:
                 weights.append(length * 0.5 * (penalty[sa][both] + penalty[sb][both]))
         r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
         n = len(self.node_index)
-        self.graph = sparse.csr_matrix((w, (r, c)), shape=(n, n))
+        half = sparse.csr_matrix((w, (r, c)), shape=(n, n))  # each edge once
+        # Both directions stored, searched as a directed graph: with ``directed=False`` scipy
+        # transposes the matrix at every call, holding the interpreter while it does (the planner
+        # thread's path costs delayed the control ticks of a SITL flight: late_ticks.jsonl).
+        self.graph = (half + half.T).tocsr()
 
     @property
     def n_nodes(self) -> int:
@@ -413,12 +420,12 @@ class FreeSpaceGraph:
         if not ok_s.any() or not ok_t.any() or self.n_nodes == 0:
             return out
         uniq, inverse = np.unique(s_nodes[ok_s], return_inverse=True)
-        # A few sources per call: between two calls another thread gets the interpreter (a real
+        # One source per call: between two calls another thread gets the interpreter (a real
         # vehicle's control loop ticks while the planner thread asks for a tour's costs; one call
         # for 60 sources held it for up to 0.3 s: late_ticks.jsonl of a SITL flight).
         dist = np.vstack(
             [
-                csgraph.dijkstra(self.graph, directed=False, indices=uniq[i : i + DIJKSTRA_BATCH])
+                csgraph.dijkstra(self.graph, directed=True, indices=uniq[i : i + DIJKSTRA_BATCH])
                 for i in range(0, len(uniq), DIJKSTRA_BATCH)
             ]
         )
@@ -440,7 +447,7 @@ class FreeSpaceGraph:
             return None
         if s == g:
             return np.array([start, goal], dtype=float)
-        _, pred = csgraph.dijkstra(self.graph, directed=False, indices=s, return_predecessors=True)
+        _, pred = csgraph.dijkstra(self.graph, directed=True, indices=s, return_predecessors=True)
         if pred[g] < 0:
             return None
         nodes = [g]
