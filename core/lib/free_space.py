@@ -2,7 +2,8 @@
 
 Backends hand over an int8 ``VoxelState`` block (indices ``[lo, lo + shape)`` of the shared lattice)
 and these functions do the rest: robot-radius inflation, the 26-connected free-space graph, multi
-source Dijkstra (``scipy.sparse.csgraph``), path extraction and line-of-sight smoothing.
+source Dijkstra for path costs (:mod:`amslam.lib.dijkstra`, which lets other threads run), one path
+(``scipy.sparse.csgraph``), path extraction and line-of-sight smoothing.
 """
 
 from __future__ import annotations
@@ -267,13 +268,6 @@ def samples_clear(
     return bool(np.all(np.sqrt((gap**2).sum(-1)) >= radius))
 
 
-#: sources per Dijkstra call in :meth:`FreeSpaceGraph.costs`: scipy's Dijkstra holds the
-#: interpreter for the whole call (about 12 ms a source on the demo's 35 000-node global map, 50 ms
-#: for four), and on a real vehicle the control thread waits that long for it each time it lets
-#: go of the interpreter; one source a call costs 7 % more than four in all
-DIJKSTRA_BATCH = 1
-
-
 class FreeSpaceGraph:
     """26-connected graph over the traversable voxels of a dense block, for shortest paths.
 
@@ -335,9 +329,8 @@ class FreeSpaceGraph:
         r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
         n = len(self.node_index)
         half = sparse.csr_matrix((w, (r, c)), shape=(n, n))  # each edge once
-        # Both directions stored, searched as a directed graph: with ``directed=False`` scipy
-        # transposes the matrix at every call, holding the interpreter while it does (the planner
-        # thread's path costs delayed the control ticks of a SITL flight: late_ticks.jsonl).
+        # Both directions stored, searched as a directed graph (with ``directed=False`` scipy
+        # transposes the matrix at every call; amslam.lib.dijkstra takes it as it is)
         self.graph = (half + half.T).tocsr()
 
     @property
@@ -409,7 +402,7 @@ class FreeSpaceGraph:
 
     def costs(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """S×T shortest path lengths (m), point to point, inf where unreachable."""
-        from scipy.sparse import csgraph
+        from amslam.lib import dijkstra
 
         sources = np.asarray(sources, dtype=float).reshape(-1, 3)
         targets = np.asarray(targets, dtype=float).reshape(-1, 3)
@@ -420,15 +413,9 @@ class FreeSpaceGraph:
         if not ok_s.any() or not ok_t.any() or self.n_nodes == 0:
             return out
         uniq, inverse = np.unique(s_nodes[ok_s], return_inverse=True)
-        # One source per call: between two calls another thread gets the interpreter (a real
-        # vehicle's control loop ticks while the planner thread asks for a tour's costs; one call
-        # for 60 sources held it for up to 0.3 s: late_ticks.jsonl of a SITL flight).
-        dist = np.vstack(
-            [
-                csgraph.dijkstra(self.graph, directed=True, indices=uniq[i : i + DIJKSTRA_BATCH])
-                for i in range(0, len(uniq), DIJKSTRA_BATCH)
-            ]
-        )
+        # Not scipy's Dijkstra: it holds the interpreter, ours lets other threads run (the control
+        # loop of a real vehicle while the planner thread asks for a tour's costs; amslam.lib.dijkstra)
+        dist = dijkstra.distances(self.graph, uniq)
         s_off = np.linalg.norm(sources[ok_s] - self.node_position(s_nodes[ok_s]), axis=1)
         t_off = np.linalg.norm(targets[ok_t] - self.node_position(t_nodes[ok_t]), axis=1)
         sub = dist[inverse][:, t_nodes[ok_t]] + s_off[:, None] + t_off[None, :]

@@ -418,6 +418,10 @@ class VoxelMapBase(Mapping):
         # 99 % and could not find its way home; with this radius two runs in about 30 grazed an
         # obstacle at 0.248 m, robot radius 0.25 m, on paths laid off by the SLAM correction.)
         self.local_radius = float(context.robot.radius - 0.5 * p.local_voxel)
+        if context.world is None:  # a real vehicle: compile the path-cost kernel before take-off
+            from amslam.lib.dijkstra import warm_up
+
+            warm_up()
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)

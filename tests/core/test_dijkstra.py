@@ -1,0 +1,61 @@
+"""The path-cost Dijkstra: scipy's distances, computed while other threads run."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+
+from amslam.lib import dijkstra
+from amslam.lib.free_space import FreeSpaceGraph
+
+
+def _voxel_graph(shape, seed: int = 0) -> FreeSpaceGraph:
+    rng = np.random.default_rng(seed)
+    passable = rng.random(shape) > 0.2
+    passable[shape[0] // 2] = False  # a wall: two halves that do not reach each other
+    states = np.zeros(shape, np.int8)
+    return FreeSpaceGraph(passable, np.zeros(3, np.int64), 0.25, 0.5, states, penalty=1 + rng.random(shape))
+
+
+def test_the_distances_are_scipys_including_the_unreachable():
+    graph = _voxel_graph((20, 15, 6)).graph
+    sources = np.array([0, 7, 7, graph.shape[0] - 1])
+    ours = dijkstra.distances(graph, sources)
+    theirs = csgraph.dijkstra(graph, directed=True, indices=sources)
+    assert np.array_equal(np.isinf(ours), np.isinf(theirs)) and np.isinf(ours).any()
+    np.testing.assert_allclose(ours[np.isfinite(ours)], theirs[np.isfinite(theirs)], rtol=0, atol=1e-12)
+    assert dijkstra.distances(graph, np.array([], np.int64)).shape == (0, graph.shape[0])
+    lone = sparse.csr_matrix((3, 3))
+    assert dijkstra.distances(lone, np.array([1])).tolist() == [[np.inf, 0.0, np.inf]]
+
+
+def test_other_threads_run_while_it_searches():
+    """The reason it exists: scipy's Dijkstra holds the interpreter lock for the whole call, and a
+    real vehicle's control thread waited for the planner's path costs (docs/flight.md)."""
+    graph = _voxel_graph((60, 50, 12)).graph
+    sources = np.arange(0, graph.shape[0], graph.shape[0] // 12)
+    dijkstra.warm_up()
+    beats: list[float] = []
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.is_set():
+            beats.append(time.perf_counter())
+            time.sleep(0.001)
+
+    other = threading.Thread(target=beat)
+    other.start()
+    try:
+        time.sleep(0.01)
+        start = time.perf_counter()
+        dijkstra.distances(graph, sources)
+        end = time.perf_counter()
+    finally:
+        stop.set()
+        other.join()
+    inside = [t for t in beats if start < t < end]
+    assert len(inside) >= 5, f"{len(inside)} beats of the other thread during a {end - start:.3f} s search"
