@@ -123,9 +123,12 @@ class MavlinkVehiclePeer:
         offboard_loss_timeout: PX4 ``COM_OF_LOSS_T``: seconds without a setpoint before landing.
         disarm_after_landing: PX4 ``COM_DISARM_LAND``, s.
         yaw: initial heading (NED, rad).
+        also_to: more (host, port) addresses every message is sent to, as PX4 SITL sends its
+            ground-station stream to UDP 14550 beside the offboard API's 14540.
     """
 
     connect_to: tuple[str, int] | None = None
+    also_to: tuple[tuple[str, int], ...] = ()
     max_speed: float = 2.0
     max_vertical_speed: float = 1.5
     max_yaw_rate: float = 2.0
@@ -223,9 +226,11 @@ class MavlinkVehiclePeer:
     # -- radio --------------------------------------------------------------------------------
 
     def _send_raw(self, data: bytes) -> None:
-        if self._link_up and self._remote is not None:
+        if not self._link_up:
+            return
+        for to in (self._remote, *self.also_to) if self._remote is not None else self.also_to:
             with contextlib.suppress(OSError):  # the client went away; keep flying like a vehicle
-                self._sock.sendto(data, self._remote)
+                self._sock.sendto(data, to)
 
     def _receive(self) -> None:
         while True:

@@ -34,13 +34,13 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from amslam.errors import PlatformError
-from amslam.interfaces import BackendParams, FieldError, Platform, Point, RunContext, lo_below_hi
+from amslam.interfaces import BackendParams, Coordinate, FieldError, Platform, Point, RunContext, lo_below_hi
 from amslam.plugins.mavsdk_platform.camera_sources import CameraSource, CameraSourceParams, make_camera_source
 from amslam.plugins.mavsdk_platform.frames import enu_to_ned, pose_enu_from_ned, yaw_enu_to_ned
 from amslam.types import CameraModel, Failsafe, Frame, Odometry, RobotSpec, VehicleStatus
@@ -53,6 +53,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("amslam.mavsdk")
 
 #: Failsafe actions from least to most conservative.
+_Heading = Annotated[float, Field(ge=-360, le=360)]  # degrees
 _ACTION_RANK = {"return_and_land": 0, "land": 1, "hand_over": 2}
 
 
@@ -145,6 +146,13 @@ class MavsdkPlatform(Platform):
             description="software in the loop: the simulated world `amslam sitl MISSION` flies this"
             " mission's vehicle in (the sim platform's world section: procedural or mesh); the"
             " platform itself does not read it",
+        )
+        world_from_local: tuple[Coordinate, Coordinate, Coordinate, _Heading] | None = Field(
+            None,
+            description="software in the loop with another autopilot (`amslam sitl --camera-only`):"
+            " where its local origin stands in `world` and its heading, [x, y, z, yaw_deg] (ENU,"
+            " m and degrees; PX4 SITL: the spawn pose in the Gazebo world); none: the start the"
+            " simulator chooses, as `amslam sitl`'s own vehicle uses; the platform does not read it",
         )
 
         @model_validator(mode="after")

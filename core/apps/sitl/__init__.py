@@ -11,6 +11,11 @@ One process holds what a PX4 SITL with a depth camera would, for the mission's o
 
 Then ``amslam fly MISSION`` (same file, ``camera.source: stream``) flies the mission against it.
 See docs/flight.md, "Software in the loop".
+
+With ``--camera-only URL`` the process is the camera alone, for an autopilot that brings its own
+vehicle (PX4 SITL): it renders the world at the pose that autopilot reports on ``URL``
+(:mod:`amslam.apps.sitl.reported_pose`). ``--no-camera --gcs HOST:PORT`` makes this process's
+vehicle stand in for PX4 SITL in front of it.
 """
 
 from __future__ import annotations
@@ -40,12 +45,29 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
         "--once", action="store_true", help="exit when the vehicle is down and disarmed after a flight"
     )
     parser.add_argument("--battery", type=float, default=0.9, help="charge at start, 0–1 (default 0.9)")
+    parser.add_argument(
+        "--no-camera",
+        action="store_true",
+        help="the vehicle only, as PX4 SITL is (a camera then comes from --camera-only)",
+    )
+    parser.add_argument(
+        "--gcs",
+        metavar="HOST:PORT",
+        help="also send the vehicle's MAVLink there, as PX4 SITL sends its ground-station stream"
+        " to UDP 14550",
+    )
+    parser.add_argument(
+        "--camera-only",
+        metavar="URL",
+        help="no vehicle: render the camera at the pose an autopilot (PX4 SITL) reports on URL"
+        " (udpin://0.0.0.0:14550), placed in the world by platform.world_from_local",
+    )
 
 
 def _run(args: argparse.Namespace, registry) -> int:
-    from amslam.apps.sitl.run import run_sitl
+    from amslam.apps.sitl.run import run_camera_only, run_sitl
 
-    return run_sitl(args, registry)
+    return (run_camera_only if args.camera_only else run_sitl)(args, registry)
 
 
 @amslam.hookimpl

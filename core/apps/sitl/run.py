@@ -62,14 +62,18 @@ def _sim_params(mission, platform_params):
         raise MissionError(problems) from None
 
 
-def run_sitl(args: argparse.Namespace, registry) -> int:
+def _gcs_address(text: str | None) -> tuple[tuple[str, int], ...]:
+    if not text:
+        return ()
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit():
+        raise AmslamError(f"--gcs {text!r}: give it as HOST:PORT (e.g. 127.0.0.1:14550)")
+    return ((host, int(port)),)
+
+
+def _load_sitl_mission(args: argparse.Namespace, registry):
+    """The mission and its mavsdk platform parameters, checked for a SITL (errors name the key)."""
     from amslam.apps.commands import load_with_registry
-    from amslam.apps.sitl.camera import CameraStreamer
-    from amslam.apps.sitl.record import TruthRecord
-    from amslam.apps.sitl.vehicle import SitlVehicle
-    from amslam.interfaces import RunContext
-    from amslam.plugins.sim.platform import SimPlatform
-    from amslam.runner import backend_rng
 
     mission, registry = load_with_registry(args, registry)
     choice = mission.backends["platform"]
@@ -89,11 +93,16 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
             f"{mission.source}: platform.camera.source is {p.camera.source!r}: set it to stream, so"
             " that amslam fly reads the SITL's rendered frames"
         )
-    mavlink_to = _mavlink_peer_address(p.url)
+    return mission, p
+
+
+def _started_simulator(mission, p, out: Path):
+    """The simulator of the mission's world, started: its world built, the vehicle at its start."""
+    from amslam.interfaces import RunContext
+    from amslam.plugins.sim.platform import SimPlatform
+    from amslam.runner import backend_rng
+
     sim_params = _sim_params(mission, p)
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out) if args.out else Path("sitl") / f"{mission.name}-{stamp}"
-    record = TruthRecord(out)
     notes: list[str] = []
     sim = SimPlatform()
     sim.configure(
@@ -106,7 +115,92 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
             mission_dir=mission.directory,
         ),
     )
-    sim.start()  # builds the world and its ray-casting scene, places the vehicle at its start
+    sim.start()
+    return sim, sim_params
+
+
+def _camera_streamer(world, p, noise, pose, seed: int):
+    from amslam.apps.sitl.camera import CameraStreamer
+
+    try:
+        return CameraStreamer(
+            world, p.camera.nominal_model(), noise, pose, p.camera.host, p.camera.port, seed=seed
+        )
+    except OSError as exc:
+        raise AmslamError(
+            f"cannot serve camera frames on {p.camera.host}:{p.camera.port} ({exc.strerror or exc});"
+            " choose another with --set platform.camera.port=PORT (and the same for amslam fly)"
+        ) from None
+
+
+def run_camera_only(args: argparse.Namespace, registry) -> int:
+    """``--camera-only URL``: the camera for an autopilot with its own vehicle (PX4 SITL), rendered
+    at the pose it reports on URL (:mod:`amslam.apps.sitl.reported_pose`)."""
+    from amslam.apps.sitl.reported_pose import ReportedPose
+    from amslam.geometry import pose_from
+
+    mission, p = _load_sitl_mission(args, registry)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out) if args.out else Path("sitl") / f"{mission.name}-camera-{stamp}"
+    sim, sim_params = _started_simulator(mission, p, out)
+    if p.world_from_local is None:  # the start the simulator chose, as amslam sitl's vehicle
+        T_world_local = np.eye(4)
+        T_world_local[:3, 3] = sim.ground_truth()[:3, 3]
+    else:
+        x, y, z, yaw_deg = p.world_from_local
+        T_world_local = pose_from(np.array([x, y, z]), float(np.radians(yaw_deg)))
+    reported = ReportedPose(args.camera_only, T_world_local).start()
+    try:
+        streamer = _camera_streamer(sim.world, p, sim_params.camera, reported.pose, mission.model.seed)
+    except AmslamError:
+        reported.stop()
+        raise
+    origin = T_world_local[:3, 3]
+    print(
+        f"SITL camera in world {sim.world_summary().name!r}: rendering at the pose reported on"
+        f" {args.camera_only}, local origin at ({origin[0]:.2f}, {origin[1]:.2f}, {origin[2]:.2f}) m;"
+        f" frames on tcp {streamer.address}",
+        flush=True,
+    )
+    streamer.start()
+    try:
+        heard = False
+        while True:
+            time.sleep(0.2)
+            if not heard and reported.positions:
+                heard = True
+                print("ready: hearing the vehicle's position (Ctrl-C stops)", flush=True)
+            if args.once and reported.was_armed and not reported.armed:
+                time.sleep(ONCE_LINGER)
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        streamer.stop()
+        reported.stop()
+        sim.close()
+        stats = streamer.stats()
+        print(f"camera: {stats['frames_sent']} frames sent, {reported.positions} positions heard", flush=True)
+    return 0
+
+
+def run_sitl(args: argparse.Namespace, registry) -> int:
+    from amslam.apps.sitl.record import TruthRecord
+    from amslam.apps.sitl.vehicle import SitlVehicle
+
+    mission, p = _load_sitl_mission(args, registry)
+    if p.world_from_local is not None:
+        raise AmslamError(
+            f"{mission.source}: platform.world_from_local places another autopilot's vehicle in the"
+            " world (amslam sitl --camera-only beside PX4 SITL); amslam sitl's own vehicle starts where"
+            " the simulator chooses: remove it to fly this vehicle"
+        )
+    mavlink_to = _mavlink_peer_address(p.url)
+    also_to = _gcs_address(args.gcs)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out) if args.out else Path("sitl") / f"{mission.name}-{stamp}"
+    record = TruthRecord(out)
+    sim, sim_params = _started_simulator(mission, p, out)
     T_world_local = np.eye(4)
     T_world_local[:3, 3] = sim.ground_truth()[:3, 3]
     summary_of_world = sim.world_summary()
@@ -115,31 +209,25 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
         sim,
         record,
         connect_to=mavlink_to,
+        also_to=also_to,
         battery=args.battery,
         offboard_loss_timeout=1.0,  # PX4's COM_OF_LOSS_T default
         params={"MIS_TAKEOFF_ALT": mission.model.robot.altitude},
     )
-    try:
-        streamer = CameraStreamer(
-            sim.world,
-            p.camera.nominal_model(),
-            sim_params.camera,
-            vehicle.true_pose,
-            p.camera.host,
-            p.camera.port,
-            seed=mission.model.seed,
-        )
-    except OSError as exc:
-        vehicle.stop()
-        raise AmslamError(
-            f"cannot serve camera frames on {p.camera.host}:{p.camera.port} ({exc.strerror or exc});"
-            " choose another with --set platform.camera.port=PORT (and the same for amslam fly)"
-        ) from None
+    streamer = None
+    if not args.no_camera:
+        try:
+            seed = mission.model.seed
+            streamer = _camera_streamer(sim.world, p, sim_params.camera, vehicle.true_pose, seed)
+        except AmslamError:
+            vehicle.stop()
+            raise
     start = T_world_local[:3, 3]
+    sends = " and ".join(f"{h}:{port}" for h, port in (mavlink_to, *also_to))
+    camera = f"camera frames on tcp {streamer.address}" if streamer else "no camera (--no-camera)"
     print(
         f"SITL vehicle in world {summary_of_world.name!r} at ({start[0]:.2f}, {start[1]:.2f}, {start[2]:.2f})"
-        f" m, its local origin; MAVLink to udp {mavlink_to[0]}:{mavlink_to[1]}; camera frames on tcp"
-        f" {streamer.address}; truth in {out}",
+        f" m, its local origin; MAVLink to udp {sends}; {camera}; truth in {out}",
         flush=True,
     )
 
@@ -152,7 +240,7 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
             world=summary_of_world.name,
             T_world_local=T_world_local.round(4).tolist(),
             mavlink_to=f"{mavlink_to[0]}:{mavlink_to[1]}",
-            camera=streamer.stats(),
+            camera=streamer.stats() if streamer else None,
             vehicle=est,
             estimate_error_m=round(drift, 3),
             closest_approach_m=status.closest_approach,
@@ -162,7 +250,8 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
         )
 
     vehicle.start()
-    streamer.start()
+    if streamer:
+        streamer.start()
     print("ready: waiting for amslam fly (Ctrl-C stops)", flush=True)
     flew = False
     shown = 0
@@ -190,7 +279,8 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
     except KeyboardInterrupt:
         pass  # SIGINT, SIGTERM: stop serving, keep the record
     finally:
-        streamer.stop()
+        if streamer:
+            streamer.stop()
         vehicle.stop()
         write_summary()
         record.close()
