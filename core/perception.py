@@ -194,13 +194,23 @@ class _Mapper:
 T = TypeVar("T")
 
 
+def finished(job: Callable[[], Any]) -> Future:
+    """``job()`` run now, as a done future holding its result or its exception."""
+    future: Future = Future()
+    try:
+        future.set_result(job())
+    except Exception as exc:  # delivered through the future, like a threaded job's
+        future.set_exception(exc)
+    return future
+
+
 class _SlamThread:
     """The SLAM thread: every SLAM call of perception and of the tree's loop closures, in order.
 
     A FIFO, unlike the mapper: SLAM needs every odometry reading and every detection, in the
     order they happened. After each call it publishes the backend's ``T_world_odom``, which the
     control thread reads instead of calling the backend. An exception ends the thread and is
-    raised on the control thread at its next :meth:`check` (or by :meth:`call`).
+    raised on the control thread at its next :meth:`check` (and by the futures of the jobs it did not run).
     """
 
     def __init__(self, publish: Callable[[], None]):
@@ -216,16 +226,6 @@ class _SlamThread:
         future: Future = Future()
         self._jobs.put((job, future))
         return future
-
-    def call(self, job: Callable[[], T]) -> T:
-        """Run ``job`` after every queued job, and wait for its result (or its exception)."""
-        future = self.submit(job)
-        try:
-            return future.result()
-        except BaseException as exc:
-            if exc is self._error:  # raised here: not again at the next check
-                self._error = None
-            raise
 
     def check(self) -> None:
         """Raise, on the caller's thread, what ended the SLAM thread."""
@@ -356,10 +356,11 @@ class Perception:
         vehicle the one the SLAM thread published after its latest call (never a wait)."""
         return self.slam.T_world_odom() if self._slam is None else self._correction
 
-    def on_slam_thread(self, job: Callable[[], T]) -> T:
-        """Run ``job`` (SLAM calls) after everything perception handed SLAM so far, and return
-        its result: a loop-closure attempt must see every detection made before it."""
-        return job() if self._slam is None else self._slam.call(job)
+    def slam_job(self, job: Callable[[], T]) -> Future:
+        """Run ``job`` (SLAM calls) after everything perception handed SLAM so far: a future of
+        its result (a loop-closure attempt must see every detection made before it). In the
+        simulator it runs now and the future is done when returned."""
+        return finished(job) if self._slam is None else self._slam.submit(job)
 
     def _publish_correction(self) -> None:
         self._correction = _frozen(self.slam.T_world_odom())

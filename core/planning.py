@@ -13,6 +13,7 @@ thread, so simulated time does not pass while it computes and runs stay determin
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -27,7 +28,7 @@ from amslam.errors import AmslamError
 from amslam.interfaces import Mapping as MappingBackend
 from amslam.interfaces import Planner, Slam
 from amslam.mission import ExplorationSection
-from amslam.perception import Snapshot
+from amslam.perception import Snapshot, finished
 from amslam.types import (
     CameraModel,
     LoopClosureResult,
@@ -123,6 +124,27 @@ class PlanJob:
         return plan.tour
 
 
+class LoopClosureJob:
+    """A loop-closure attempt queued behind what perception handed SLAM; :meth:`result` logs it
+    (``PlanningService.slc_log``) the first time it is read, on the control thread."""
+
+    def __init__(self, future: Future, service: PlanningService, t: float, distance: float):
+        self._future, self._service = future, service
+        self._t, self._distance = t, distance
+        self._logged = False
+
+    def done(self) -> bool:
+        return self._future.done()
+
+    def result(self) -> LoopClosureResult:
+        """The backend's answer (waiting for it if need be), or its exception."""
+        result = self._future.result()
+        if not self._logged:
+            self._logged = True
+            self._service.slc_log.append((self._t, self._distance, result))
+        return result
+
+
 @dataclass
 class PlanningService:
     """Plans tours from snapshots; owns the goal bookkeeping and the SLC schedule."""
@@ -134,8 +156,9 @@ class PlanningService:
     camera: CameraModel
     threaded: bool  # plan on the planner thread (a real vehicle) rather than at once
     refresh_viewpoints: Callable[[], None] = lambda: None  # ask perception for fresh viewpoints
-    #: runs SLAM calls after everything perception handed SLAM (perception's SLAM thread)
-    on_slam_thread: Callable[[Callable[[], Any]], Any] = lambda job: job()
+    #: queues SLAM calls behind everything perception handed SLAM (perception's SLAM thread): a
+    #: future of the call's result
+    slam_jobs: Callable[[Callable[[], Any]], Future] = finished
     snapshot: Snapshot | None = None  # the latest, published by the runner each tick
     unreachable: list[np.ndarray] = field(default_factory=list)
     visited: list[np.ndarray] = field(default_factory=list)
@@ -154,9 +177,15 @@ class PlanningService:
     clock: Callable[[], float] | None = None
     plan_latency: list[float] = field(default_factory=list)
     _executor: ThreadPoolExecutor | None = None
+    _loop_closures: list[LoopClosureJob] = field(default_factory=list)  # not yet logged
 
     def observe(self, snapshot: Snapshot) -> None:
         self.snapshot = snapshot
+        if self._loop_closures:  # attempts whose behaviour stopped waiting still reach the log
+            for job in [j for j in self._loop_closures if j.done()]:
+                self._loop_closures.remove(job)
+                with contextlib.suppress(Exception):  # the behaviour that waited reports errors
+                    job.result()
 
     # -- goal bookkeeping (control thread) -----------------------------------------------------
 
@@ -339,12 +368,15 @@ class PlanningService:
 
     # -- semantic loop closure (control thread) ------------------------------------------------
 
-    def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
+    def request_loop_closure(self, goal: TourItem | None = None) -> LoopClosureJob:
         """Try an SLC with what the detector saw most recently (e.g. during a panorama).
 
         Perception fed every detection to SLAM at the pose of its own frame as it came in, so
         nothing is seen *now* that SLAM does not have: the call hands over no detections and the
         backend registers the panorama from what it was fed (see :meth:`Slam.try_loop_closure`).
+        On a real vehicle the attempt waits on the SLAM thread behind those detections (and an
+        uncertainty sample's marginals, a quarter of a second late in a long flight) while the
+        control thread ticks on; in the simulator the job is done when returned.
         """
         now = self.snapshot
         candidate = (
@@ -353,11 +385,14 @@ class PlanningService:
         if candidate is not None:
             for i in candidate.landmark_ids:
                 self.slc_tried_at[i] = now.distance
-        result = self.on_slam_thread(
-            lambda: self.slam.try_loop_closure(now.odometry, self.camera.T_body_cam, [])
-        )
-        self.slc_log.append((now.t, now.distance, result))
-        return result
+        future = self.slam_jobs(lambda: self.slam.try_loop_closure(now.odometry, self.camera.T_body_cam, []))
+        job = LoopClosureJob(future, self, now.t, now.distance)
+        self._loop_closures.append(job)
+        return job
+
+    def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
+        """:meth:`request_loop_closure`, waiting for its result."""
+        return self.request_loop_closure(goal).result()
 
     def close(self) -> None:
         if self._executor is not None:

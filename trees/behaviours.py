@@ -554,7 +554,11 @@ class Panorama(RobotBehaviour):
 
 
 class AttemptLoopClosure(RobotBehaviour):
-    """Ask SLAM for a semantic loop closure with what the panorama saw; always SUCCESS."""
+    """Ask SLAM for a semantic loop closure with what the panorama saw; SUCCESS once it answered.
+
+    On a real vehicle the attempt waits on the SLAM thread behind the detections handed over
+    before it: the vehicle holds meanwhile (RUNNING), the control loop ticking on time.
+    """
 
     uses = ("flight", "planning", "events")
 
@@ -562,9 +566,20 @@ class AttemptLoopClosure(RobotBehaviour):
         super().__init__(name)
         self.bb.register_key("/slc", access=Access.WRITE)
         self.bb.register_key("/goal", access=Access.READ)
+        self._job = None
+
+    def initialise(self) -> None:
+        self._job = None
 
     def update(self) -> Status:
-        result = self.planning.attempt_loop_closure(self.bb.get("/goal"))
+        if self._job is None:
+            self._job = self.planning.request_loop_closure(self.bb.get("/goal"))
+        if not self._job.done():
+            self.flight.hold()
+            self.feedback_message = "waiting for SLAM"
+            return Status.RUNNING
+        job, self._job = self._job, None
+        result = job.result()
         self.bb.set("/slc", {"accepted": result.accepted, "reason": result.reason, "matched": result.matched})
         self.events.emit("loop_closure", **dataclasses.asdict(result), distance=self.flight.distance())
         self.events.plugin_hook("amslam_loop_closure", t=self.flight.time(), result=result)

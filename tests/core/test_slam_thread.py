@@ -128,7 +128,7 @@ def test_the_control_thread_goes_on_while_slam_samples_its_uncertainty_and_slam_
         p.close()
 
 
-def test_a_loop_closure_attempt_runs_after_everything_handed_to_slam_before_it():
+def test_a_loop_closure_attempt_waits_for_what_slam_was_handed_before_it_while_the_control_thread_ticks():
     slam = RecordingSlam()
     p = perception(slam)
     try:
@@ -136,29 +136,47 @@ def test_a_loop_closure_attempt_runs_after_everything_handed_to_slam_before_it()
         assert slam.in_uncertainty.wait(WAIT)
         p.step(0.1)
         now = Odometry(0.2, np.eye(4))
-        attempt = threading.Thread(
-            target=lambda: slam.calls.append(
-                ("result", p.on_slam_thread(lambda: slam.try_loop_closure(now, None, [])))
-            )
-        )
-        attempt.start()
-        attempt.join(timeout=0.5)
-        assert attempt.is_alive()  # it waits for the queued calls, however long they take
+        attempt = p.slam_job(lambda: slam.try_loop_closure(now, None, []))
+        for _ in range(3):  # the control thread ticks on while the attempt waits its turn
+            p.step(0.1)
+        assert not attempt.done()
         slam.release.set()
-        attempt.join(timeout=WAIT)
-        names = [c[0] for c in slam.calls]
-        assert names.index("loop closure") > max(
-            i for i, n in enumerate(names) if n != "result" and n != "loop closure"
-        )
-        assert slam.calls[-1] == ("result", "closed")
-        assert [c[0] for c in slam.in_order()][-3:] == [
-            "odometry",
-            "loop closure",
-            "result",
-        ]  # 0.2 had waited
+        assert attempt.result(timeout=WAIT) == "closed"
+        names = [c[0] for c in slam.in_order()]
+        assert names[:4] == ["odometry", "uncertainty", "odometry", "loop closure"]  # 0.2 had waited
     finally:
         slam.release.set()
         p.close()
+
+
+def test_attempt_slc_holds_the_vehicle_until_slam_answers():
+    from concurrent.futures import Future
+
+    import py_trees
+    from py_trees.common import Status
+
+    from amslam.planning import LoopClosureJob
+    from amslam.trees.behaviours import AttemptLoopClosure
+    from amslam.types import LoopClosureResult
+
+    future: Future = Future()
+    log: list = []
+    service = SimpleNamespace(slc_log=log)
+    job = LoopClosureJob(future, service, 1.0, 2.0)
+    held, emitted = [], []
+    behaviour = AttemptLoopClosure()
+    behaviour.planning = SimpleNamespace(request_loop_closure=lambda goal: job)
+    behaviour.flight = SimpleNamespace(hold=lambda: held.append(1), distance=lambda: 2.0, time=lambda: 1.0)
+    behaviour.events = SimpleNamespace(
+        emit=lambda name, **f: emitted.append(name), plugin_hook=lambda *a, **k: None
+    )
+    py_trees.blackboard.Blackboard.set("/goal", None)
+    assert behaviour.update() == Status.RUNNING and behaviour.update() == Status.RUNNING
+    assert len(held) == 2 and emitted == [] and log == []
+    future.set_result(LoopClosureResult(accepted=True, reason="matched 4", matched=4))
+    assert behaviour.update() == Status.SUCCESS
+    assert emitted == ["loop_closure"] and [r.matched for _, _, r in log] == [4]
+    assert behaviour.bb.get("/slc")["accepted"] is True
 
 
 def test_key_poses_reach_the_observers_on_the_control_thread():

@@ -15,6 +15,7 @@ HEAVY = (
     "open3d",
     "gtsam",
     "scipy",
+    "numba",
     "sklearn",
     "onnxruntime",
     "cv2",
