@@ -212,15 +212,17 @@ class GtsamSlam(Slam):
             )
         )
 
-    def _marginals(self) -> dict[int, np.ndarray]:
-        return self._graph.marginals(lambda: [k.key for k in self._front.kps])
+    def _landmark_marginals(self) -> dict[int, np.ndarray]:
+        from gtsam.symbol_shorthand import L
+
+        return self._graph.marginals([L(lm.id) for lm in self._graph.graph_landmarks()])
 
     def landmarks(self) -> list[Landmark]:
         """Landmarks in the graph with class, position, marginal covariance and observation count."""
         from gtsam.symbol_shorthand import L
 
         g = self._graph
-        cov = self._marginals()
+        cov = self._landmark_marginals()
         out = []
         for lm in g.graph_landmarks():
             n = lm.count + sum(o.count for o in g.landmarks.values() if o.alias_of == lm.id)
@@ -241,11 +243,15 @@ class GtsamSlam(Slam):
         """(mean trace of the 6×6 pose marginals, mean trace of the landmark marginals)."""
         from gtsam.symbol_shorthand import L
 
-        cov = self._marginals()
+        g = self._graph
+        g.flush()
+        pose_keys = [k.key for k in self._front.kps]
+        landmark_keys = [L(lm.id) for lm in g.graph_landmarks()]
+        cov = g.marginals(pose_keys + landmark_keys)
         if not cov:
             return (0.0, 0.0)
-        poses = [np.trace(cov[k.key]) for k in self._front.kps if k.key in cov]
-        lms = [np.trace(cov[L(lm.id)]) for lm in self._graph.graph_landmarks() if L(lm.id) in cov]
+        poses = [np.trace(cov[k]) for k in pose_keys]
+        lms = [np.trace(cov[k]) for k in landmark_keys]
         return (float(np.mean(poses)) if poses else 0.0, float(np.mean(lms)) if lms else 0.0)
 
     def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:
