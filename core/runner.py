@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 import traceback
 from collections import deque
 from collections.abc import Callable
@@ -48,6 +49,15 @@ from amslam.rundir import RunDir, jsonable, write_atomically
 from amslam.setpoints import SetpointFilter
 from amslam.sharing import share
 from amslam.types import BoundingBox, RunSummary
+
+#: the interpreter's thread switch interval during a real vehicle's flight, s (Python's default is
+#: 0.005). The control thread lets go of the interpreter at every numpy call of a frame's
+#: integration, and then waits until a thread running Python (the mapper's, SLAM's marginals, the
+#: planner's) gives it back, up to one interval each time: beside two such threads a 10 Hz loop
+#: whose tick is 17 ms of local-map update made 3 of its 40 ticks at 5 ms and all 40 at 0.2 ms
+#: (4 of them over the period), for 17 % less of the other threads' work while all three compete
+#: (benchmarks/switch_interval.py, docs/benchmarks.md).
+REAL_TIME_SWITCH_INTERVAL = 0.0002
 
 
 @dataclass
@@ -248,6 +258,18 @@ class Runner:
 
     def _loop(self) -> str:
         """Tick until the tree ends, the vehicle crashes or the run overruns its time budget."""
+        if self.backends["platform"].simulated:
+            return self._ticks()
+        # On a real vehicle the control thread shares the interpreter with the mapper, SLAM,
+        # planner and path threads; see REAL_TIME_SWITCH_INTERVAL
+        default = sys.getswitchinterval()
+        sys.setswitchinterval(REAL_TIME_SWITCH_INTERVAL)
+        try:
+            return self._ticks()
+        finally:
+            sys.setswitchinterval(default)
+
+    def _ticks(self) -> str:
         runtime = self.runtime = self._start_runtime()
         limits = self.mission.model.limits
         dt = 1.0 / self.mission.model.exploration.control_rate_hz
@@ -323,7 +345,7 @@ class Runner:
             threaded=not platform.simulated,
             clock=None if platform.simulated else platform.time,
             refresh_viewpoints=perception.refresh_viewpoints,
-            on_slam_thread=perception.on_slam_thread,
+            slam_jobs=perception.slam_job,
             snapshot=perception.snapshot,
             boundary=self.boundary,
         )

@@ -9,6 +9,7 @@ import _thread
 import signal
 
 import numpy as np
+import pytest
 
 from amslam.cli import main
 from amslam.plugins.mavsdk_platform.emulator import MavlinkVehiclePeer
@@ -202,3 +203,23 @@ def test_fly_refuses_a_start_outside_the_geofence_and_a_silent_link(make_peer, t
 def test_fly_refuses_a_simulated_platform(capsys):
     assert main(["fly", "demo"]) == 2
     assert "platform 'sim' is simulated" in capsys.readouterr().err
+
+
+def test_a_real_vehicle_flies_with_a_short_switch_interval_and_gives_it_back(make_peer, fly):
+    """The control thread gets the interpreter back soon after each numpy call beside the busy
+    mapper, SLAM and planner threads (amslam.runner.REAL_TIME_SWITCH_INTERVAL); the process's own
+    interval is restored when the run ends."""
+    import sys
+
+    from amslam.runner import REAL_TIME_SWITCH_INTERVAL
+
+    before = sys.getswitchinterval()
+    peer, url = make_peer(refuse={"arm"})  # a short run: it never leaves the ground
+    seen: list[float] = []
+    asked_to_arm = lambda: any(name == "arm" for _, name, _ in peer.commands)  # noqa: E731 — by the tree
+    watch = when(asked_to_arm, lambda: seen.append(sys.getswitchinterval()))
+    result = fly(url)
+    watch.join(timeout=1.0)
+    assert result.verdict.startswith("failed"), result.verdict
+    assert seen == [pytest.approx(REAL_TIME_SWITCH_INTERVAL)] and before > 2 * REAL_TIME_SWITCH_INTERVAL
+    assert sys.getswitchinterval() == before
