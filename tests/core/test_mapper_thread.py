@@ -97,8 +97,11 @@ class FrameAtItsStamp(WallClockPlatform):
         return Frame(self.t, np.full((4, 4), 2.0, np.float32), np.eye(3), T)
 
 
-def perception(mapping, rundir=None) -> Perception:
-    slam = SimpleNamespace(
+def perception(
+    mapping, rundir=None, *, slam=None, platform=None, exploration=None, hook=lambda *a, **k: None
+) -> Perception:
+    """Perception of a real vehicle (a frame at every tick) over ``mapping``; the rest stubs."""
+    slam = slam or SimpleNamespace(
         add_odometry=lambda odom: False,
         keyposes=list,
         T_world_odom=lambda: np.eye(4),
@@ -109,14 +112,14 @@ def perception(mapping, rundir=None) -> Perception:
     rundir = rundir or SimpleNamespace(pose=lambda *a: None, event=lambda *a, **k: None)
     measurements = SimpleNamespace(keypose=lambda *a: None, detections=lambda *a: None)
     return Perception(
-        FrameAtItsStamp(),
+        platform or FrameAtItsStamp(),
         slam,
         mapping,
         detector,
-        ExplorationSection(),
+        exploration or ExplorationSection(),
         rundir,
         measurements,
-        hook=lambda *a, **k: None,
+        hook=hook,
         boundary=Boundary(),
     )
 
@@ -150,10 +153,13 @@ def test_a_failing_global_update_ends_the_run_on_the_control_thread_naming_the_b
     mapping = SlowGlobalMap()
     mapping.fail = ValueError("the hash map is full")
     mapping.release.set()
-    p = perception(mapping)
+    raised_on_a_later_step(perception(mapping), r"integrate_global\(\) raised ValueError: the hash map")
+
+
+def raised_on_a_later_step(p: Perception, match: str) -> None:
+    """Step until a thread's failure is raised on this one, the control thread; then close."""
     try:
-        p.step(0.1)
-        with pytest.raises(BackendError, match=r"integrate_global\(\) raised ValueError: the hash map"):
+        with pytest.raises(BackendError, match=match):
             for _ in range(100):
                 p.step(0.1)
                 threading.Event().wait(0.05)

@@ -18,11 +18,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from amslam.boundary import BackendError, Boundary
 from amslam.mission import ExplorationSection
 from amslam.perception import Perception
 from amslam.types import Detection, KeyPose, Odometry
-from tests.core.test_mapper_thread import WAIT, SlowGlobalMap, WallClockPlatform
+from tests.core.test_mapper_thread import WAIT, SlowGlobalMap, WallClockPlatform, raised_on_a_later_step
+from tests.core.test_mapper_thread import perception as real_vehicle_perception
 
 
 class RecordingSlam:
@@ -73,22 +73,15 @@ class RecordingSlam:
         return "closed"
 
 
-def perception(slam: RecordingSlam, hook=lambda *a, **k: None, detect_hz: float = 0.001) -> Perception:
+def perception(slam: RecordingSlam, hook=lambda *a, **k: None) -> Perception:
     mapping = SlowGlobalMap()
     mapping.release.set()
-    detector = SimpleNamespace(detect=lambda frame: [], rate_hz=detect_hz)
-    rundir = SimpleNamespace(pose=lambda *a: None, event=lambda *a, **k: None)
-    measurements = SimpleNamespace(keypose=lambda *a: None, detections=lambda *a: None)
-    return Perception(
-        WallClockPlatform(),
-        slam,
+    return real_vehicle_perception(
         mapping,
-        detector,
-        ExplorationSection(uncertainty_period=100.0),  # one sample: at the first step
-        rundir,
-        measurements,
+        slam=slam,
+        platform=WallClockPlatform(),
+        exploration=ExplorationSection(uncertainty_period=100.0),  # one sample: at the first step
         hook=hook,
-        boundary=Boundary(),
     )
 
 
@@ -200,13 +193,5 @@ def test_key_poses_reach_the_observers_on_the_control_thread():
 def test_a_failing_slam_call_ends_the_run_on_the_control_thread_naming_the_backend():
     slam = RecordingSlam()
     slam.release.set()
-    p = perception(slam)
-    try:
-        p.step(0.1)
-        slam.fail = ValueError("indeterminant linear system")
-        with pytest.raises(BackendError, match=r"add_odometry\(\) raised ValueError: indeterminant"):
-            for _ in range(100):
-                p.step(0.1)
-                threading.Event().wait(0.02)
-    finally:
-        p.close()
+    slam.fail = ValueError("indeterminant linear system")
+    raised_on_a_later_step(perception(slam), r"add_odometry\(\) raised ValueError: indeterminant")
