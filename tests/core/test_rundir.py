@@ -65,8 +65,14 @@ def _make_run_folder(args: tuple[str, str]) -> str:
 def test_processes_starting_in_the_same_second_get_distinct_folders(tmp_path: Path, monkeypatch):
     # the same timestamp for all of them: the folder name alone must not decide
     monkeypatch.setattr(rundir_module.time, "strftime", lambda fmt: "20261124-120000")
-    with multiprocessing.get_context("fork").Pool(4) as pool:
+    pool = multiprocessing.get_context("fork").Pool(4)
+    try:
         paths = pool.map(_make_run_folder, [(str(tmp_path), "demo")] * 12)
+    finally:
+        # close and join, not the context manager's terminate: a worker killed while it held the
+        # pool's queue lock left another waiting for it forever (a fresh-clone suite hung here)
+        pool.close()
+        pool.join()
     assert len(set(paths)) == 12
     assert sorted(os.listdir(tmp_path))[:3] == [
         "demo-20261124-120000",
