@@ -51,6 +51,7 @@ from amslam.interfaces import Detector, Mapping, Platform, Slam
 from amslam.measurements import MeasurementLog
 from amslam.mission import ExplorationSection
 from amslam.rundir import RunDir
+from amslam.sharing import finished
 from amslam.types import Detection, Frame, Odometry, Viewpoint, VoxelState
 
 
@@ -194,16 +195,6 @@ class _Mapper:
 T = TypeVar("T")
 
 
-def finished(job: Callable[[], Any]) -> Future:
-    """``job()`` run now, as a done future holding its result or its exception."""
-    future: Future = Future()
-    try:
-        future.set_result(job())
-    except Exception as exc:  # delivered through the future, like a threaded job's
-        future.set_exception(exc)
-    return future
-
-
 class _SlamThread:
     """The SLAM thread: every SLAM call of perception and of the tree's loop closures, in order.
 
@@ -345,10 +336,11 @@ class Perception:
         )
         self._detecting: tuple[Future, Frame] | None = None
         self._mapper = None if platform.simulated else _Mapper(self._update_global, self.health)
-        self._mapper_events: deque[tuple[float, str, dict]] = deque()  # for the control thread to write
         self._correction = _frozen(slam.T_world_odom())  # the SLAM thread's latest (real vehicle)
         self._slam = None if platform.simulated else _SlamThread(self._publish_correction)
-        self._keyframes: deque[tuple[float, Any]] = deque()  # the SLAM thread's, for the observers
+        #: what the mapper and SLAM threads leave for the control thread: the run folder and the
+        #: observers are its own (the thread rule); made at the start of its next step
+        self._for_control: deque[Callable[[], None]] = deque()
         self.snapshot = self._publish(platform.time(), platform.odometry())
 
     def T_world_odom(self) -> np.ndarray:
@@ -388,14 +380,10 @@ class Perception:
             self._add_odometry(t, odom, truth)
         else:
             self._slam.submit(lambda: self._add_odometry(t, odom, truth))
-            while self._keyframes:
-                when, keypose = self._keyframes.popleft()
-                self.hook("amslam_keyframe", t=when, keypose=keypose)
         if self._mapper is not None:
             self._mapper.check()
-            while self._mapper_events:
-                when, name, fields = self._mapper_events.popleft()
-                self.rundir.event(when, name, **fields)
+        while self._for_control:
+            self._for_control.popleft()()
         with check.calling("platform", "capture()"):
             frame = check.frame(self.platform.capture())
         if frame is not None:
@@ -429,12 +417,9 @@ class Perception:
         if self.exploration.reanchor_map:
             self._keypose_odometry[float(odom.stamp)] = odom.T_odom_body.copy()
         keyposes = self.slam.keyposes()
-        if not keyposes:
-            return
-        if self._slam is None:
-            self.hook("amslam_keyframe", t=t, keypose=keyposes[-1])
-        else:  # the observers are called on the control thread
-            self._keyframes.append((t, keyposes[-1]))
+        if keyposes:
+            keypose = keyposes[-1]
+            self._on_control_thread(lambda: self.hook("amslam_keyframe", t=t, keypose=keypose))
 
     def _integrate(self, frame: Frame) -> None:
         check = self.boundary
@@ -523,12 +508,16 @@ class Perception:
             )
 
     def _event(self, t: float, name: str, **fields) -> None:
-        """An event of the global map's update: the run folder is the control thread's (the
-        thread rule), so the mapper thread leaves it for the next step to write."""
-        if self._mapper is None:
-            self.rundir.event(t, name, **fields)
+        """An event of the global map's update, written by the control thread."""
+        self._on_control_thread(lambda: self.rundir.event(t, name, **fields))
+
+    def _on_control_thread(self, call: Callable[[], None]) -> None:
+        """``call()`` now in the simulator (one thread); on a real vehicle, from the mapper or
+        SLAM thread, at the control thread's next step."""
+        if self.platform.simulated:
+            call()
         else:
-            self._mapper_events.append((t, name, fields))
+            self._for_control.append(call)
 
     def _feed(self, frame: Frame, detections: list[Detection]) -> None:
         if self._slam is None:

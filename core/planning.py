@@ -28,7 +28,8 @@ from amslam.errors import AmslamError
 from amslam.interfaces import Mapping as MappingBackend
 from amslam.interfaces import Planner, Slam
 from amslam.mission import ExplorationSection
-from amslam.perception import Snapshot, finished
+from amslam.perception import Snapshot
+from amslam.sharing import finished
 from amslam.types import (
     CameraModel,
     LoopClosureResult,
@@ -275,12 +276,7 @@ class PlanningService:
         """Plan from the latest snapshot; the job holds the tour (or the planner's exception)."""
         inputs = self.inputs(cruise_z)
         if not self.threaded:
-            future: Future = Future()
-            try:
-                future.set_result(self.plan(inputs))
-            except Exception as exc:  # delivered through the job, like the threaded path
-                future.set_exception(exc)
-            return PlanJob(future, self, inputs.snapshot.t)
+            return PlanJob(finished(lambda: self.plan(inputs)), self, inputs.snapshot.t)
         if self._executor is None:
             self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="amslam-planner")
         return PlanJob(self._executor.submit(self.plan, inputs), self, inputs.snapshot.t)
@@ -389,10 +385,6 @@ class PlanningService:
         job = LoopClosureJob(future, self, now.t, now.distance)
         self._loop_closures.append(job)
         return job
-
-    def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult:
-        """:meth:`request_loop_closure`, waiting for its result."""
-        return self.request_loop_closure(goal).result()
 
     def close(self) -> None:
         if self._executor is not None:

@@ -34,6 +34,7 @@ from amslam.geometry import invert, transform_points, yaw_of
 from amslam.interfaces import Mapping, Platform
 from amslam.mission import LimitsSection
 from amslam.setpoints import SetpointFilter
+from amslam.sharing import finished
 from amslam.types import CameraModel, Failsafe, LoopClosureResult, Odometry, RobotSpec, TourItem, Viewpoint
 
 
@@ -102,7 +103,6 @@ class Exploring(Protocol):
     def mark_visited(self, position: np.ndarray) -> None: ...
     def mark_unreachable(self, position: np.ndarray) -> None: ...
     def request_loop_closure(self, goal: TourItem | None = None) -> LoopClosureHandle: ...
-    def attempt_loop_closure(self, goal: TourItem | None = None) -> LoopClosureResult: ...
 
 
 class Events(Protocol):
@@ -248,12 +248,7 @@ class Robot:
         start, goal = self.position_world(), np.asarray(goal_world, float)
         if self.path_thread is not None:
             return self.path_thread.submit(self.mapping.plan_path, start, goal)
-        future: Future = Future()
-        try:
-            future.set_result(self.mapping.plan_path(start, goal))
-        except Exception as exc:  # delivered through the future, like the threaded path
-            future.set_exception(exc)
-        return future
+        return finished(lambda: self.mapping.plan_path(start, goal))
 
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None:
         """``goal_world`` if the global map has a path to it from here, else the nearest point

@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any, Generic, TypeVar
 
 B = TypeVar("B")
@@ -90,3 +91,14 @@ SHARED_KINDS = ("slam", "mapping")
 def share(backends: dict[str, Any]) -> dict[str, Any]:
     """The backends as the runtime's threads see them: the shared kinds wrapped in their locks."""
     return {kind: Shared(b) if kind in SHARED_KINDS else b for kind, b in backends.items()}
+
+
+def finished(job: Callable[[], Any]) -> Future:
+    """``job()`` run now, as a done future holding its result or its exception: what a threaded
+    service hands back in the simulator, where everything runs inline (paths, plans, SLAM jobs)."""
+    future: Future = Future()
+    try:
+        future.set_result(job())
+    except Exception as exc:  # delivered through the future, like a threaded job's
+        future.set_exception(exc)
+    return future

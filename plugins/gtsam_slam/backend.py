@@ -244,7 +244,6 @@ class GtsamSlam(Slam):
         from gtsam.symbol_shorthand import L
 
         g = self._graph
-        g.flush()
         pose_keys = [k.key for k in self._front.kps]
         landmark_keys = [L(lm.id) for lm in g.graph_landmarks()]
         cov = g.marginals(pose_keys + landmark_keys)

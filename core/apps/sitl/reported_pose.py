@@ -52,7 +52,6 @@ class ReportedPose:
     def __init__(self, url: str, T_world_local: np.ndarray):
         from pymavlink import mavutil
 
-        self.url = url
         self.T_world_local = np.asarray(T_world_local, float)
         try:
             self._link = mavutil.mavlink_connection(pymavlink_address(url), source_system=250)
@@ -76,15 +75,6 @@ class ReportedPose:
         self._stop.set()
         self._thread.join(timeout=5.0)
         self._link.close()
-
-    def wait(self, timeout: float) -> bool:
-        """Whether a position was heard within ``timeout`` s."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.positions:
-                return True
-            time.sleep(0.05)
-        return bool(self.positions)
 
     def pose(self) -> tuple[float, np.ndarray]:
         """(monotonic time it was heard, ``T_world_body``) of the latest reported pose."""
