@@ -146,6 +146,10 @@ class Backend(abc.ABC):  # noqa: B024 — the lifecycle methods are optional
     #: lazily, so listing the plugin or validating a mission does not); a mission choosing the
     #: backend is refused when one is not installed, before anything flies
     requires: ClassVar[tuple[str, ...]] = ()
+    #: on a real vehicle, run the backend in a process of its own (:mod:`amslam.backend_process`):
+    #: for backends whose library calls hold the interpreter lock long enough to delay the
+    #: control loop (a SLAM graph's marginals). Only SLAM backends can run so today.
+    own_process: ClassVar[bool] = False
 
     def configure(self, params: BackendParams, context: RunContext) -> None:  # noqa: B027
         """Receive validated parameters and the run context."""

@@ -33,6 +33,7 @@ import py_trees
 from py_trees.common import Status
 
 from amslam import __version__, console
+from amslam.backend_process import SlamProcess, implementation
 from amslam.boundary import BackendError, Boundary
 from amslam.errors import AmslamError, MissionError
 from amslam.geometry import pose_from
@@ -157,6 +158,16 @@ class Runner:
 
     # -- set-up --------------------------------------------------------------------------------
 
+    def _build(self, kind: str, plugin: str) -> Backend:
+        """The backend of ``kind``; one that asks for a process of its own gets one on a real
+        vehicle (:mod:`amslam.backend_process`)."""
+        platform = self.backends.get("platform")
+        factory = self.registry.factory(kind, plugin)
+        real = platform is not None and not platform.simulated
+        if kind == "slam" and real and isinstance(factory, type) and factory.own_process:
+            return SlamProcess(factory)
+        return factory()
+
     def _configure(self) -> None:
         model = self.mission.model
         context = RunContext(
@@ -170,7 +181,7 @@ class Runner:
             choice = self.mission.backends[kind]
             context = dataclasses.replace(context, rng=backend_rng(model.seed, kind))
             with self.boundary.calling(kind, "configure()"):
-                backend = self.registry.factory(kind, choice.plugin)()
+                backend = self._build(kind, choice.plugin)
                 backend.configure(choice.params, context)
             self.backends[kind] = backend
             if kind == "mapping" and model.prior_map:
@@ -353,7 +364,7 @@ class Runner:
             platform=platform,
             mapping=shared["mapping"],
             correction=perception.T_world_odom,
-            slam_name=type(self.backends["slam"]).__name__,
+            slam_name=implementation(self.backends["slam"]).__name__,
             spec=self.context.robot,
             limits=model.limits,
             setpoints=SetpointFilter(
@@ -566,7 +577,7 @@ class Runner:
             flown.update(
                 landmarks=ask("slam", "landmarks()", lambda: tuple(slam.landmarks())),
                 keyposes=ask("slam", "keyposes()", lambda: tuple(slam.keyposes())),
-                slam_optimises=type(slam).__name__ != "OdometrySlam",
+                slam_optimises=implementation(slam).__name__ != "OdometrySlam",
                 final_T_world_odom=ask(
                     "slam",
                     "T_world_odom()",

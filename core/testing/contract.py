@@ -17,6 +17,7 @@ import pydantic
 import pytest
 from pydantic.fields import FieldInfo
 
+from amslam.backend_process import implementation
 from amslam.interfaces import Backend, BackendParams, RunContext
 from amslam.types import CameraModel, RobotSpec
 
@@ -44,7 +45,7 @@ class BackendContract:
 
     def make_params(self, backend: Backend) -> BackendParams:
         """Parameters for the backend under test (its defaults unless overridden)."""
-        return type(backend).Params()
+        return implementation(backend).Params()
 
     def make_context(self, tmp_path: Path, *, seed: int = 0) -> RunContext:
         """The run context the kit configures backends with (camera, robot, seeded generator)."""
@@ -73,13 +74,13 @@ class BackendContract:
         )
 
     def test_params_are_documented(self) -> None:
-        params_cls = type(self.make_backend()).Params
+        params_cls = implementation(self.make_backend()).Params
         assert issubclass(params_cls, BackendParams)
         undocumented = [n for n, f in params_cls.model_fields.items() if not documented(f)]
         assert not undocumented, f"parameters without a description: {undocumented}"
 
     def test_params_have_defaults_and_forbid_unknown_keys(self) -> None:
-        params_cls = type(self.make_backend()).Params
+        params_cls = implementation(self.make_backend()).Params
         params_cls()  # a mission may name the plugin without any parameter
         with pytest.raises(pydantic.ValidationError):
             params_cls.model_validate({"no_such_parameter_anywhere": 1})

@@ -86,6 +86,9 @@ class GtsamSlam(Slam):
     """Semantic SLAM on GTSAM iSAM2 with semantic loop closure and eq. (10) information gain."""
 
     requires = ("gtsam", "sklearn")  # imported when built (see Backend.requires)
+    #: gtsam's calls hold the interpreter lock: the marginals of a 2000-key-pose graph stop every
+    #: other thread for 0.2-0.4 s, so on a real vehicle the graph lives in a process of its own
+    own_process = True
 
     class Params(BackendParams):
         keyposes: KeyPoseParams = Field(default_factory=KeyPoseParams, description="when key poses are made")
