@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 import time
 from datetime import datetime
 from pathlib import Path
@@ -199,8 +200,17 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
     also_to = _gcs_address(args.gcs)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("sitl") / f"{mission.name}-{stamp}"
+    made = None if out.exists() else out  # the outermost folder this run creates
+    while made is not None and not made.parent.exists():
+        made = made.parent
     record = TruthRecord(out)
-    sim, sim_params = _started_simulator(mission, p, out)
+    try:
+        sim, sim_params = _started_simulator(mission, p, out)
+    except BaseException:  # a world it cannot build (one error line): leave no empty truth folder
+        record.close()
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     T_world_local = np.eye(4)
     T_world_local[:3, 3] = sim.ground_truth()[:3, 3]
     summary_of_world = sim.world_summary()

@@ -176,12 +176,15 @@ def test_a_stop_signal_mid_exploration_lands_disarms_and_completes_the_run_folde
         ("sitl_small", ["platform.url=serial:///dev/ttyUSB0"], "platform.url 'serial:///dev/ttyUSB0'"),
     ],
 )
-def test_a_mission_the_sitl_cannot_fly_is_one_error_line(mission, overrides, error):
+def test_a_mission_the_sitl_cannot_fly_is_one_error_line(mission, overrides, error, tmp_path):
     args = [arg for o in overrides for arg in ("--set", o)]
-    done = subprocess.run([AMSLAM, "sitl", mission, *args], capture_output=True, text=True, timeout=BOUND)
+    done = subprocess.run(
+        [AMSLAM, "sitl", mission, *args], capture_output=True, text=True, timeout=BOUND, cwd=tmp_path
+    )
     assert done.returncode == 2, done.stderr
     (line,) = done.stderr.splitlines()
     assert line.startswith("error: ") and error in line, line
+    assert not (tmp_path / "sitl").exists()  # no empty truth folder left behind
 
 
 def test_a_camera_port_in_use_is_one_error_line(tmp_path):
