@@ -140,7 +140,7 @@ def _picklable(exc: Exception) -> Exception:
 
 
 class BackendProcess:
-    """The parent's end: a backend of class ``backend_class`` in a spawned child, called over a
+    """The parent's end: a backend of class ``backend_class`` in a child process, called over a
     pipe. Calls from several threads take turns (the child runs one at a time, like a
     :class:`amslam.sharing.Shared` backend). ``after_each`` names a method whose answer comes back
     with every reply (:attr:`status`): SLAM's correction, read without a call of its own."""
@@ -193,13 +193,14 @@ class BackendProcess:
                     f"the {self.kind} process ({self.backend_class.__name__}) ended during {name}() "
                     f"with exit code {self._exit_code(1.0)}"
                 ) from exc
-        outcome, value, detail, events = reply
+            outcome, value, detail, events = reply
+            if outcome == "ok":  # under the lock: a later call's status never precedes an earlier one's
+                self.status = detail
         for event, fields in events:
             self._emit(event, **fields)
         if outcome == "error":
             value.add_note(f"in the {self.kind} process:\n{detail}")
             raise value
-        self.status = detail
         return _unpack(value)
 
     def close(self) -> None:
