@@ -55,7 +55,8 @@ class LinearizedGraph:
         """Linearise ``graph`` at ``values`` and factorise its information matrix."""
         lin = graph.linearize(values)
         keys = sorted(int(k) for k in lin.keyVector())
-        dims = {k: _dim(values, k) for k in keys}
+        zero = values.zeroVectors()  # each variable's tangent vector: Pose3 6, Point3 3, Unit3 2, ...
+        dims = {k: int(zero.at(k).size) for k in keys}
         offsets: dict[int, int] = {}
         col = 0
         for k in keys:
@@ -135,13 +136,6 @@ class LinearizedGraph:
             G = CV.T @ CV  # Σ_{S,V} Σ_{V,S}
             out[c] = float(np.trace(np.linalg.solve(W, J @ G @ J.T)))
         return out
-
-
-def _dim(values: gtsam.Values, key: int) -> int:
-    """Tangent dimension of a stored value: 6 for Pose3, else the vector's length (Point3: 3)."""
-    if chr(gtsam.Symbol(key).chr()) == "x":
-        return 6
-    return int(np.asarray(values.atPoint3(key)).size)
 
 
 def virtual_factor(

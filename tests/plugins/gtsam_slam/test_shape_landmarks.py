@@ -84,6 +84,24 @@ def test_shape_factors_are_in_the_graph(mapped: GtsamSlam) -> None:
     assert len(custom) > 50
 
 
+def test_information_gain_over_shape_variables_equals_brute_force(mapped: GtsamSlam) -> None:
+    """Eq. 10 over a graph with a box (Pose3 + Point3 dims) and a cylinder (Unit3 axis, 1-vector
+    radius): every variable's tangent size, not only the key poses' (the planner asked this of
+    a graph with cuboid landmarks and failed on the box pose)."""
+    from amslam.plugins.gtsam_slam.information import brute_force_information_gain
+
+    graph, values = mapped.graph()
+    ids = [k.id for k in mapped.keyposes()][:30:10]
+    dists = [20.0, 10.0, 5.0][: len(ids)]
+    fast = mapped.information_gain(ids, dists)
+    over = [int(k) for k in values.keys()]  # noqa: SIM118 — gtsam's KeyVector
+    brute = [
+        brute_force_information_gain(graph, values, mapped.virtual_factor(i, d), over)
+        for i, d in zip(ids, dists, strict=True)
+    ]
+    np.testing.assert_allclose(fast, brute, rtol=1e-6)
+
+
 def test_centroid_is_the_default_model() -> None:
     slam = GtsamSlam()
     slam.configure(GtsamSlam.Params(), RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
