@@ -20,6 +20,7 @@ def _metrics(matched, objects, duplicates, spurious, err, vio, slam):
     chair |= {"duplicates": duplicates, "spurious": spurious, "mean_error_m": err}
     accuracy = {**chair, "median_error_m": err, "off_by_more_than_0_5_m": 0, "by_class": {"chair": chair}}
     return {
+        "verdict": "completed",
         "landmarks": {"accuracy": accuracy},
         "final_error": {"vio_position_m": vio, "slam_position_m": slam},
     }
@@ -42,6 +43,10 @@ def test_figures_and_tables_of_two_seeds():
     # per class, pooled: 20 objects, 18 mapped, mean error weighted by the mapped objects
     assert "| demo | sim | chair | 20 | 18 | 1 | 1 | 0.144 |" in text
     assert b.flight_figures({"verdict": "failed"}) is None
+    # a flight that ended early is scored, and the table says so
+    early = b.flight_figures({**_metrics(3, 10, 0, 0, 0.2, 0.5, 0.1), "verdict": "failed: planner"})
+    assert early["completed"] is False
+    assert "| demo | sim | 1 of 1 (1 not completed) |" in b.tables([{**rows[0], "figures": early}])
 
 
 def test_unknown_building_is_one_error_line(capsys):
