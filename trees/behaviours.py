@@ -308,6 +308,7 @@ class GoTo(RobotBehaviour):
         self._path_job: PathHandle | None = None
         self._plan()
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
+        self.held_since: float | None = None  # when the guards began to hold the robot where it is
 
     def _plan(self) -> None:
         """Ask for a path to the goal. On a real vehicle it is planned beside the control loop
@@ -437,17 +438,7 @@ class GoTo(RobotBehaviour):
         # robot hovering near furniture must still be able to fly away from it.
         near = here + to_target * min(1.0, self.SKIP_NEAR / length)
         if length > self.SKIP_NEAR and not self.navigation.segment_clear_local(near, ahead):
-            self.replanned += 1
-            if self._detour(here):
-                self.feedback_message = f"blocked near {np.round(ahead, 2).tolist()}: detour on the local map"
-                return Status.RUNNING
-            self._plan()
-            self.feedback_message = f"blocked near {np.round(ahead, 2).tolist()}: new path"
-            if self.path is None and self._path_job is None:
-                return self._fail("blocked, no other path")
-            if self._path_job is not None:
-                self.flight.hold()  # the old path runs into what blocks it
-            return Status.RUNNING
+            return self._blocked(here, f"blocked near {np.round(ahead, 2).tolist()}")
         horizontal = np.linalg.norm(to_target[:2])
         heading = float(np.arctan2(to_target[1], to_target[0])) if horizontal > 0.3 else self.goal.yaw
         yaw_err = abs(wrap_angle(heading - self.flight.yaw_world()))
@@ -456,8 +447,52 @@ class GoTo(RobotBehaviour):
             self.flight.send_setpoint_world(here, heading)
             self.feedback_message = "turning towards the path"
         else:
-            self.sent = (self.index, self.flight.send_setpoint_world(target, heading))
+            sent = self.flight.send_setpoint_world(target, heading)
+            self.sent = (self.index, sent)
             self.feedback_message = f"waypoint {self.index}/{len(self.path) - 1}"
+            if self._held_in_place(here, sent, length):
+                return self._blocked(here, "held in place by the clearance guards")
+        return Status.RUNNING
+
+    #: the guards hold the robot in place when what they send is this close to it (m) while the
+    #: waypoint is farther than SKIP_NEAR, for HOLD_PATIENCE seconds of the run's clock
+    HELD_STILL = 0.05
+    HOLD_PATIENCE = 1.0
+
+    def _held_in_place(self, here: np.ndarray, sent: np.ndarray | None, length: float) -> bool:
+        """The guards send the robot where it already is, and have for ``HOLD_PATIENCE`` s.
+
+        The clearance guard projects the step into the corridor the local map leaves around the
+        robot; near a slab edge and a wall (the top of the demo's shaft) the long straight step
+        towards a far waypoint projects to nothing, and the robot hovered until the goal was given
+        up for lack of progress, goal after goal on the same first leg (demo seed 1 with box
+        landmarks: 300 s). Held like that, the way is blocked as surely as when the local map
+        shows it: the leaf takes a detour on the fine local map, which goes round (up, then on).
+        """
+        if sent is None or length <= self.SKIP_NEAR or float(np.linalg.norm(sent - here)) > self.HELD_STILL:
+            self.held_since = None
+            return False
+        now = self.flight.time()
+        if self.held_since is None:
+            self.held_since = now
+        if now - self.held_since < self.HOLD_PATIENCE:
+            return False
+        self.held_since = None
+        return True
+
+    def _blocked(self, here: np.ndarray, why: str) -> Status:
+        """The way on is blocked: a detour on the local map, else a new path (counted as a replan,
+        which :class:`GiveUpGoal` limits)."""
+        self.replanned += 1
+        if self._detour(here):
+            self.feedback_message = f"{why}: detour on the local map"
+            return Status.RUNNING
+        self._plan()
+        self.feedback_message = f"{why}: new path"
+        if self.path is None and self._path_job is None:
+            return self._fail(f"{why}, no other path")
+        if self._path_job is not None:
+            self.flight.hold()  # the old path runs into what blocks it
         return Status.RUNNING
 
     #: how far along the path a detour rejoins it, m: past what blocks the way, inside the local map

@@ -372,6 +372,56 @@ def test_goto_gives_up_when_the_way_is_blocked_three_times():
     assert len(robot.unreachable_marked) == 1 and robot.holds == 1
 
 
+class CornerRobot(StuckRobot):
+    """At the top of a shaft, beside a slab edge and a wall: the clearance guards send the robot
+    where it is for any setpoint straight towards the far waypoint (the step projects to nothing),
+    and let it fly a way round (rise first) that the fine local map has, when ``way_round``."""
+
+    def __init__(self, way_round: bool):
+        super().__init__()
+        self.here = np.array([0.0, 0.0, 1.0])
+        self.way_round = way_round
+        self.local_plans = 0
+
+    def position_world(self):
+        return self.here.copy()
+
+    def send_setpoint_world(self, position, yaw):
+        step = np.asarray(position) - self.here
+        if abs(step[1]) < 1e-6 and abs(step[2]) < 1e-6:  # straight on: held where it is
+            return self.here.copy()
+        self.here = self.here + step * min(1.0, 0.2 / max(np.linalg.norm(step), 1e-9))
+        return self.here.copy()  # where the guards let it go this tick
+
+    def plan_local_path(self, a, b):
+        self.local_plans += 1
+        return np.array([a, a + [0.0, 0.0, 0.5], b + [0.0, 0.0, 0.5], b]) if self.way_round else None
+
+    def emit(self, name, **fields):
+        self.events.append((name, fields))
+
+
+def test_goto_held_in_place_by_the_guards_takes_a_detour_at_once():
+    """Not 20 s of hovering per goal (demo seed 1 with box landmarks lost 300 s that way)."""
+    robot = CornerRobot(way_round=True)
+    go = goal_to(robot)
+    statuses = fly(robot, go, 400)
+    assert statuses[-1] == Status.SUCCESS and not robot.unreachable_marked
+    detours = [f for name, f in robot.events if name == "detour"]
+    assert detours and robot.local_plans >= 1
+    first = next(i for i, (name, _) in enumerate(robot.events) if name == "detour")
+    assert first == 0 and robot.t < 15.0  # held for HOLD_PATIENCE, then round
+
+
+def test_goto_held_in_place_with_no_way_round_gives_up_as_blocked():
+    robot = CornerRobot(way_round=False)
+    go = goal_to(robot)
+    statuses = fly(robot, go, 400)
+    assert statuses[-1] == Status.FAILURE and len(robot.unreachable_marked) == 1
+    assert go.feedback_message == "the local map showed the way blocked 3 times"
+    assert robot.t < 5.0  # three holds of HOLD_PATIENCE each, not the 20 s no-progress clock
+
+
 class TableRobot(StuckRobot):
     """A table the global map missed stands across the straight path at x 2 m; the local map
     shows it (segments within 0.4 m of it are blocked) and has a way round it at y 1 m."""
