@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import signal
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ from amslam.interfaces import BackendParams, RunContext, Slam
 from amslam.plugins.gtsam_slam import GtsamSlam
 from amslam.testing.slam import T_BODY_CAM, flight, visible_detections
 from amslam.types import KeyPose, Landmark, Odometry
+from tests.core.pausing import beats_during
 
 
 class HeldLockSlam(Slam):
@@ -93,34 +93,13 @@ def test_other_threads_run_while_the_process_computes(tmp_path):
     """The reason it exists: a call that holds the interpreter lock in the backend's process
     leaves this one's threads running. The same call in this process stops them."""
 
-    def beats_during_uncertainty(slam: Slam) -> int:
-        beats: list[float] = []
-        stop = threading.Event()
-
-        def beat() -> None:
-            while not stop.is_set():
-                beats.append(time.perf_counter())
-                time.sleep(0.001)
-
-        other = threading.Thread(target=beat)
-        other.start()
-        try:
-            time.sleep(0.01)
-            start = time.perf_counter()
-            slam.uncertainty()
-            end = time.perf_counter()
-        finally:
-            stop.set()
-            other.join()
-        return len([t for t in beats if start < t < end])
-
     here = HeldLockSlam()
     here.configure(BackendParams(), _context(tmp_path))
     there = SlamProcess(HeldLockSlam)
     there.configure(BackendParams(), _context(tmp_path))
     try:
-        assert beats_during_uncertainty(here) <= 2  # the lock is held throughout: the test can fail
-        assert beats_during_uncertainty(there) >= 20
+        assert beats_during(here.uncertainty)[0] <= 2  # the lock is held throughout: the test can fail
+        assert beats_during(there.uncertainty)[0] >= 20
     finally:
         there.close()
 

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import threading
-import time
-
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
 from amslam.lib import dijkstra
 from amslam.lib.free_space import FreeSpaceGraph
+from tests.core.pausing import beats_during
 
 
 def _voxel_graph(shape, seed: int = 0) -> FreeSpaceGraph:
@@ -39,23 +37,5 @@ def test_other_threads_run_while_it_searches():
     graph = _voxel_graph((60, 50, 12)).graph
     sources = np.arange(0, graph.shape[0], graph.shape[0] // 12)
     dijkstra.warm_up()
-    beats: list[float] = []
-    stop = threading.Event()
-
-    def beat() -> None:
-        while not stop.is_set():
-            beats.append(time.perf_counter())
-            time.sleep(0.001)
-
-    other = threading.Thread(target=beat)
-    other.start()
-    try:
-        time.sleep(0.01)
-        start = time.perf_counter()
-        dijkstra.distances(graph, sources)
-        end = time.perf_counter()
-    finally:
-        stop.set()
-        other.join()
-    inside = [t for t in beats if start < t < end]
-    assert len(inside) >= 5, f"{len(inside)} beats of the other thread during a {end - start:.3f} s search"
+    inside, seconds = beats_during(lambda: dijkstra.distances(graph, sources))
+    assert inside >= 5, f"{inside} beats of the other thread during a {seconds:.3f} s search"
