@@ -272,7 +272,8 @@ class GoTo(RobotBehaviour):
     SUCCESS on arrival (heading turned to the goal's yaw), or, with ``early_exit``, early when an
     exploration goal's frontier was seen on the way or the tour is older than ``replan_period``;
     FAILURE when no path exists (the goal is marked unreachable). When the local map shows the way
-    blocked it plans a new path and flies on. When to give the goal up (no progress, blocked too
+    blocked, or the guards hold the robot where it is, it takes a detour on the local map or plans
+    a new path and flies on. When to give the goal up (no progress, blocked too
     often) is the :class:`amslam.trees.decorators.GiveUpGoal` decorator's decision: the leaf
     reports its :meth:`progress` and gives up on request (:meth:`give_up`). Trees build it with
     :func:`go_to`, which puts it under that decorator.
