@@ -74,7 +74,7 @@ def flight_figures(metrics: dict[str, Any]) -> dict[str, Any] | None:
             else None
         ),
         "by_class": acc.get("by_class", {}),
-        "completed": str(metrics.get("verdict", "")).startswith("completed"),
+        "completed": metrics.get("verdict") == "completed",  # as `amslam run`'s exit status reads it
     }
 
 
@@ -92,7 +92,7 @@ def tables(rows: list[dict[str, Any]]) -> str:
         figs = [g["figures"] for g in group if g["figures"] is not None]
         below = [f["slam_below_vio"] for f in figs if f["slam_below_vio"] is not None]
         # a flight that ended early still has a map to score, but not the whole building's
-        failed = sum(not f.get("completed", True) for f in figs)
+        failed = sum(not f["completed"] for f in figs)
         ended = f" ({failed} not completed)" if failed else ""
         out.append(
             f"| {building} | {detector} | {len(figs)} of {len(group)}{ended} | "

@@ -5,6 +5,7 @@ the interpreter lock?)."""
 from __future__ import annotations
 
 import threading
+import time
 
 
 class PauseAtCall:
@@ -27,8 +28,6 @@ def beats_during(call) -> tuple[int, float]:
     """How many times another thread, beating every millisecond, ran while ``call()`` ran in this
     one, and how long the call took (s): about ``1000 × seconds`` when the call lets go of the
     interpreter lock, none when it holds the lock throughout."""
-    import time
-
     beats: list[float] = []
     stop = threading.Event()
 
