@@ -59,6 +59,12 @@ def landmark_accuracy(landmarks: list, world: WorldSummary, gate: float = 1.0) -
     their class (a second landmark for a mapped object); ``spurious`` are landmarks with no object
     of their class within ``gate``; ``off_by_more_than_0_5_m`` counts paired landmarks more than
     0.5 m from their object. ``by_class`` gives the same per class (issue #23's benchmark).
+
+    ``common_offset_m`` is the mean of (landmark − object) over the paired landmarks (x, y, z):
+    what the whole map is shifted by, a frame error the trajectory left (an early drift SLAM
+    kept), which no landmark model removes; ``error_about_offset_m`` is the mean distance of each
+    pair's difference from it: the landmarks' own error once the map's shift is taken out. The
+    mean error is about their sum, so the two tell a trajectory's error from a landmark's.
     """
     from scipy.optimize import linear_sum_assignment
 
@@ -92,6 +98,11 @@ def landmark_accuracy(landmarks: list, world: WorldSummary, gate: float = 1.0) -
         }
 
     out = block(len(ids), err, int(duplicate.sum()), int((~near).sum()), len(Q))
+    if ok.any():
+        diff = Q[r[ok]] - P[c[ok]]
+        offset = diff.mean(axis=0)
+        out["common_offset_m"] = [round(float(v), 4) for v in offset]
+        out["error_about_offset_m"] = round(float(np.linalg.norm(diff - offset, axis=1).mean()), 4)
     out["by_class"] = {
         cls: block(
             int((pc == cls).sum()),

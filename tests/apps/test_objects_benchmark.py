@@ -19,6 +19,7 @@ def _metrics(matched, objects, duplicates, spurious, err, vio, slam):
     chair = {"objects": objects, "landmarks": matched + duplicates + spurious, "matched": matched}
     chair |= {"duplicates": duplicates, "spurious": spurious, "mean_error_m": err}
     accuracy = {**chair, "median_error_m": err, "off_by_more_than_0_5_m": 0, "by_class": {"chair": chair}}
+    accuracy |= {"common_offset_m": [0.3 * err / 0.1, 0.4 * err / 0.1, 0.0], "error_about_offset_m": err / 2}
     return {
         "verdict": "completed",
         "landmarks": {"accuracy": accuracy},
@@ -39,6 +40,8 @@ def test_figures_and_tables_of_two_seeds():
     ]
     text = b.tables(rows)
     assert "| demo | sim | 2 of 3 | 90.00 ± 10.00 | 5.00 ± 5.00 | 5.00 ± 5.00 | 0.15 ± 0.05 |" in text
+    # the shifts 1.0 and 0.5 m (offsets (0.6, 0.8) and (0.3, 0.4)), errors about them 0.1 and 0.05 m
+    assert "| 0.00 ± 0.00 | 0.75 ± 0.25 | 0.08 ± 0.03 | 1 of 2 |" in text
     assert text.split("\n")[2].endswith("| 1 of 2 |")  # SLAM ended below VIO on one flight of two
     # per class, pooled: 20 objects, 18 mapped, mean error weighted by the mapped objects
     assert "| demo | sim | chair | 20 | 18 | 1 | 1 | 0.144 |" in text

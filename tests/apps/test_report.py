@@ -30,6 +30,18 @@ def _lm(i: int, cls: str, p: list[float]) -> Landmark:
     return Landmark(i, cls, np.array(p, float), np.eye(3) * 0.01, 5)
 
 
+def test_landmark_accuracy_tells_the_maps_shift_from_the_landmarks_own_error() -> None:
+    world = _world({f"c{i}": ("chair", [2.0 * i, 0, 0]) for i in range(4)})
+    shift = np.array([0.3, -0.1, 0.0])
+    own = [[0.05, 0, 0], [-0.05, 0, 0], [0, 0.05, 0], [0, -0.05, 0]]  # about the shift, mean zero
+    lms = [_lm(i, "chair", list(np.array([2.0 * i, 0, 0]) + shift + own[i])) for i in range(4)]
+    acc = landmark_accuracy(lms, world)
+    assert np.allclose(acc["common_offset_m"], shift, atol=1e-4)
+    assert np.isclose(acc["error_about_offset_m"], 0.05, atol=1e-4)
+    assert acc["mean_error_m"] > 0.3  # the plain error holds both
+    assert "common_offset_m" not in landmark_accuracy([], world)
+
+
 def test_landmark_accuracy_pairs_by_class_and_counts_duplicates_and_spurious() -> None:
     world = _world({"a": ("chair", [0, 0, 0]), "b": ("chair", [0.75, 0, 0]), "c": ("table", [5, 5, 0])})
     lms = [
