@@ -120,7 +120,8 @@ class RunContext:
         run_dir: the run folder (backends may write extra artefacts there).
         emit: ``emit(event_name, **fields)`` appends to ``events.jsonl``.
         camera: the platform's camera (None while the platform itself is configured).
-        world: ground truth of a simulated world (None on a real vehicle).
+        world: ground truth of a simulated world: handed only to the simulator's own backends
+            (:attr:`Backend.simulator`); None for every other backend, and on a real vehicle.
         robot: size and motion limits of the vehicle.
         area: the region to explore (world frame); frontiers outside it are ignored.
         mission_dir: folder of the mission file, for resolving relative paths.
@@ -150,6 +151,11 @@ class Backend(abc.ABC):  # noqa: B024 — the lifecycle methods are optional
     #: for backends whose library calls hold the interpreter lock long enough to delay the
     #: control loop (a SLAM graph's marginals). Only SLAM backends can run so today.
     own_process: ClassVar[bool] = False
+    #: part of the simulator (its platform, its detector): the only backends handed the simulated
+    #: world's ground truth (``RunContext.world``). Every other backend is configured with
+    #: ``world=None`` in simulation too, as on a real vehicle, so nothing a real robot could not
+    #: know reaches mapping, SLAM or planning (``tests/e2e/test_ground_truth_withheld.py``).
+    simulator: ClassVar[bool] = False
 
     def configure(self, params: BackendParams, context: RunContext) -> None:  # noqa: B027
         """Receive validated parameters and the run context."""

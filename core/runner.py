@@ -182,7 +182,13 @@ class Runner:
             context = dataclasses.replace(context, rng=backend_rng(model.seed, kind))
             with self.boundary.calling(kind, "configure()"):
                 backend = self._build(kind, choice.plugin)
-                backend.configure(choice.params, context)
+                # the simulator's truth goes to the simulator alone: a real robot has none
+                own = (
+                    context
+                    if getattr(backend, "simulator", False)
+                    else dataclasses.replace(context, world=None)
+                )
+                backend.configure(choice.params, own)
             self.backends[kind] = backend
             if kind == "mapping" and model.prior_map:
                 prior = (self.mission.directory / model.prior_map).resolve()

@@ -398,10 +398,8 @@ class VoxelMapBase(Mapping):
         p = self.params = params
         self.context = context
         self.model = LogOddsModel(p.p_hit, p.p_miss, p.p_occ, p.p_min, p.p_max)
-        if context.area is not None:
+        if context.area is not None:  # the mission's area, or in simulation the world's bounds
             self.area = context.area
-        elif context.world is not None:
-            self.area = BoundingBox(np.asarray(context.world.bounds_lo), np.asarray(context.world.bounds_hi))
         else:
             self.area = BoundingBox(np.array(p.default_area[0]), np.array(p.default_area[1]))
         # Hard limit: the robot radius plus half the clearance margin from occupied voxel *boxes*
@@ -418,10 +416,11 @@ class VoxelMapBase(Mapping):
         # 99 % and could not find its way home; with this radius two runs in about 30 grazed an
         # obstacle at 0.248 m, robot radius 0.25 m, on paths laid off by the SLAM correction.)
         self.local_radius = float(context.robot.radius - 0.5 * p.local_voxel)
-        if context.world is None:  # a real vehicle: compile the path-cost kernel before take-off
-            from amslam.lib.dijkstra import warm_up
+        # compile the path-cost kernel (or load it from numba's cache) before take-off, not at
+        # the first plan: on a real vehicle the first plan is made while it flies
+        from amslam.lib.dijkstra import warm_up
 
-            warm_up()
+        warm_up()
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)

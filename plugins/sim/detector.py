@@ -89,6 +89,10 @@ DEFAULT_MODELS: dict[str, PerceptionModel] = {
 class SimDetector(Detector):
     """Detector plugin ``sim``: reads the simulator's instance and class masks."""
 
+    #: part of the simulator: its detection errors depend on the true viewing angle of each
+    #: object (``context.world``), as a real detector's depend on the real one (Backend.simulator)
+    simulator = True
+
     class Params(BackendParams):
         """Parameters of the simulated detector."""
 

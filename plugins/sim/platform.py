@@ -47,6 +47,7 @@ class SimPlatform(Platform):
     requires = ("open3d",)  # imported when built (see Backend.requires)
 
     simulated = True
+    simulator = True  # builds the world: its ground truth is its own (Backend.simulator)
 
     @staticmethod
     def team_overrides(*args, **kwargs) -> list[list[str]]:
