@@ -67,8 +67,9 @@ def flight_row(metrics: dict[str, Any], mission: dict[str, Any], run_dir: str | 
         "time_s": metrics.get("sim_duration_s"),
         "closest_m": clearance,
         "closest_to": close.get("to"),
-        # contact as the simulator judges it: the vehicle's sphere reached a surface
-        "contact": clearance is not None and radius is not None and clearance <= radius,
+        # contact as the simulator judges it: a crash, or the vehicle's sphere reaching a surface
+        "contact": str(metrics.get("verdict", "")).startswith("crashed")
+        or (clearance is not None and radius is not None and clearance <= radius),
         "vio_m": err.get("vio_position_m"),
         "slam_m": err.get("slam_position_m"),
         "objects": acc.get("objects"),

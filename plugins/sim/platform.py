@@ -495,6 +495,9 @@ class SimPlatform(Platform):
             self._closest = (clearance, self._p.copy(), "")
         if clearance < r.radius:
             d, q, what = w.closest(self._p)
+            # the closest approach leaves out the landing's descent onto the floor, not a crash in it
+            if d < self._closest[0]:
+                self._closest = (d, self._p.copy(), what)
             self._crashed = True
             self._vel[:] = 0.0
             pos = ", ".join(f"{x:.2f}" for x in self._p)

@@ -61,6 +61,9 @@ def test_summary_counts_contacts_and_gives_the_closest_approach_distribution():
     rows.append(b.flight_row(_metrics("crashed", 20.0, 0.2), mission, None))
     text = b.summary(rows)
     assert "flights 3; completed 2; contacts 1" in text
+    # a crash is a contact even where the closest approach the metrics kept is larger
+    crash = b.flight_row(_metrics("crashed: collision at (0, 0, 1)", 90.0, 0.4), mission, None)
+    assert crash["contact"] is True
     assert "explored min 20.00" in text and "1 of 3 ≥ 90 %" in text
     assert "closest approach min 0.200" in text and "median 0.300 m" in text
     # a flight that raised has no figures: it is a row, and counted as not completed

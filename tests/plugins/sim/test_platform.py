@@ -219,6 +219,23 @@ def test_procedural_building_summary_is_sensible(tmp_path):
     assert plat.world_summary() is s  # cached
 
 
+def test_a_crash_while_landing_is_the_closest_approach(tmp_path, room_with_chair):
+    # landing straight down beside the chair's edge (its top 0.9 m, its side at x 4.75): the
+    # descent is left out of the closest approach, a crash in it is not (a cafe flight reported
+    # 0.418 m for a landing that crashed at 0.244 m)
+    plat = make_platform(tmp_path, spec=room_with_chair)
+    plat.arm_and_takeoff(1.2)
+    plat.advance(4.0)
+    fly_to(plat, np.array([4.6, 4.0, 1.2]))
+    cruising = plat.status().closest_approach
+    plat.land()
+    plat.advance(8.0)
+    st = plat.status()
+    assert st.crashed and "chair_1" in st.crash_reason
+    assert st.closest_approach < 0.25 < cruising
+    assert st.closest_to and "chair" in st.closest_to
+
+
 def test_start_parameter_and_blocked_start(tmp_path, room_with_chair):
     from amslam.errors import PlatformError
 
