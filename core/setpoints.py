@@ -131,38 +131,57 @@ class SetpointFilter:
     LANDING_RING = 0.25
     #: how far below the vehicle the surface it would land on is looked for in the local map, m
     DESCENT_REACH = 3.0
+    #: a surface the local map shows free space under, with another surface at most this far
+    #: below, is furniture (a table, a counter), not the floor: landing there is landing on it, m.
+    #: Furniture stands lower; the room under a slab is taller (the demo's: 2.35 m)
+    RAISED_MAX = 1.6
 
     def descent_clear(self, p_odom: np.ndarray) -> bool:
-        """Whether a vertical descent from ``p_odom`` to the surface below keeps clear of the local map.
+        """Whether a vertical descent from ``p_odom`` to the floor below keeps clear of the local map.
 
         A platform lands straight down (PX4's land mode, the simulator's): anything the fresh local
         map shows within the robot radius plus ``GUARD_MARGIN`` of that column, between the surface
         it lands on and the vehicle, would be touched on the way (a table's edge, a window sill).
         The surface is the first occupied voxel straight below; without one in reach the column is
-        not judged clear. Unknown voxels count as free, as for the clearance guard.
+        not judged clear, nor when that surface is furniture (``RAISED_MAX``: free space under it,
+        the floor not far below). Unknown voxels count as free, as for the clearance guard.
         """
         return self._descent(p_odom)[0]
 
     def _descent(self, p_odom: np.ndarray) -> tuple[bool, float, bool]:
-        """(descent clear, height of the surface landed on or +inf when none is in reach, the
-        column within reach free: nothing within the radius plus margin of it, down to the
-        surface or as deep as the search looks)."""
+        """(descent clear, height of the floor below — the surface landed on, or the one under
+        the furniture the column meets first — or +inf when none is in reach, the column within
+        reach free: nothing within the radius plus margin of it, down to the first surface or as
+        deep as the search looks)."""
         p = np.asarray(p_odom, float)
         step = self.GUARD_STEP
         depth = np.arange(step, self.DESCENT_REACH + 1e-9, step)
-        below = self.mapping.states(p - np.outer(depth, [0.0, 0.0, 1.0]), local=True) == VoxelState.OCCUPIED
+        states = self.mapping.states(p - np.outer(depth, [0.0, 0.0, 1.0]), local=True)
+        below = states == VoxelState.OCCUPIED
         found = bool(below.any())
-        surface = float(p[2] - depth[int(np.argmax(below))]) if found else float(p[2] - depth[-1] - step)
+        first = int(np.argmax(below))
+        surface = float(p[2] - depth[first]) if found else float(p[2] - depth[-1] - step)
+        # A cafe flight that could not get home descended onto a counter the local map showed 0.7 m
+        # below it, with seen free space under the counter: the simulator's vehicle went on down to
+        # the floor past the counter's edge and touched it (a real one would land on the counter).
+        raised = False
+        if found:
+            under = np.flatnonzero(~below[first:]) + first  # below the first surface's thickness
+            if len(under) and states[under[0]] == VoxelState.FREE:
+                lower = np.flatnonzero(below[under[0] :]) + under[0]
+                if len(lower) and depth[lower[0]] - depth[first] <= self.RAISED_MAX:
+                    raised, surface = True, float(p[2] - depth[lower[0]])
         reach = self.radius + self.GUARD_MARGIN
         k = int(np.ceil(reach / step))
         axis = np.arange(-k, k + 1) * step
         ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
         ring = ring[np.linalg.norm(ring, axis=1) <= reach]
         # from a voxel above the surface (the occupied voxel's top face is the surface) up to the vehicle
-        heights = np.append(np.arange(surface + 1.5 * step, p[2] - 1e-9, step), p[2])
+        top = float(p[2] - depth[first]) if found else surface  # the first surface met
+        heights = np.append(np.arange(top + 1.5 * step, p[2] - 1e-9, step), p[2])
         column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
         free = not bool(np.any(self.mapping.states(column, local=True) == VoxelState.OCCUPIED))
-        return free and found, (surface if found else float("inf")), free
+        return free and found and not raised, (surface if found else float("inf")), free
 
     def landing_spot(self, here_odom: np.ndarray) -> np.ndarray | None:
         """The nearest point at the vehicle's height whose descent is clear (:meth:`descent_clear`),

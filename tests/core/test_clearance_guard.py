@@ -188,6 +188,24 @@ def test_a_descent_beside_a_table_is_not_clear_and_a_spot_away_from_it_is() -> N
     np.testing.assert_allclose(open_floor.landing_spot(here), here)
 
 
+def test_a_counter_top_with_free_space_under_it_is_no_landing_surface() -> None:
+    # the cafe: a robot that could not get home hovered 0.7 m over a counter's top (a 6 cm board at
+    # 1.3 m, free space under it) and landed straight down; the top is furniture, not the floor
+    counter = ((-1.0, -0.6, 1.27), (1.0, 0.6, 1.335))
+    guard = SetpointFilter(BoxMap([FLOOR, counter]), RADIUS, min_height=0.0, min_headroom=0.0)
+    here = np.array([0.0, 0.0, 2.0])
+    assert not guard.descent_clear(here)
+    spot = guard.landing_spot(here)
+    assert spot is not None and spot[2] == pytest.approx(2.0)
+    # beside the counter, on the floor: the whole descent keeps the radius from the counter
+    column = [spot - np.array([0, 0, dz]) for dz in np.arange(0.0, 2.0, 0.05)]
+    assert min(BoxMap([counter]).clearance(p) for p in column) > RADIUS
+    # a slab with the room under it taller than furniture is a floor: land on it
+    slab = ((-5, -5, 2.55), (5, 5, 2.75))
+    upper = SetpointFilter(BoxMap([FLOOR, slab]), RADIUS, min_height=0.0, min_headroom=0.0)
+    assert upper.descent_clear(np.array([0.0, 0.0, 3.95]))
+
+
 def test_no_floor_in_reach_or_no_clear_spot_gives_none() -> None:
     here = np.array([0.0, 0.0, 1.2])
     no_floor = SetpointFilter(BoxMap([TABLE]), RADIUS, min_height=0.0, min_headroom=0.0)
