@@ -59,7 +59,13 @@ class FollowsPath(Protocol):
 
 class GiveUpGoal(Decorator):
     """Give the child's goal up when it makes no progress for ``no_progress`` seconds of the
-    run's clock, or once the way was blocked ``max_blocked`` times (its path replanned as often).
+    run's clock, or once the way was blocked ``max_blocked`` times within ``block_radius`` metres
+    (its path replanned as often there).
+
+    Blocks count where they happen: a way blocked three times in one place is blocked, but a long
+    way with three obstacles, each flown round, is progress (a bookstore flight gave up going home
+    after detours 2.5 and 3.5 m apart, and landed on a shelf 6 m from home). A block more than
+    ``block_radius`` from the first of the blocks counted starts the count again there.
 
     Progress is a waypoint passed, a path replanned, or ``min_gain`` metres gained on the current
     waypoint. The no-progress check runs before the child's tick, against where the robot is now
@@ -80,11 +86,16 @@ class GiveUpGoal(Decorator):
         no_progress: float = 20.0,
         max_blocked: int = 3,
         min_gain: float = 0.1,
+        block_radius: float = 1.0,
     ):
         super().__init__(name=name, child=child)
         self.no_progress = no_progress
         self.max_blocked = max_blocked
         self.min_gain = min_gain
+        self.block_radius = block_radius
+        #: the child's blocks seen so far, and the count of those near where the count began
+        self.blocks_seen = 0
+        self.blocks_here: tuple[np.ndarray, int] | None = None
         #: the best progress so far and since when: ((replanned, passed), distance, time)
         self.best: tuple[tuple[int, int], float, float] | None = None
         #: where the robot was when the child last made progress, and when; kept across runs
@@ -96,6 +107,7 @@ class GiveUpGoal(Decorator):
 
     def initialise(self) -> None:
         self.best = None
+        self.blocks_seen, self.blocks_here = 0, None
 
     def terminate(self, new_status: Status) -> None:
         # A run that ended early (the tour went stale, every replan_period) is followed by a new
@@ -145,8 +157,16 @@ class GiveUpGoal(Decorator):
             if self.last_progress is None or since == now:
                 self.last_progress = (here.copy(), now)
             self.best = ((0, 0), progress.to_waypoint, since)
-        if progress.replanned >= self.max_blocked:
-            self._give_up(f"the local map showed the way blocked {progress.replanned} times")
+        if progress.replanned > self.blocks_seen:
+            here = self.flight.position_world()
+            new = progress.replanned - self.blocks_seen
+            self.blocks_seen = progress.replanned
+            if self.blocks_here is None or np.linalg.norm(here - self.blocks_here[0]) > self.block_radius:
+                self.blocks_here = (here.copy(), new)
+            else:
+                self.blocks_here = (self.blocks_here[0], self.blocks_here[1] + new)
+        if self.blocks_here is not None and self.blocks_here[1] >= self.max_blocked:
+            self._give_up(f"the local map showed the way blocked {self.blocks_here[1]} times")
             return Status.FAILURE
         self.feedback_message = child.feedback_message
         return Status.RUNNING

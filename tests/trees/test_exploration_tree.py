@@ -372,6 +372,28 @@ def test_goto_gives_up_when_the_way_is_blocked_three_times():
     assert len(robot.unreachable_marked) == 1 and robot.holds == 1
 
 
+class LongWayRobot(BlockedRobot):
+    """Blocked at every look, but 2 m further on each time: a long way with obstacles, each flown
+    round (each block's new path starts where the last one took it)."""
+
+    def position_world(self):
+        return np.array([2.0 * (self.paths - 1), 0.0, 1.0])
+
+
+def test_blocks_far_apart_are_a_long_way_not_a_blocked_one():
+    robot = LongWayRobot()
+    go = goal_to(robot)
+    statuses = fly(robot, go, 6)
+    assert all(st == Status.RUNNING for st in statuses) and robot.paths >= 6
+    assert not robot.unreachable_marked
+    # the same blocks 0.4 m apart: one place, given up at the third
+    robot = LongWayRobot()
+    robot.position_world = lambda: np.array([0.4 * (robot.paths - 1), 0.0, 1.0])
+    go = goal_to(robot)
+    assert fly(robot, go, 10)[-1] == Status.FAILURE
+    assert go.feedback_message == "the local map showed the way blocked 3 times"
+
+
 class CornerRobot(StuckRobot):
     """At the top of a shaft, beside a slab edge and a wall: the clearance guards send the robot
     where it is for any setpoint straight towards the far waypoint (the step projects to nothing),
