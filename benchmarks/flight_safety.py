@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -164,7 +165,12 @@ def _run_folders(folders: list[str]) -> list[dict[str, Any]]:
     """The row of every run folder (one holding ``metrics.json``) under ``folders``, in path order."""
     rows = []
     for folder in folders:
-        found = sorted(Path(folder).rglob("metrics.json"))
+        # symbolic links followed: a sweep's final flights gathered as links to their run folders
+        found = sorted(
+            Path(d) / "metrics.json"
+            for d, _, files in os.walk(folder, followlinks=True)
+            if "metrics.json" in files
+        )
         if not found:
             raise ValueError(f"--tabulate {folder}: no run folder (a folder with metrics.json) under it")
         for path in found:

@@ -80,6 +80,11 @@ def test_tabulate_reads_every_run_folder_and_says_when_there_is_none(tmp_path, c
     assert b.main(["--tabulate", str(tmp_path / "sweep")]) == 0
     out = capsys.readouterr().out
     assert out.count("| demo | ") == 2 and "**All: flights 2; completed 2; contacts 0" in out
+    # a sweep's final flights gathered as links to their run folders
+    (tmp_path / "final").mkdir()
+    (tmp_path / "final" / "s1").symlink_to(tmp_path / "sweep" / "demo_s1")
+    assert b.main(["--tabulate", str(tmp_path / "final")]) == 0
+    assert capsys.readouterr().out.count("| demo | ") == 1
     (tmp_path / "empty").mkdir()
     assert b.main(["--tabulate", str(tmp_path / "empty")]) == 2
     assert "no run folder" in capsys.readouterr().err
