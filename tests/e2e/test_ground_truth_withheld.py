@@ -53,8 +53,8 @@ def _recording_world(world: WorldSummary, readers: list[tuple[str, str]]) -> Wor
 @pytest.mark.parametrize(
     ("mission", "overrides"),
     [
-        ("demo", ["limits.max_time=25"]),
-        ("pams_lot_a", ["limits.max_time=25"]),
+        ("demo", ["limits.max_time=15"]),
+        ("pams_lot_a", ["limits.max_time=15"]),
     ],
     ids=["demo-stack", "pams"],
 )
