@@ -68,9 +68,13 @@ $(STAMP): pyproject.toml | system-deps
 demo: setup
 	$(BIN)/amslam run demo
 
-# --durations: the slowest tests at the end of every log (CI's too), where a faster suite starts (issue #20)
+# Two parts (issue #20): every test but the realtime ones on two worker processes, one per core
+# (pytest-xdist), then the realtime ones alone, since they measure on the wall clock and a second
+# worker would be their load (tests/conftest.py says which they are). --durations: the slowest
+# tests at the end of every log (CI's too), where a faster suite starts.
 test: setup
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -n 2 -m "not slow and not realtime" --durations=15
+	$(BIN)/python -m pytest -q -m "realtime and not slow" --durations=5
 
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
