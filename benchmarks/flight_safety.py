@@ -207,8 +207,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         return 0
 
-    from amslam.apps.flights import Flight, FlightRunner, experiment_folder, fly_all
-    from amslam.errors import AmslamError
+    from amslam.apps.flights import Flight, fly_benchmark
 
     buildings = [b for b in args.buildings.split(",") if b]
     if unknown := [b for b in buildings if b not in BUILDINGS]:
@@ -227,13 +226,9 @@ def main(argv: list[str] | None = None) -> int:
         for s in range(1, (args.demo_seeds if b == "demo" else args.seeds) + 1):
             flights.append(Flight(mission, (*overrides, *extra, f"seed={s}")))
     flights += [Flight(str(Path(w).resolve()), tuple(extra)) for w in args.world]
-    folder = experiment_folder(Path(args.out), "flight-safety", "buildings", args.resume)
-    print(f"benchmark folder: {folder} ({len(flights)} flights)", flush=True)
-    try:
-        records = fly_all(flights, folder, FlightRunner.from_args(args), lambda line: print(line, flush=True))
-    except AmslamError as exc:  # no Ray installed, --address without --ray: one line
-        print(f"error: {exc}", file=sys.stderr)
+    if (flown := fly_benchmark(flights, args, "flight-safety")) is None:
         return 2
+    folder, records = flown
     rows = [_record_row(f, rec) for f, rec in zip(flights, records, strict=True)]
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     text = tables(rows)

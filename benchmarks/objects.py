@@ -143,8 +143,7 @@ def tables(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from amslam.apps.flights import Flight, FlightRunner, experiment_folder, fly_all
-    from amslam.errors import AmslamError
+    from amslam.apps.flights import Flight, fly_benchmark
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--buildings", default=",".join(BUILDINGS), help=f"of {', '.join(BUILDINGS)}")
@@ -178,13 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     flights = [
         Flight(BUILDINGS[b][0], (*BUILDINGS[b][1], *DETECTORS[d], *extra, f"seed={s}")) for b, d, s in cases
     ]
-    folder = experiment_folder(Path(args.out), "objects-benchmark", "buildings", args.resume)
-    print(f"benchmark folder: {folder} ({len(flights)} flights)", flush=True)
-    try:
-        records = fly_all(flights, folder, FlightRunner.from_args(args), lambda line: print(line, flush=True))
-    except AmslamError as exc:  # no Ray installed, --address without --ray: one line
-        print(f"error: {exc}", file=sys.stderr)
+    if (flown := fly_benchmark(flights, args, "objects-benchmark")) is None:
         return 2
+    folder, records = flown
     rows = [
         {
             "building": b,

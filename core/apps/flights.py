@@ -149,6 +149,25 @@ def fly_all(
     return [done[f.key] for f in flights]
 
 
+def fly_benchmark(
+    flights: Sequence[Flight], args: argparse.Namespace, benchmark: str
+) -> tuple[Path, list[dict[str, Any]]] | None:
+    """A benchmark script's flights: a new folder ``<benchmark>-buildings-<time>`` under
+    ``args.out`` (or ``args.resume``), flown as ``args`` says (``--ray``, ``--address``), one
+    progress line per flight on stdout. None once the error is printed on stderr (no Ray
+    installed, ``--address`` without ``--ray``, an ``--resume`` that is no benchmark folder)."""
+    import sys
+
+    try:
+        folder = experiment_folder(Path(args.out), benchmark, "buildings", args.resume)
+        print(f"benchmark folder: {folder} ({len(flights)} flights)", flush=True)
+        records = fly_all(flights, folder, FlightRunner.from_args(args), lambda line: print(line, flush=True))
+    except AmslamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+    return folder, records
+
+
 def fly_one(
     mission: str, overrides: Sequence[str], runs: str, registry: Registry | None = None
 ) -> dict[str, Any]:

@@ -2,20 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import yaml
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "flight_safety.py"
+from tests.apps.benchmark_script import load_benchmark
 
 
 def _benchmark():
-    spec = importlib.util.spec_from_file_location("flight_safety_benchmark", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("flight_safety")
 
 
 def _metrics(verdict, explored, clearance, radius=0.25):
@@ -98,3 +94,10 @@ def test_bad_arguments_are_one_error_line(tmp_path, capsys):
     )
     assert b.main(["--world", str(tmp_path / "nowhere.yaml")]) == 2
     assert "no such mission file" in capsys.readouterr().err
+
+
+def test_a_flight_option_error_is_one_line_and_flies_nothing(tmp_path, capsys):
+    b = _benchmark()
+    assert b.main(["--buildings", "house", "--seeds", "1", "--address", "auto", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == "error: --address names a Ray cluster: give --ray too"
+    assert not list(tmp_path.rglob("metrics.json"))

@@ -2,17 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "objects.py"
+from tests.apps.benchmark_script import load_benchmark
 
 
 def _benchmark():
-    spec = importlib.util.spec_from_file_location("objects_benchmark", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("objects")
 
 
 def _metrics(matched, objects, duplicates, spurious, err, vio, slam):
