@@ -154,6 +154,26 @@ def test_the_guards_never_lift_the_vehicle_over_the_flight_areas_top():
     assert end[1] < 2.0 - RADIUS  # still on its side of the wall
 
 
+def test_a_long_step_over_something_below_is_flown_short_under_the_top_not_refused():
+    # The turtlebot3 house: the vehicle at 1.57 m, a sofa's top 0.5 m below and 0.4 m beside it,
+    # a detour waypoint 2.6 m away past the sofa, the area's top at 2.25 m. The corridor turned the
+    # whole step into a lift over the top, so every setpoint was refused and the vehicle was held
+    # 80 s; an eighth of the step passes the sofa with little lift.
+    sofa = ((-4.0, 2.0, 0.0), (-3.47, 3.5, 1.07))
+    floor = ((-9, -9, -0.2), (9, 9, 0.0))
+    world = BoxMap([sofa, floor])
+    robot = make_robot(world, (-3.92, 2.93, 1.57))
+    robot.setpoints = SetpointFilter(world, RADIUS, 0.0, 0.0, ceiling=2.25)
+    start = robot.platform.p.copy()
+    clearances = []
+    for _ in range(40):
+        robot.send_setpoint_world(np.array([-1.75, 1.57, 1.89]), 0.0)
+        clearances.append(world.clearance(robot.platform.p))
+    assert np.linalg.norm(robot.platform.p - start) > 1.5  # it flew on, past the sofa
+    assert max(sp[2] for sp in robot.platform.setpoints) <= 2.25 + 1e-6
+    assert min(clearances) >= RADIUS + SetpointFilter.GUARD_MARGIN - 1e-9
+
+
 def test_the_ceiling_is_placed_in_the_odometry_frame_by_the_slam_correction():
     robot = make_robot(BoxMap([]), (0.0, 0.0, 1.0))
     robot.setpoints = SetpointFilter(robot.mapping, RADIUS, 0.0, 0.0, ceiling=2.0)
