@@ -84,8 +84,10 @@ def _highest_point(run_dir: str | None) -> float | None:
     path = Path(run_dir) / "ground_truth.tum" if run_dir else None
     if path is None or not path.exists():
         return None
-    z = np.loadtxt(path, usecols=3, ndmin=1)
-    return round(float(z.max()), 3) if z.size else None
+    from amslam.rundir import read_tum  # the run folder's own checked reader
+
+    poses = read_tum(path).poses
+    return round(float(poses[:, 2].max()), 3) if len(poses) else None
 
 
 def _fmt(value: Any, digits: int = 2) -> str:

@@ -166,7 +166,9 @@ class SetpointFilter:
         below = states == VoxelState.OCCUPIED
         found = bool(below.any())
         first = int(np.argmax(below))
-        surface = float(p[2] - depth[first]) if found else float(p[2] - depth[-1] - step)
+        # the first surface met below (the search's end when none is), and the floor under it
+        top = float(p[2] - depth[first]) if found else float(p[2] - depth[-1] - step)
+        surface = top
         # A cafe flight that could not get home descended onto a counter the local map showed 0.7 m
         # below it, with seen free space under the counter: the simulator's vehicle went on down to
         # the floor past the counter's edge and touched it (a real one would land on the counter).
@@ -182,8 +184,7 @@ class SetpointFilter:
         axis = np.arange(-k, k + 1) * step
         ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
         ring = ring[np.linalg.norm(ring, axis=1) <= reach]
-        # from a voxel above the surface (the occupied voxel's top face is the surface) up to the vehicle
-        top = float(p[2] - depth[first]) if found else surface  # the first surface met
+        # from a voxel above the first surface (an occupied voxel's top face) up to the vehicle
         heights = np.append(np.arange(top + 1.5 * step, p[2] - 1e-9, step), p[2])
         column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
         free = not bool(np.any(self.mapping.states(column, local=True) == VoxelState.OCCUPIED))

@@ -64,7 +64,7 @@ class GiveUpGoal(Decorator):
 
     Blocks count where they happen: a way blocked three times in one place is blocked, but a long
     way with three obstacles, each flown round, is progress (a bookstore flight gave up going home
-    after detours 2.5 and 3.5 m apart, and landed on a shelf 6 m from home). A block more than
+    after detours 2.5 and 3.5 m apart, and landed on furniture 1.2 m high, 6 m from home). A block more than
     ``block_radius`` from the first of the blocks counted starts the count again there.
 
     Progress is a waypoint passed, a path replanned, or ``min_gain`` metres gained on the current

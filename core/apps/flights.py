@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -156,8 +157,6 @@ def fly_benchmark(
     ``args.out`` (or ``args.resume``), flown as ``args`` says (``--ray``, ``--address``), one
     progress line per flight on stdout. None once the error is printed on stderr (no Ray
     installed, ``--address`` without ``--ray``, an ``--resume`` that is no benchmark folder)."""
-    import sys
-
     try:
         folder = experiment_folder(Path(args.out), benchmark, "buildings", args.resume)
         print(f"benchmark folder: {folder} ({len(flights)} flights)", flush=True)
