@@ -12,6 +12,7 @@ from amslam.errors import PlatformError
 from amslam.geometry import pose_from, wrap_angle
 from amslam.interfaces import BackendParams, Coordinate, FieldError, Platform, RunContext, mission_file_path
 from amslam.plugins.sim.camera import CameraParams, Renderer
+from amslam.plugins.sim.hall import HallWorldParams, generate_hall
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world, mesh_xy_extent
 from amslam.plugins.sim.outdoor import OutdoorWorldParams, generate_outdoor
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
@@ -30,7 +31,8 @@ def _world_kind(v: Any) -> str:
 WorldParams = Annotated[
     Annotated[ProceduralWorldParams, Tag("procedural")]
     | Annotated[MeshWorldParams, Tag("mesh")]
-    | Annotated[OutdoorWorldParams, Tag("outdoor")],
+    | Annotated[OutdoorWorldParams, Tag("outdoor")]
+    | Annotated[HallWorldParams, Tag("hall")],
     Discriminator(_world_kind),
 ]
 
@@ -61,8 +63,8 @@ class SimPlatform(Platform):
 
         world: WorldParams = Field(
             default_factory=ProceduralWorldParams,
-            description="kind: procedural (seeded building), mesh (a mesh file + objects file) or outdoor"
-            " (seeded parking lot / street)",
+            description="kind: procedural (seeded building), mesh (a mesh file + objects file), outdoor"
+            " (seeded parking lot / street) or hall (seeded warehouse hall with racks)",
         )
         start: tuple[Coordinate, Coordinate] | None = Field(
             None,
@@ -249,6 +251,8 @@ class SimPlatform(Platform):
             return load_mesh_world(p.world, Path(self.context.mission_dir))
         if isinstance(p.world, OutdoorWorldParams):
             return generate_outdoor(p.world, np.random.default_rng(self._world_seed))
+        if isinstance(p.world, HallWorldParams):
+            return generate_hall(p.world, np.random.default_rng(self._world_seed))
         return generate_building(p.world, np.random.default_rng(self._world_seed))
 
     # ---------------------------------------------------------------------------------------
