@@ -1,9 +1,10 @@
-"""``open3d`` mapping backend: the fast default (Open3D hash-map voxels, projective updates)."""
+"""``open3d`` mapping backend: the fast default (projective updates into block and window storage)."""
 
 import amslam
-from amslam.plugins.voxel_open3d.backend import HashGrid, Open3dVoxelMap, Open3dVoxelMapParams
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap, Open3dVoxelMapParams, WindowGrid
+from amslam.plugins.voxel_open3d.blocks import BlockGrid
 
-__all__ = ["HashGrid", "Open3dVoxelMap", "Open3dVoxelMapParams"]
+__all__ = ["BlockGrid", "Open3dVoxelMap", "Open3dVoxelMapParams", "WindowGrid"]
 
 
 @amslam.hookimpl
