@@ -108,7 +108,7 @@ class BlockGrid:
         if not len(blocks) or np.abs(blocks).max() > _MAX_BLOCK:  # beyond the keys' range: 840 km
             return BoundingBox.nothing()
         rows = self._rows_for(blocks)
-        return fold_into_blocks(frame, blocks, rows, self.value, self.known, self.model)
+        return fold_into_blocks(frame, blocks, rows, self.value, self.known, self.model, BLOCK)
 
     # ------------------------------------------------------------------ queries
     def states_at_index(self, index: np.ndarray) -> np.ndarray:

@@ -225,19 +225,21 @@ def touched_blocks(frame: FrameUpdate, block: int) -> np.ndarray:
 def fold_into_blocks(
     frame: FrameUpdate,
     blocks: np.ndarray,
-    slots: np.ndarray,
+    rows: np.ndarray,
     value: np.ndarray,
     known: np.ndarray,
     model: LogOddsModel,
+    block: int,
 ) -> BoundingBox:
-    """Apply a frame's update to block storage: ``blocks`` (M×3, from :func:`touched_blocks`) live
-    at ``slots`` of ``value`` / ``known`` (slot × block³ voxels, C order inside a block); return
-    the box of the voxels updated."""
-    block = round(value.shape[1] ** (1 / 3))
+    """Apply a frame's update to block storage; return the box of the voxels updated.
+
+    ``blocks`` (M×3, from :func:`touched_blocks`) live in ``rows`` of ``value`` / ``known``: a row
+    of ``block``³ voxels per block, C order inside a block.
+    """
     block_lo = blocks.min(axis=0) if len(blocks) else np.zeros(3, np.int64)
     table_shape = blocks.max(axis=0) + 1 - block_lo if len(blocks) else np.ones(3, np.int64)
     table = np.full(tuple(int(s) for s in table_shape), -1, dtype=np.int64)
-    table[tuple((blocks - block_lo).T)] = slots
+    table[tuple((blocks - block_lo).T)] = rows
     box = np.empty(6, dtype=np.int64)
     n = _fold_blocks(
         frame.status.reshape(-1),
@@ -335,9 +337,9 @@ def _fold_blocks(
     for f in touched:
         a, b, c = _unravel(f, frame_shape)
         i, j, k = a + frame_lo[0], b + frame_lo[1], c + frame_lo[2]
-        slot = table[i // block - block_lo[0], j // block - block_lo[1], k // block - block_lo[2]]
-        g = ((i % block) * block + j % block) * block + k % block
-        _update(value[slot], known[slot], g, status[f] == HIT, l_occ, l_hit, l_miss, l_min, l_max)
+        row = table[i // block - block_lo[0], j // block - block_lo[1], k // block - block_lo[2]]
+        cell = ((i % block) * block + j % block) * block + k % block
+        _update(value[row], known[row], cell, status[f] == HIT, l_occ, l_hit, l_miss, l_min, l_max)
         _grow(box, n, i, j, k)
         n += 1
     return n
