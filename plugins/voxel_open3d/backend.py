@@ -92,3 +92,5 @@ def _warm_up() -> None:
     for grid in (WindowGrid(0.5, np.full(3, -4), (8, 8, 8), LogOddsModel()), BlockGrid(0.5, LogOddsModel())):
         grid.integrate_depth(depth, K, np.eye(4), 1, 2.0)
         grid.dense_states(np.full(3, -4), (8, 8, 8))
+        grid.states_at_index(np.zeros((1, 3), np.int64))
+        grid.extent()

@@ -113,14 +113,14 @@ class BlockGrid:
     # ------------------------------------------------------------------ queries
     def states_at_index(self, index: np.ndarray) -> np.ndarray:
         """int8 VoxelState of voxel indices (N×3); UNKNOWN where nothing is stored."""
-        index = np.asarray(index, dtype=np.int64).reshape(-1, 3)
+        index = np.ascontiguousarray(index, dtype=np.int64).reshape(-1, 3)
         out = np.full(len(index), UNKNOWN, dtype=np.int8)
-        rows = self._find(np.floor_divide(index, BLOCK))
-        found = rows >= 0
-        if found.any():
-            cell = _cell(index[found])
-            row = rows[found]
-            out[found] = self.model.classify(self.value[row, cell], self.known[row, cell])
+        if len(self._keys):
+            # one compiled pass: the planner's segment checks ask for a few dozen voxels at a
+            # time, where the half-dozen numpy calls of a vectorised look-up cost more than it
+            _states_at(
+                index, self._keys, self._rows, self.value, self.known, np.float32(self.model.l_occ), out
+            )
         return out
 
     def dense_states(self, lo: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
@@ -146,10 +146,10 @@ class BlockGrid:
 
     def extent(self) -> tuple[np.ndarray, np.ndarray]:
         """Index range ``[lo, hi)`` holding every known voxel (lo == hi when empty)."""
-        index, _ = self.voxels()
-        if len(index) == 0:
+        box = np.zeros(6, dtype=np.int64)
+        if not _known_extent(self.coords[: self.n_blocks], self.known, BLOCK, box):
             return self.lo.copy(), self.lo.copy()
-        return index.min(axis=0), index.max(axis=0) + 1
+        return box[:3], box[3:]
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Known voxels as plain arrays (the format of ``DenseGrid.to_arrays``)."""
@@ -195,3 +195,45 @@ def _blocks_into_box(rows, coords, value, known, l_occ, block, lo, out):  # prag
             k = coords[r, 2] * block + cell % block - lo[2]
             if 0 <= i < out.shape[0] and 0 <= j < out.shape[1] and 0 <= k < out.shape[2]:
                 out[i, j, k] = OCCUPIED if value[r, cell] > l_occ else FREE
+
+
+@numba.njit(nogil=True, cache=True)
+def _states_at(index, keys, rows, value, known, l_occ, out):  # pragma: no cover - compiled
+    """States of voxels (N×3 indices) into ``out`` (UNKNOWN already): each voxel's block found by
+    binary search in the sorted block ``keys`` (as :func:`~amslam.lib.voxel_grid.encode` packs
+    them); OCCUPIED above ``l_occ`` (compared in float32, as ``LogOddsModel.classify``)."""
+    offset = _MAX_BLOCK + 1
+    for n in range(len(index)):
+        b0, b1, b2 = index[n, 0] // BLOCK, index[n, 1] // BLOCK, index[n, 2] // BLOCK
+        if max(abs(b0), abs(b1), abs(b2)) > _MAX_BLOCK:
+            continue
+        key = ((b0 + offset) << 42) | ((b1 + offset) << 21) | (b2 + offset)
+        at = np.searchsorted(keys, key)
+        if at == len(keys) or keys[at] != key:
+            continue
+        row = rows[at]
+        cell = ((index[n, 0] % BLOCK) * BLOCK + index[n, 1] % BLOCK) * BLOCK + index[n, 2] % BLOCK
+        if known[row, cell]:
+            out[n] = OCCUPIED if value[row, cell] > l_occ else FREE
+
+
+@numba.njit(nogil=True, cache=True)
+def _known_extent(coords, known, block, box):  # pragma: no cover - compiled
+    """Index range (``box``: lo[3], hi[3]) of the known voxels of blocks ``coords``; whether any."""
+    any_known = False
+    for r in range(len(coords)):
+        for cell in range(block * block * block):
+            if not known[r, cell]:
+                continue
+            idx = (
+                coords[r, 0] * block + cell // (block * block),
+                coords[r, 1] * block + (cell // block) % block,
+                coords[r, 2] * block + cell % block,
+            )
+            for axis in range(3):
+                if not any_known or idx[axis] < box[axis]:
+                    box[axis] = idx[axis]
+                if not any_known or idx[axis] + 1 > box[3 + axis]:
+                    box[3 + axis] = idx[axis] + 1
+            any_known = True
+    return any_known
