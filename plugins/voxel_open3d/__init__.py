@@ -2,9 +2,9 @@
 
 import amslam
 from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap, Open3dVoxelMapParams, WindowGrid
-from amslam.plugins.voxel_open3d.blocks import BlockGrid
 
-__all__ = ["BlockGrid", "Open3dVoxelMap", "Open3dVoxelMapParams", "WindowGrid"]
+# blocks.BlockGrid (the global map's storage) is not imported here: it imports numba
+__all__ = ["Open3dVoxelMap", "Open3dVoxelMapParams", "WindowGrid"]
 
 
 @amslam.hookimpl

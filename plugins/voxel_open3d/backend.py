@@ -19,7 +19,7 @@ kernel itself (see docs/benchmarks.md, "Mapping").
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from pydantic import Field
@@ -27,9 +27,13 @@ from pydantic import Field
 from amslam.interfaces import BackendParams, RunContext
 from amslam.lib.voxel_grid import DenseGrid, LogOddsModel
 from amslam.lib.voxel_map import VoxelMapBase, VoxelMapParams
-from amslam.plugins.voxel_open3d.blocks import BlockGrid
-from amslam.plugins.voxel_open3d.projective import FrameUpdate, fold_into_dense, frustum_update
 from amslam.types import BoundingBox
+
+# The storages and kernels import numba (0.5 s), which listing plugins or validating a mission
+# must not pay: they are imported when a map is made (tests/e2e/test_cli_imports.py).
+if TYPE_CHECKING:
+    from amslam.plugins.voxel_open3d.blocks import BlockGrid
+    from amslam.plugins.voxel_open3d.projective import FrameUpdate
 
 
 class Open3dVoxelMapParams(VoxelMapParams):
@@ -52,10 +56,14 @@ class WindowGrid(DenseGrid):
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int, max_range: float
     ) -> BoundingBox:
         """Projective frustum update (see the module docstring); return the touched box."""
+        from amslam.plugins.voxel_open3d.projective import frustum_update
+
         return self.integrate_frame(frustum_update(depth, K, T_world_cam, stride, max_range, self.voxel))
 
     def integrate_frame(self, frame: FrameUpdate) -> BoundingBox:
         """One log-odds update per voxel a frame touched inside the window; return their box."""
+        from amslam.plugins.voxel_open3d.projective import fold_into_dense
+
         return fold_into_dense(frame, self.value, self.known, self.lo, self.model)
 
 
@@ -65,6 +73,8 @@ class Open3dVoxelMap(VoxelMapBase):
     Same interface and semantics as the ``numpy`` reference (shared frontier, viewpoint and path
     code); the global map is unbounded, the local map is a window that follows the camera.
     """
+
+    requires = ("numba",)  # the kernels and storages, imported when built (see Backend.requires)
 
     Params: ClassVar[type[BackendParams]] = Open3dVoxelMapParams
 
@@ -77,6 +87,8 @@ class Open3dVoxelMap(VoxelMapBase):
     def _make_storage(
         self, voxel: float, lo: np.ndarray, shape: tuple[int, int, int], local: bool
     ) -> BlockGrid | WindowGrid:
+        from amslam.plugins.voxel_open3d.blocks import BlockGrid
+
         if local:
             return WindowGrid(voxel, lo, shape, self.model)
         cap = self.params.initial_capacity if isinstance(self.params, Open3dVoxelMapParams) else 200_000
@@ -86,6 +98,8 @@ class Open3dVoxelMap(VoxelMapBase):
 def _warm_up() -> None:
     """Compile every kernel of both storages (or load them from numba's cache): one small frame
     integrated into each, then read back."""
+    from amslam.plugins.voxel_open3d.blocks import BlockGrid
+
     depth = np.full((4, 4), 1.0, dtype=np.float32)
     depth[0, 0] = 0.0  # a no-return pixel
     K = np.array([[2.0, 0.0, 2.0], [0.0, 2.0, 2.0], [0.0, 0.0, 1.0]])
