@@ -4,8 +4,8 @@ On a real vehicle the control thread ticks at 10 Hz while the mapper, SLAM and p
 compute. Each time the control thread lets go of the interpreter (any numpy call of a frame's
 integration does) it waits until a thread running Python bytecode gives it back: up to one switch
 interval each time. This script runs a 10 Hz loop whose tick is one local-map frame update of a
-320 × 240 frame (``frustum_update`` at 0.1 m, as the SITL demo flight's) beside two threads
-running Python (a loop of small numpy calls, like the SLAM backend's marginals), for a few
+320 × 240 frame (the ``open3d`` backend's local window at 0.1 m, as the SITL demo flight's)
+beside two threads running Python (a loop of small numpy calls, like the SLAM backend's marginals), for a few
 seconds at each switch interval, and prints: ticks made, ticks whose work took over one period,
 the median work of a tick, and the two threads' loops done (their throughput). The reference is
 Python's default interval (5 ms), in the same run; the ratios are to it. The runner flies a real
@@ -24,7 +24,8 @@ import time
 
 import numpy as np
 
-from amslam.plugins.voxel_open3d.backend import frustum_update
+from amslam.lib.voxel_grid import LogOddsModel
+from amslam.plugins.voxel_open3d import WindowGrid
 from amslam.runner import REAL_TIME_SWITCH_INTERVAL
 from amslam.types import R_BODY_CAM
 
@@ -42,8 +43,14 @@ def frame() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return depth, K, T
 
 
+def local_window() -> WindowGrid:
+    """The default local window (10 × 10 × 5 m at 0.1 m) around the frame's camera."""
+    return WindowGrid(0.1, np.array([-47, -48, -38]), (100, 100, 50), LogOddsModel())
+
+
 def measure(interval: float, seconds: float) -> dict[str, float]:
     depth, K, T = frame()
+    window = local_window()
     sys.setswitchinterval(interval)
     stop = threading.Event()
     loops = [0, 0]
@@ -62,7 +69,7 @@ def measure(interval: float, seconds: float) -> dict[str, float]:
     try:
         while time.perf_counter() - start < seconds:
             began = time.perf_counter()
-            frustum_update(depth, K, T, 2, 5.0, 0.1)
+            window.integrate_depth(depth, K, T, 2, 5.0)
             took = time.perf_counter() - began
             work.append(took)
             time.sleep(max(0.0, PERIOD - took))
@@ -86,7 +93,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=4.0)
     args = parser.parse_args()
     depth, K, T = frame()
-    alone = np.median([_timed(lambda: frustum_update(depth, K, T, 2, 5.0, 0.1)) for _ in range(10)])
+    window = local_window()
+    alone = np.median([_timed(lambda: window.integrate_depth(depth, K, T, 2, 5.0)) for _ in range(10)])
     print(f"load average {os.getloadavg()[0]:.2f}; one tick's work alone {1000 * alone:.1f} ms")
     print(
         "| switch interval | ticks made (of) | ticks over 100 ms | median tick work | other threads' loops |"
