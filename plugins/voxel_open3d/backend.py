@@ -29,7 +29,7 @@ from amslam.lib.voxel_grid import DenseGrid, LogOddsModel
 from amslam.lib.voxel_map import VoxelMapBase, VoxelMapParams
 from amslam.types import BoundingBox
 
-# The storages and kernels import numba (0.5 s), which listing plugins or validating a mission
+# The storages and kernels import numba (0.25 s), which listing plugins or validating a mission
 # must not pay: they are imported when a map is made (tests/e2e/test_cli_imports.py).
 if TYPE_CHECKING:
     from amslam.plugins.voxel_open3d.blocks import BlockGrid
