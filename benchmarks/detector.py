@@ -48,10 +48,11 @@ import yaml
 from amslam.apps.report import landmark_accuracy
 from amslam.interfaces import BACKEND_KINDS, RunContext
 from amslam.measurements import read_measurements
-from amslam.plugins.onnx_detector import OnnxDetector
 from amslam.plugins.onnx_detector.decoder import decode, letterbox
-from amslam.plugins.sim import SimDetector, SimPlatform
+from amslam.plugins.onnx_detector.detector import OnnxDetector
 from amslam.plugins.sim.camera import viewing_pose
+from amslam.plugins.sim.detector import SimDetector
+from amslam.plugins.sim.platform import SimPlatform
 from amslam.types import Frame, Landmark, RobotSpec, WorldSummary
 
 

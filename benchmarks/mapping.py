@@ -22,8 +22,8 @@ import numpy as np
 
 from amslam.lib.voxel_grid import encode, to_index
 from amslam.lib.voxel_map import auto_stride
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
-from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import ROOM_POSE, camera_pose, make_context, render_depth, room_scene
 from amslam.types import BoundingBox, CameraModel
 

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from amslam.interfaces import RunContext
-from amslam.plugins.sim import SimPlatform
 from amslam.plugins.sim.camera import CameraParams, Renderer, viewing_pose
+from amslam.plugins.sim.platform import SimPlatform
 
 
 def _best_ms(fn, repeats: int) -> float:

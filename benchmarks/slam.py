@@ -24,7 +24,7 @@ import gtsam
 import numpy as np
 
 from amslam.interfaces import RunContext
-from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.backend import GtsamSlam
 from amslam.plugins.gtsam_slam.information import brute_force_information_gain
 from amslam.plugins.gtsam_slam.synthetic import LoopWorld, camera_mount
 

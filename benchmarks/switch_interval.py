@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from amslam.lib.voxel_grid import LogOddsModel
-from amslam.plugins.voxel_open3d import WindowGrid
+from amslam.plugins.voxel_open3d.backend import WindowGrid
 from amslam.runner import REAL_TIME_SWITCH_INTERVAL
 from amslam.types import R_BODY_CAM
 

@@ -14,6 +14,7 @@ from typing import Any
 import pluggy
 
 from amslam import hookspecs
+from amslam.deferred import Deferred
 from amslam.errors import PluginError
 from amslam.interfaces import BACKEND_KINDS, Backend
 
@@ -27,6 +28,8 @@ class Registry:
     pm: pluggy.PluginManager
     backends: dict[str, dict[str, Callable[[], Backend]]] = field(default_factory=dict)
     providers: dict[str, dict[str, str]] = field(default_factory=dict)  # kind -> name -> plugin
+    #: behaviour factories by name (``amslam_behaviours``); a :class:`Deferred` one imports its
+    #: module when it is first called, that is when a tree is built
     behaviours: dict[str, Callable] = field(default_factory=dict)
     #: mission tree builders by name (``amslam_mission_trees``)
     trees: dict[str, Callable] = field(default_factory=dict)
@@ -39,7 +42,9 @@ class Registry:
     load_errors: dict[str, str] = field(default_factory=dict)
 
     def factory(self, kind: str, name: str) -> Callable[[], Backend]:
-        """The factory of backend ``name`` of ``kind``, or a PluginError listing the installed ones."""
+        """The factory of backend ``name`` of ``kind`` (imported now if its plugin named it with a
+        :class:`~amslam.deferred.Deferred`), or a PluginError listing the installed ones or saying
+        why it could not be imported."""
         if kind not in BACKEND_KINDS:
             raise PluginError(f"unknown backend kind {kind!r}; kinds are {', '.join(BACKEND_KINDS)}")
         found = self.backends.get(kind, {})
@@ -51,7 +56,7 @@ class Registry:
                 else ""
             )
             raise PluginError(f"no {kind} backend named {name!r}; installed: {installed}{broken}")
-        return found[name]
+        return _load(found[name], f"{kind} backend {name!r}")
 
     def origin(self, kind: str, name: str) -> str:
         """``planner 'x' from dist y 1.0``: a backend as a verdict names it (kind, name, distribution)."""
@@ -66,12 +71,22 @@ class Registry:
         if name not in self.trees:
             installed = ", ".join(sorted(self.trees)) or "none"
             raise PluginError(f"no mission tree named {name!r}; installed trees: {installed}")
-        return self.trees[name]
+        return self.trees[name]  # a Deferred one imports its module when the tree is built
 
     def backend_class(self, kind: str, name: str) -> type[Backend]:
         """The class a factory builds, for reading its ``Params`` without configuring it."""
         factory = self.factory(kind, name)
         return factory if isinstance(factory, type) else type(factory())
+
+
+def _load(provided: Any, what: str) -> Any:
+    """What a plugin provided, imported now if it is a :class:`Deferred`; a PluginError if that fails."""
+    if not isinstance(provided, Deferred):
+        return provided
+    try:
+        return provided.load()
+    except Exception as exc:  # noqa: BLE001 — a broken module is reported by name, never a traceback
+        raise PluginError(f"{what} ({provided.path}) failed to load: {_one_line(exc)}") from exc
 
 
 def build_plugin_manager(disabled: Iterable[str] = (), extra_plugins: Iterable[object] = ()) -> Registry:

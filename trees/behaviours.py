@@ -32,11 +32,10 @@ from py_trees.common import Access, Status
 from py_trees.composites import Sequence
 from py_trees.decorators import EternalGuard, FailureIsSuccess
 
-import amslam
 from amslam.geometry import wrap_angle
 from amslam.mission import ExplorationSection
 from amslam.robot import Events, Exploring, Flight, Navigation, PathHandle, PlanHandle
-from amslam.trees.decorators import GiveUpGoal, PathProgress, SkipUnreachable
+from amslam.trees.decorators import PathProgress
 from amslam.trees.services import require_services
 from amslam.types import TourItem, TourItemKind
 
@@ -705,20 +704,3 @@ class Land(RobotBehaviour):
             return Status.RUNNING
         self.feedback_message = "landed"
         return Status.SUCCESS
-
-
-@amslam.hookimpl
-def amslam_behaviours():
-    return {
-        "TakeOff": TakeOff,
-        "WithinLimits": WithinLimits,
-        "Replan": Replan,
-        "GoTo": GoTo,
-        "Panorama": Panorama,
-        "AttemptSLC": AttemptLoopClosure,
-        "GiveUpGoal": GiveUpGoal,
-        "SkipUnreachable": SkipUnreachable,
-        "SetHomeGoal": SetHome,
-        "Land": Land,
-        "HasGoal": HasGoal,
-    }

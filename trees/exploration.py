@@ -39,7 +39,6 @@ import py_trees
 from py_trees.composites import Selector, Sequence
 from py_trees.decorators import FailureIsSuccess, Repeat, Retry
 
-import amslam
 from amslam.mission import MissionModel
 from amslam.trees.behaviours import IsGoalKind, go_to, return_home
 from amslam.trees.flight import with_failsafe_guard
@@ -121,8 +120,3 @@ def exploration_tree(
 ) -> py_trees.behaviour.Behaviour:
     """The ``exploration`` mission tree (``amslam_mission_trees``)."""
     return with_failsafe_guard(build_exploration_tree(model, behaviours), model, behaviours, failsafe)
-
-
-@amslam.hookimpl
-def amslam_mission_trees():
-    return {"exploration": exploration_tree}

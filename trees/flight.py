@@ -45,7 +45,6 @@ from py_trees.common import Access, Status
 from py_trees.composites import Selector, Sequence
 from py_trees.decorators import Inverter
 
-import amslam
 from amslam.geometry import wrap_angle
 from amslam.mission import MissionModel, WaypointsSection
 from amslam.trees.behaviours import RobotBehaviour, return_home
@@ -288,19 +287,3 @@ def build_mission_tree(
     if model.tree not in builders:
         raise KeyError(f"{model.tree!r} is not a built-in tree ({', '.join(builders)}); use Registry.tree")
     return builders[model.tree](model, behaviours, failsafe=failsafe)
-
-
-@amslam.hookimpl
-def amslam_behaviours():
-    return {
-        "FlyWaypoints": FlyWaypoints,
-        "FailsafeTriggered": FailsafeTriggered,
-        "FailsafeReturn": FailsafeReturn,
-        "FailsafeLand": FailsafeLand,
-        "FailsafeEnd": FailsafeEnd,
-    }
-
-
-@amslam.hookimpl
-def amslam_mission_trees():
-    return {"waypoints": waypoints_tree}

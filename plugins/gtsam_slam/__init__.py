@@ -5,12 +5,9 @@ See :mod:`.backend` (the graph), :mod:`.slc` (eqs. 2–6 registration), :mod:`.i
 """
 
 import amslam
-from amslam.plugins.gtsam_slam.backend import GtsamSlam
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_slam_backends():
-    return {"gtsam": GtsamSlam}
-
-
-__all__ = ["GtsamSlam"]
+    return {"gtsam": Deferred("amslam.plugins.gtsam_slam.backend:GtsamSlam")}

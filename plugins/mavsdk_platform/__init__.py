@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import amslam
-from amslam.plugins.mavsdk_platform.platform import GeofenceParams, MavsdkPlatform, PreflightCheck
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_platform_backends():
     """A PX4 vehicle over MAVLink."""
-    return {"mavsdk": MavsdkPlatform}
-
-
-__all__ = ["GeofenceParams", "MavsdkPlatform", "PreflightCheck"]
+    return {"mavsdk": Deferred("amslam.plugins.mavsdk_platform.platform:MavsdkPlatform")}

@@ -8,13 +8,10 @@ images by ``train.py``) and lifts each instance mask to 3-D with the depth image
 from __future__ import annotations
 
 import amslam
-from amslam.plugins.onnx_detector.detector import OnnxDetector
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_detector_backends():
     """The ONNX instance-segmentation detector."""
-    return {"onnx": OnnxDetector}
-
-
-__all__ = ["OnnxDetector"]
+    return {"onnx": Deferred("amslam.plugins.onnx_detector.detector:OnnxDetector")}

@@ -10,12 +10,13 @@ See docs/pams.md.
 from __future__ import annotations
 
 import amslam
-from amslam.plugins.pams.planner import PamsParams, PamsPlanner, PriorVisitParams, PriorVisitPlanner
-
-__all__ = ["PamsParams", "PamsPlanner", "PriorVisitParams", "PriorVisitPlanner"]
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_planner_backends():
     """The PAMS planner and its baseline."""
-    return {"pams": PamsPlanner, "prior_visit": PriorVisitPlanner}
+    return {
+        "pams": Deferred("amslam.plugins.pams.planner:PamsPlanner"),
+        "prior_visit": Deferred("amslam.plugins.pams.planner:PriorVisitPlanner"),
+    }

@@ -6,14 +6,14 @@ Registered through the ``amslam`` entry point ``planners`` like any third-party 
 from __future__ import annotations
 
 import amslam
-from amslam.plugins.planners.cop import CopParams, CopPlanner
-from amslam.plugins.planners.greedy import GreedyParams, GreedyPlanner
-from amslam.plugins.planners.tsp import TspParams, TspPlanner
-
-__all__ = ["CopParams", "CopPlanner", "GreedyParams", "GreedyPlanner", "TspParams", "TspPlanner"]
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_planner_backends():
     """The built-in planners by name."""
-    return {"greedy": GreedyPlanner, "cop": CopPlanner, "tsp": TspPlanner}
+    return {
+        "greedy": Deferred("amslam.plugins.planners.greedy:GreedyPlanner"),
+        "cop": Deferred("amslam.plugins.planners.cop:CopPlanner"),
+        "tsp": Deferred("amslam.plugins.planners.tsp:TspPlanner"),
+    }

@@ -6,20 +6,16 @@ See docs/simulator.md (model and parameters) and docs/worlds.md (procedural and 
 from __future__ import annotations
 
 import amslam
-from amslam.plugins.sim.detector import SimDetector
-from amslam.plugins.sim.platform import SimPlatform
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_platform_backends():
     """The simulator platform."""
-    return {"sim": SimPlatform}
+    return {"sim": Deferred("amslam.plugins.sim.platform:SimPlatform")}
 
 
 @amslam.hookimpl
 def amslam_detector_backends():
     """The simulator's mask-based object detector."""
-    return {"sim": SimDetector}
-
-
-__all__ = ["SimDetector", "SimPlatform"]
+    return {"sim": Deferred("amslam.plugins.sim.detector:SimDetector")}

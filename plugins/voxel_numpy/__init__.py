@@ -7,12 +7,10 @@ and the Mapping base class (:mod:`amslam.lib.voxel_map`).
 """
 
 import amslam
-from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
-
-__all__ = ["NumpyVoxelMap"]
+from amslam.deferred import Deferred
 
 
 @amslam.hookimpl
 def amslam_mapping_backends():
     """The ``numpy`` reference mapping backend."""
-    return {"numpy": NumpyVoxelMap}
+    return {"numpy": Deferred("amslam.plugins.voxel_numpy.backend:NumpyVoxelMap")}

@@ -16,8 +16,8 @@ from amslam.apps.mapformats import (
 )
 from amslam.lib.octomap_files import OctomapFileError, read_bt, write_bt
 from amslam.lib.voxel_grid import OCCUPIED, logit
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
-from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import AREA, CAMERA, box_depth, camera_pose, make_context
 from amslam.types import Landmark
 

@@ -13,7 +13,7 @@ import pytest
 
 from amslam.backend_process import BackendProcessError, SlamProcess, implementation
 from amslam.interfaces import BackendParams, RunContext, Slam
-from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.backend import GtsamSlam
 from amslam.testing.slam import T_BODY_CAM, flight, visible_detections
 from amslam.types import KeyPose, Landmark, Odometry
 from tests.core.pausing import beats_during

@@ -21,7 +21,7 @@ from amslam.boundary import BackendError, Boundary
 from amslam.lib.voxel_map import VoxelMapParams
 from amslam.mission import ExplorationSection
 from amslam.perception import Perception
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 from amslam.sharing import Shared
 from amslam.testing.mapping import CAMERA, camera_pose, make_context, wall_depth
 from amslam.types import Frame, Odometry, Viewpoint, VoxelState

@@ -133,7 +133,7 @@ def test_disabled_plugins_are_not_even_imported(broken_plugins):
 
 
 def test_raising_in_a_later_hook_withdraws_earlier_backends(monkeypatch):
-    from amslam.plugins.voxel_numpy import NumpyVoxelMap
+    from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 
     @amslam.hookimpl
     def amslam_platform_backends():

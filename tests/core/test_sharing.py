@@ -17,7 +17,7 @@ import threading
 import numpy as np
 
 from amslam.lib.voxel_map import VoxelMapParams
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 from amslam.sharing import Shared
 from amslam.testing.mapping import CAMERA, camera_pose, make_context, wall_depth
 from tests.core.pausing import PauseAtCall

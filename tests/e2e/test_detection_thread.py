@@ -9,7 +9,8 @@ import numpy as np
 import amslam
 from amslam.measurements import read_measurements
 from amslam.mission import load_mission
-from amslam.plugins.sim import SimDetector, SimPlatform
+from amslam.plugins.sim.detector import SimDetector
+from amslam.plugins.sim.platform import SimPlatform
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
 

@@ -13,7 +13,7 @@ import numpy as np
 import amslam
 from amslam.mission import load_mission
 from amslam.plugins.odometry_slam import OdometrySlam
-from amslam.plugins.sim import SimDetector
+from amslam.plugins.sim.detector import SimDetector
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
 

@@ -12,12 +12,12 @@ from py_trees.common import Status
 
 from amslam.mission import ExplorationSection, MissionModel
 from amslam.trees.behaviours import Replan, WithinLimits, go_to
-from amslam.trees.behaviours import amslam_behaviours as stock_behaviours
 from amslam.trees.decorators import SkipUnreachable
 from amslam.trees.exploration import build_exploration_tree
+from amslam.trees.plugins import Behaviours
 from amslam.types import TourItem, TourItemKind
 
-STOCK = stock_behaviours()
+STOCK = Behaviours.amslam_behaviours()
 
 
 def names(root) -> set[str]:

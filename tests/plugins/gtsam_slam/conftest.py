@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from amslam.interfaces import RunContext
-from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.backend import GtsamSlam
 from amslam.plugins.gtsam_slam.synthetic import LoopWorld, camera_mount, make_instance  # noqa: F401
 
 

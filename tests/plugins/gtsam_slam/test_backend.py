@@ -15,8 +15,7 @@ from amslam.errors import MissionError
 from amslam.geometry import pose_from, yaw_of
 from amslam.interfaces import RunContext
 from amslam.mission import load_mission
-from amslam.plugins.gtsam_slam import GtsamSlam
-from amslam.plugins.gtsam_slam.backend import MOVED_PARAMETERS
+from amslam.plugins.gtsam_slam.backend import MOVED_PARAMETERS, GtsamSlam
 from amslam.plugins.gtsam_slam.information import brute_force_information_gain
 from amslam.plugins.gtsam_slam.synthetic import camera_mount
 from amslam.registry import build_plugin_manager

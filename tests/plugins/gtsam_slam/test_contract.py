@@ -1,7 +1,7 @@
 """The GTSAM SLAM backend passes the SLAM contract kit."""
 
 from amslam.backend_process import SlamProcess
-from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.backend import GtsamSlam
 from amslam.testing.slam import SlamContract
 
 

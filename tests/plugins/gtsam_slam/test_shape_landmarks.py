@@ -9,7 +9,7 @@ import pytest
 
 from amslam.interfaces import RunContext
 from amslam.lib import shapes as S  # noqa: N812
-from amslam.plugins.gtsam_slam import GtsamSlam
+from amslam.plugins.gtsam_slam.backend import GtsamSlam
 from amslam.types import CameraModel, Detection, Odometry
 
 from .test_shapes import box_points, cylinder_points, rz

@@ -15,8 +15,8 @@ from pydantic import ValidationError
 from amslam.errors import PlatformError
 from amslam.geometry import yaw_of
 from amslam.interfaces import RunContext
-from amslam.plugins.mavsdk_platform import MavsdkPlatform
 from amslam.plugins.mavsdk_platform.camera_sources import CameraSourceParams, make_camera_source
+from amslam.plugins.mavsdk_platform.platform import MavsdkPlatform
 from amslam.types import RobotSpec
 
 

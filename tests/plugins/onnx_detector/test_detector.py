@@ -13,11 +13,10 @@ from pydantic import ValidationError
 from amslam.errors import AmslamError, MissionError
 from amslam.interfaces import RunContext
 from amslam.mission import load_mission
-from amslam.plugins.onnx_detector import OnnxDetector
 from amslam.plugins.onnx_detector.decoder import Instance
-from amslam.plugins.onnx_detector.detector import largest_depth_cluster, shipped_model
-from amslam.plugins.sim import SimPlatform
+from amslam.plugins.onnx_detector.detector import OnnxDetector, largest_depth_cluster, shipped_model
 from amslam.plugins.sim.camera import viewing_pose
+from amslam.plugins.sim.platform import SimPlatform
 from amslam.testing.detector import DetectorContract
 from amslam.types import Frame
 from tests.plugins.onnx_detector.graphs import candidates, constant_model

@@ -11,9 +11,16 @@ import pytest
 
 from amslam.errors import PlanningError
 from amslam.interfaces import RunContext
-from amslam.plugins.pams import PamsPlanner, PriorVisitPlanner
 from amslam.plugins.pams import planner as pams_planner
-from amslam.plugins.pams.planner import count_paths, entropy, fuse, information_gain, target_order
+from amslam.plugins.pams.planner import (
+    PamsPlanner,
+    PriorVisitPlanner,
+    count_paths,
+    entropy,
+    fuse,
+    information_gain,
+    target_order,
+)
 from amslam.testing.contract import CAMERA
 from amslam.types import BoundingBox, Landmark, PlanRequest, TourItemKind
 

@@ -1,6 +1,8 @@
 """The greedy, COP and TSP planners pass the planner contract kit."""
 
-from amslam.plugins.planners import CopPlanner, GreedyPlanner, TspPlanner
+from amslam.plugins.planners.cop import CopPlanner
+from amslam.plugins.planners.greedy import GreedyPlanner
+from amslam.plugins.planners.tsp import TspPlanner
 from amslam.testing.planner import PlannerContract
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from amslam.interfaces import RunContext
-from amslam.plugins.sim import SimPlatform
+from amslam.plugins.sim.platform import SimPlatform
 from amslam.plugins.sim.world import WorldSpec, box_room
 from amslam.types import RobotSpec
 

@@ -1,6 +1,7 @@
 """The simulator platform and the sim detector pass their contract kits."""
 
-from amslam.plugins.sim import SimDetector, SimPlatform
+from amslam.plugins.sim.detector import SimDetector
+from amslam.plugins.sim.platform import SimPlatform
 from amslam.testing.detector import DetectorContract
 from amslam.testing.platform import PlatformContract
 

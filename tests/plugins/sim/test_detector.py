@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from amslam.interfaces import RunContext
-from amslam.plugins.sim import SimDetector
 from amslam.plugins.sim.camera import viewing_pose
+from amslam.plugins.sim.detector import SimDetector
 from amslam.types import Frame
 
 from .conftest import make_platform

@@ -16,8 +16,8 @@ import pytest
 
 from amslam.errors import PlatformError
 from amslam.interfaces import RunContext
-from amslam.plugins.sim import SimPlatform
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world
+from amslam.plugins.sim.platform import SimPlatform
 from amslam.plugins.sim.world import World, boxes_mesh, survey_floors
 from amslam.types import BoundingBox, RobotSpec
 

@@ -1,6 +1,6 @@
 """The numpy reference backend passes the mapping contract."""
 
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 from amslam.testing.mapping import MappingContract
 
 

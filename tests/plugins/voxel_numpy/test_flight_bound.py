@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
-from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.types import BoundingBox
 
 from .global_maps import load_states

@@ -7,7 +7,7 @@ import pytest
 
 from amslam.lib.frontiers import FrontierConfig, FrontierTracker, exact_gain
 from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 from amslam.testing.mapping import (
     CAMERA,
     ROOM_POSE,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 from amslam.testing.mapping import AREA, make_context
 
 

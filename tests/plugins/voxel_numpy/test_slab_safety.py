@@ -14,8 +14,8 @@ import pytest
 
 from amslam.lib.free_space import samples_clear
 from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, to_index
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
-from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import make_context
 from amslam.types import BoundingBox
 

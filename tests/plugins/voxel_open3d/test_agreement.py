@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from amslam.lib.voxel_grid import encode
-from amslam.plugins.voxel_numpy import NumpyVoxelMap
-from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import ROOM_POSE, camera_pose, make_context, render_depth, room_scene
 from amslam.types import BoundingBox, CameraModel
 

@@ -1,6 +1,6 @@
 """The open3d backend passes the mapping contract."""
 
-from amslam.plugins.voxel_open3d import Open3dVoxelMap
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import MappingContract
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from amslam.lib.voxel_grid import UNKNOWN, LogOddsModel, box_of_indices, encode
-from amslam.plugins.voxel_open3d import WindowGrid
+from amslam.plugins.voxel_open3d.backend import WindowGrid
 from amslam.plugins.voxel_open3d.blocks import BlockGrid
 from amslam.plugins.voxel_open3d.projective import HIT, MISS, FrameUpdate
 

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from amslam.plugins.voxel_open3d import Open3dVoxelMap, blocks, projective
+from amslam.plugins.voxel_open3d import blocks, projective
+from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import ROOM_POSE, make_context, render_depth, room_scene
 from amslam.types import BoundingBox, CameraModel
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from amslam.lib.voxel_grid import LogOddsModel
-from amslam.plugins.voxel_open3d import WindowGrid
+from amslam.plugins.voxel_open3d.backend import WindowGrid
 
 
 @pytest.mark.parametrize("jump", [(3, 0, 0), (-2, 4, 1), (40, 0, 0), (0, 0, 0), (-7, -19, 9)])
