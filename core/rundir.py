@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-import yaml
 
 from amslam.errors import AmslamError, RunFileError
 from amslam.geometry import tum_line
@@ -185,6 +184,10 @@ class RunFiles:
         return write_atomically(self.path / name, text)
 
     def write_yaml(self, name: str, data: Any) -> Path:
+        # imported here, not at the top: `amslam plugins` and `--help` import this module (through the
+        # applications) and read or write no YAML (issue #20)
+        import yaml
+
         return self.write_text(name, yaml.safe_dump(jsonable(data), sort_keys=False))
 
     def write_json(self, name: str, data: Any) -> Path:
@@ -397,6 +400,8 @@ def read_run_mission(path: Path) -> dict[str, Any]:
     Raises:
         RunFileError: the file cannot be read, is not YAML or not a mapping; named.
     """
+    import yaml
+
     path = Path(path)
     if path.is_dir():
         path = path / "mission.yaml"

@@ -34,17 +34,19 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 import amslam
 from amslam.cli import Experiment, positive_int
 from amslam.errors import AmslamError
-from amslam.mission import Mission, load_mission
 from amslam.registry import Registry
 from amslam.rundir import new_folder, read_metrics, write_landmarks
 from amslam.types import WorldSummary
+
+if TYPE_CHECKING:  # amslam.mission (and PyYAML) is imported where it is used: every command loads this module
+    from amslam.mission import Mission
 
 Mode = Literal["homogeneous", "heterogeneous"]
 Schedule = Literal["simultaneous", "sequential"]
@@ -61,6 +63,8 @@ def team_overrides(
     Only a simulator can put several robots in one world, and only it knows its own parameters
     (start spot, world pin, camera tilt); a platform that cannot is refused by name.
     """
+    from amslam.mission import load_mission
+
     plugin = load_mission(spec, registry, list(overrides)).backends["platform"].plugin
     place = getattr(registry.backend_class("platform", plugin), "team_overrides", None)
     if place is None:
@@ -170,6 +174,8 @@ def flight_key(mission: Mission) -> str:
 
 def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
     """Earlier robot runs (folders holding run folders, searched recursively) by :func:`flight_key`."""
+    from amslam.mission import load_mission
+
     out: dict[str, dict] = {}
     for folder in folders:
         for log in sorted(Path(folder).rglob("measurements.jsonl")):
@@ -186,6 +192,7 @@ def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
 
 def _world_of(run_dir: Path, registry: Registry) -> WorldSummary:
     """The world summary of a run, rebuilt from its mission (same seed, same pin)."""
+    from amslam.mission import load_mission
     from amslam.runner import started_platform
 
     mission = load_mission(str(Path(run_dir) / "mission.yaml"), registry, [])
@@ -204,6 +211,7 @@ def _fly(
     log: Callable[[str], None],
     reuse: dict[str, dict] | None = None,
 ) -> dict:
+    from amslam.mission import load_mission
     from amslam.runner import Runner
 
     mission = load_mission(spec, registry, flags)
