@@ -352,13 +352,24 @@ def read_mission_text(path: Path) -> str:
 def parse_yaml(text: str, where: str) -> Any:
     """``yaml.safe_load`` with located errors and the alias expansion bounded (MAX_MISSION_NODES)."""
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-        _check_expansion(root, where)
-        return yaml.safe_load(text)
+        return _bounded_safe_load(text, where)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f"{where}:{mark.line + 1}" if mark and not where.startswith("--set") else where
         raise MissionError([f"{at}: not valid YAML: {getattr(exc, 'problem', None) or exc}"]) from None
+
+
+def _bounded_safe_load(text: str, where: str) -> Any:
+    """``yaml.safe_load`` in one pass: the document is composed once, its size checked, then
+    constructed from the same nodes (composing it for the check and loading it again parsed it
+    twice, and PyYAML's pure-Python parser is slow)."""
+    loader = yaml.SafeLoader(text)
+    try:
+        root = loader.get_single_node()
+        _check_expansion(root, where)
+        return loader.construct_document(root) if root is not None else None
+    finally:
+        loader.dispose()
 
 
 def _check_expansion(root: yaml.Node | None, where: str) -> None:
@@ -417,7 +428,7 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
     raw = copy.deepcopy(raw)
     for assignment in overrides:
         apply_override(raw, assignment)
-    problems = _Problems(path, _line_index(text))
+    problems = _Problems(path, text)
     context = {"mission_dir": path.resolve().parent}  # relative file parameters resolve against it
     try:
         model = MissionModel.model_validate(raw, context=context)
@@ -443,10 +454,14 @@ class _Problems:
     """Every problem of one mission file, each named by file, line and dotted key."""
 
     path: Path
-    line_index: Any
+    text: str
     lines: list[str] = field(default_factory=list)
+    #: key path -> line, indexed at the first problem (a valid mission needs no second YAML pass)
+    line_index: dict[tuple, int] | None = None
 
     def report(self, loc: tuple, message: str) -> None:
+        if self.line_index is None:
+            self.line_index = _line_index(self.text)
         dotted = ".".join(str(p) for p in loc) or "(top level)"
         line = _line_of(self.line_index, loc)
         where = f"{self.path}:{line}" if line else f"{self.path}"
