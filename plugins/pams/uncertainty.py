@@ -202,7 +202,7 @@ def fit_models(
     """Fit the confidence MLP and the variance splines of every class in ``samples``.
 
     Args:
-        samples: :class:`amslam.apps.characterise.Samples` (or anything with its fields).
+        samples: :class:`amslam.apps.characterisation.Samples` (or anything with its fields).
         range_bin: width of the range cells of the variance estimates, m.
         angle_bin_deg: width of the angle cells, degrees.
         min_count: fewest samples for a cell's variance to be used.

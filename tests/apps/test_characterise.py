@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.apps.characterise import (
+from amslam.apps.characterisation import (
     COMPONENTS,
     CharacteriseConfig,
     Samples,

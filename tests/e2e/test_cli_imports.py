@@ -110,3 +110,86 @@ def test_reading_commands_work_without_the_heavy_libraries():
     assert [line.split(": ")[2] for line in lines] == ["platform.plugin", "mapping.plugin", "slam.plugin"]
     needs = "slam.plugin: 'gtsam' needs the Python modules 'gtsam', 'sklearn', not installed here"
     assert lines[2].endswith(needs)
+
+
+#: the modules the built-in plugins name with ``amslam.deferred.Deferred``: each is imported when its
+#: backend, behaviour or tree is first used, not when the registry is built (issue #20)
+BACKEND_MODULES = {
+    ("platform", "sim"): "amslam.plugins.sim.platform",
+    ("platform", "mavsdk"): "amslam.plugins.mavsdk_platform.platform",
+    ("mapping", "open3d"): "amslam.plugins.voxel_open3d.backend",
+    ("mapping", "numpy"): "amslam.plugins.voxel_numpy.backend",
+    ("slam", "gtsam"): "amslam.plugins.gtsam_slam.backend",
+    ("detector", "sim"): "amslam.plugins.sim.detector",
+    ("detector", "onnx"): "amslam.plugins.onnx_detector.detector",
+    ("planner", "cop"): "amslam.plugins.planners.cop",
+    ("planner", "greedy"): "amslam.plugins.planners.greedy",
+    ("planner", "tsp"): "amslam.plugins.planners.tsp",
+    ("planner", "pams"): "amslam.plugins.pams.planner",
+}
+TREE_MODULES = (
+    "amslam.trees.behaviours",
+    "amslam.trees.decorators",
+    "amslam.trees.flight",
+    "amslam.trees.exploration",
+)
+
+
+def modules_after(argv: list[str]) -> set[str]:
+    """The modules a fresh interpreter holds after running ``amslam ARGV`` (exit status 0)."""
+    script = textwrap.dedent(
+        """\
+        import contextlib, io, json, sys
+        from amslam.cli import main
+
+        with contextlib.redirect_stdout(io.StringIO()):
+            try:
+                status = main(json.loads(sys.argv[1]))
+            except SystemExit as exc:  # --help
+                status = exc.code
+        print(json.dumps({"status": status, "modules": sorted(sys.modules)}))
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, json.dumps(argv)], capture_output=True, text=True, check=True
+    )
+    found = json.loads(done.stdout)
+    assert found["status"] == 0, done.stderr
+    return set(found["modules"])
+
+
+def test_listing_imports_no_backend_tree_mission_or_yaml():
+    """``amslam plugins`` and ``--help`` read names: no backend's module, no behaviour tree (nor
+    py_trees), no mission models, no YAML parser."""
+    for argv in (["plugins"], ["--help"]):
+        modules = modules_after(argv)
+        unwanted = {*BACKEND_MODULES.values(), *TREE_MODULES, "py_trees", "amslam.mission", "yaml"}
+        assert not modules & unwanted, (argv, sorted(modules & unwanted))
+
+
+def test_validating_imports_only_the_backends_the_mission_names():
+    """``amslam validate demo`` imports the modules of the five backends demo.yaml names (their
+    parameter models validate it) and no other backend's, and draws no tree (no py_trees)."""
+    modules = modules_after(["validate", "demo"])
+    named = {
+        ("platform", "sim"),
+        ("mapping", "open3d"),
+        ("slam", "gtsam"),
+        ("detector", "sim"),
+        ("planner", "cop"),
+    }
+    assert {BACKEND_MODULES[b] for b in named} <= modules
+    others = {module for backend, module in BACKEND_MODULES.items() if backend not in named}
+    assert not modules & others, sorted(modules & others)
+    assert not modules & {*TREE_MODULES, "py_trees"}, sorted(modules & {*TREE_MODULES, "py_trees"})
+
+
+def test_drawing_a_tree_imports_its_behaviours():
+    """The deferred behaviours and tree builder are imported when ``amslam tree`` builds the tree."""
+    modules = modules_after(["tree", "demo"])
+    assert {
+        "py_trees",
+        "amslam.trees.behaviours",
+        "amslam.trees.exploration",
+        "amslam.trees.flight",
+    } <= modules

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.apps.characterise import Samples
+from amslam.apps.characterisation import Samples
 from amslam.plugins.pams.uncertainty import COMPONENTS, UncertaintyModels, fit_models
 
 
