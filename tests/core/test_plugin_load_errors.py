@@ -167,3 +167,34 @@ def test_every_hookspec_says_since_which_version():
         assert getattr(hookspecs, name).__doc__.rstrip().splitlines()[-1].strip() == f"Since: {version}"
     with pytest.raises(KeyError):
         hookspecs.since("amslam_no_such_hook")
+
+
+class _DeferredOctomap:
+    """A plugin naming its backend by module, the module broken (it imports what is not installed)."""
+
+    @staticmethod
+    @amslam.hookimpl
+    def amslam_mapping_backends():
+        from amslam.deferred import Deferred
+
+        return {"octomap": Deferred("amslam_octomap_missing.backend:OctomapMapping")}
+
+
+def test_a_deferred_backend_is_imported_when_asked_for_and_a_broken_one_named(tmp_path):
+    """A Deferred backend is listed without importing its module; asking for it imports it, and a
+    module that fails to import is a PluginError naming the backend and the module (a mission
+    choosing it: one line at ``mapping.plugin``), never a traceback."""
+    registry = build_plugin_manager(extra_plugins=[_DeferredOctomap])
+    assert "octomap" in registry.backends["mapping"] and registry.load_errors == {}
+    with pytest.raises(PluginError, match=r"mapping backend 'octomap' \(amslam_octomap_missing.backend:"):
+        registry.backend_class("mapping", "octomap")
+    mission = small_mission(tmp_path, mapping="{plugin: octomap}")
+    with pytest.raises(MissionError) as exc:
+        load_mission(mission, registry)
+    (line,) = exc.value.problems
+    assert line.startswith(f"{mission}:") and ": mapping.plugin: mapping backend 'octomap'" in line
+    assert "failed to load: ModuleNotFoundError" in line
+    # a built-in deferred backend resolves to its class
+    from amslam.plugins.planners.greedy import GreedyPlanner
+
+    assert registry.factory("planner", "greedy") is GreedyPlanner
