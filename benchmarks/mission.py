@@ -253,20 +253,21 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 
     rows = sorted(rows, key=lambda r: r["reachable_free_volume_m3"] or 0)
     x = [max(r["reachable_free_volume_m3"] or 1.0, 1.0) for r in rows]
-    fig, ax = plt.subplots(figsize=(7, 5))
-    for m in ORDER:
+    fig, ax = plt.subplots(figsize=(9, 5))
+    colours = plt.get_cmap("tab20").colors  # twelve modules: tab10 would repeat two colours
+    for i, m in enumerate(ORDER):
         y = [max(r["ms_per_tick"][m], 1e-3) for r in rows]
-        ax.plot(x, y, marker="o", label=m)
+        ax.plot(x, y, marker="o", label=m, color=colours[(2 * i) % 20 + (2 * i) // 20])
     total = [1e3 * r["loop_s"] / r["ticks"] for r in rows]
     ax.plot(x, total, marker="s", color="black", linewidth=2, label="whole loop")
-    for xi, r in zip(x, rows, strict=True):
-        ax.annotate(r["building"], (xi, max(total)), textcoords="offset points", xytext=(0, 6), ha="center")
+    for xi, yi, r in zip(x, total, rows, strict=True):
+        ax.annotate(r["building"], (xi, yi), textcoords="offset points", xytext=(0, 8), ha="center")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("reachable free volume of the building, m³")
     ax.set_ylabel("wall time per control tick, ms")
     ax.set_title("Mission time per module against building size")
-    ax.legend(fontsize=8, ncol=2)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
