@@ -21,8 +21,24 @@ def test_every_package_folder_is_listed_in_pyproject():
         for init in (ROOT / folder).rglob("__init__.py"):
             parts = init.parent.relative_to(ROOT / folder).parts
             found.add(".".join([package, *parts]))
+    # a data folder (no __init__.py) is listed as a package too, with its files in package-data:
+    # setuptools warns at every install about a data folder that is not
+    data = {
+        name for name in listed - found if _folder(name).is_dir() and name in _setuptools()["package-data"]
+    }
     assert found - listed == set(), "packages missing from pyproject.toml's [tool.setuptools] packages"
-    assert listed - found == set(), "packages listed in pyproject.toml that do not exist"
+    assert listed - found - data == set(), "packages listed in pyproject.toml that do not exist"
+
+
+def _setuptools() -> dict:
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+
+
+def _folder(package: str) -> Path:
+    """The checkout folder of a dotted package name (through PACKAGE_DIRS)."""
+    roots = {**{p: ROOT / f for f, p in PACKAGE_DIRS.items()}, "amslam.missions": ROOT / "missions"}
+    root = max((r for r in roots if package == r or package.startswith(r + ".")), key=len)
+    return roots[root].joinpath(*package[len(root) :].split(".")[1:])
 
 
 def test_every_data_file_of_a_package_is_in_its_package_data():
@@ -40,7 +56,8 @@ def test_every_data_file_of_a_package_is_in_its_package_data():
         if path.suffix in (".py", ".pyc") or "__pycache__" in path.parts:
             continue
         package_dir = path.parent
-        while not (package_dir / "__init__.py").is_file():  # a data folder inside a package
+        data_folders = {_folder(name) for name in setuptools["packages"]}
+        while not (package_dir / "__init__.py").is_file() and package_dir not in data_folders:
             package_dir = package_dir.parent
         root, base = next((p, f) for p, f in folders.items() if package_dir.is_relative_to(f))
         package = ".".join([root, *package_dir.relative_to(base).parts])
