@@ -1,4 +1,5 @@
-"""``open3d`` mapping backend: the fast default (projective updates into block and window storage)."""
+"""``open3d`` mapping backend: the fast default (projective updates into Open3D-indexed 8³ blocks and a
+dense window)."""
 
 import amslam
 from amslam.deferred import Deferred

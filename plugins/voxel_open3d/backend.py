@@ -10,11 +10,13 @@ faster than ray casting at 0.1 m, on every pixel of a 640×480 frame. Voxel stat
 exact ray-casting reference (the ``numpy`` backend) on ≥ 98 % of the voxels both observe
 (tests/plugins/voxel_open3d/test_agreement.py).
 
-Storage: the global map is unbounded, in dense 8³ blocks (:class:`~.blocks.BlockGrid`); the local
-map is a dense array over its window (:class:`WindowGrid`), re-centred by copying the overlap. The
-backend is still called ``open3d`` (missions name it) though since issue #20 it no longer stores
-voxels in an ``open3d.core.HashMap``: looking every voxel up in the hash map cost more than the
-kernel itself (see docs/benchmarks.md, "Mapping").
+Storage: the global map is unbounded, in dense 8³ blocks (:class:`~.blocks.BlockGrid`) indexed by
+an Open3D tensor hash map (``open3d.core.HashMap``: block index -> row of the blocks' voxel arrays),
+looked up once per block a frame or a query touches; the local map is a dense array over its
+window (:class:`WindowGrid`), re-centred by copying the overlap. The kernels that read and write
+the voxels are compiled with numba: Open3D has no occupancy update (its ``VoxelBlockGrid``
+integrates TSDF only). Before issue #20 every *voxel* was looked up in the hash map, which cost
+more than the kernel itself (see docs/benchmarks.md, "Mapping").
 """
 
 from __future__ import annotations
@@ -29,8 +31,8 @@ from amslam.lib.voxel_grid import DenseGrid, LogOddsModel
 from amslam.lib.voxel_map import VoxelMapBase, VoxelMapParams
 from amslam.types import BoundingBox
 
-# The storages and kernels import numba (0.25 s), which listing plugins or validating a mission
-# must not pay: they are imported when a map is made (tests/e2e/test_cli_imports.py).
+# The storages and kernels import numba (0.25 s) and Open3D, which listing plugins or validating a
+# mission must not pay: they are imported when a map is made (tests/e2e/test_cli_imports.py).
 if TYPE_CHECKING:
     from amslam.plugins.voxel_open3d.blocks import BlockGrid
     from amslam.plugins.voxel_open3d.projective import FrameUpdate
@@ -68,13 +70,15 @@ class WindowGrid(DenseGrid):
 
 
 class Open3dVoxelMap(VoxelMapBase):
-    """Fast default backend: block and window storage, projective frustum updates.
+    """Fast default backend: Open3D-indexed block storage and a dense window, projective frustum
+    updates.
 
     Same interface and semantics as the ``numpy`` reference (shared frontier, viewpoint and path
     code); the global map is unbounded, the local map is a window that follows the camera.
     """
 
-    requires = ("numba",)  # the kernels and storages, imported when built (see Backend.requires)
+    # imported when built (see Backend.requires): the global map's block index, the kernels
+    requires = ("open3d", "numba")
 
     Params: ClassVar[type[BackendParams]] = Open3dVoxelMapParams
 
@@ -96,8 +100,8 @@ class Open3dVoxelMap(VoxelMapBase):
 
 
 def _warm_up() -> None:
-    """Compile every kernel of both storages (or load them from numba's cache): one small frame
-    integrated into each, then read back."""
+    """Compile every kernel of both storages (or load them from numba's cache) and import Open3D:
+    one small frame integrated into each, then read back."""
     from amslam.plugins.voxel_open3d.blocks import BlockGrid
 
     depth = np.full((4, 4), 1.0, dtype=np.float32)

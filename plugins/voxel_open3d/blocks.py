@@ -1,23 +1,29 @@
 """Unbounded log-odds voxels in dense blocks: the ``open3d`` backend's global map.
 
-Voxels live in blocks of ``BLOCK``³ (8³ = 512) stored side by side in two arrays (log-odds and a
-*known* flag per voxel, one row per block); a sorted array of block keys maps a block index to its
-row. A frame looks up each block it touches once (binary search), then updates the voxels in
-the blocks' rows directly, so no voxel is ever looked up in a hash table: the former
-``open3d.core.HashMap`` storage took 7 ms to find and insert the 37 000 voxels one 640×480 frame
-touches at 0.1 m, these blocks 1.2 ms (139 blocks). A block is allocated at the first update of
-one of its voxels and never freed (the global map only grows); a voxel is *known* exactly when
-its flag is set.
+Voxels live in blocks of ``BLOCK``³ (8³ = 512) stored side by side in two numpy arrays (log-odds
+and a *known* flag per voxel, one row per block); an Open3D tensor hash map
+(``open3d.core.HashMap``, int32×3 block index -> int64 row) maps a block to its row. A frame looks
+up the ~100-200 blocks it touches in one batched ``find`` (and ``insert``s the new ones), then
+the compiled fold (:mod:`.projective`) updates the voxels in the blocks' rows directly: no voxel
+is ever looked up in a hash table. (The storage before issue #20 kept every *voxel* in an
+``open3d.core.HashMap``: 7 ms a frame to find and insert the 37 000 voxels of a 640×480 frame at
+0.1 m; per block, the look-ups cost a few µs.) Point queries likewise look each distinct block up
+once. A block is allocated at the first update of one of its voxels and never freed (the global
+map only grows); a voxel is *known* exactly when its flag is set.
 
-Written by hand: Open3D's ``VoxelBlockGrid`` stores blocks the same way but only integrates TSDF
-(see :mod:`.projective`), and its hash map would bring back a look-up per block through Python
-tensors for no gain at these sizes (a few thousand blocks).
+The rows are ours, not the hash map's buffer slots: Open3D re-inserts every key when it rehashes,
+which moves them to new slots, whereas a row (the hash map's value) stays put, so the voxel arrays
+never move and are laid out in allocation order. ``open3d.t.geometry.VoxelBlockGrid`` has the same
+block layout, but its integration is TSDF-only (see :mod:`.projective`), so only its hash map is
+used here. The blocks' voxels are read and written by the numba kernels below and in
+:mod:`.projective`; Open3D has no occupancy (log-odds) update to do it.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+import open3d.core as o3c
 
 from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, LogOddsModel, encode
 from amslam.plugins.voxel_open3d.projective import (
@@ -31,8 +37,9 @@ from amslam.types import BoundingBox
 #: voxels along a block's edge
 BLOCK = 8
 _VOXELS_PER_BLOCK = BLOCK**3
-#: block indices that :func:`~amslam.lib.voxel_grid.encode` packs into a key (``|i| < 2**20``):
-#: 8·2²⁰ voxels, 840 km at 0.1 m
+#: block indices stored (``|i| < 2**20``: 8·2²⁰ voxels, 840 km at 0.1 m): what
+#: :func:`~amslam.lib.voxel_grid.encode` packs (point queries sort their blocks by it), well within
+#: the hash map's int32 keys
 _MAX_BLOCK = (1 << 20) - 1
 
 
@@ -56,20 +63,18 @@ class BlockGrid:
         self.known = np.zeros((blocks, _VOXELS_PER_BLOCK), dtype=bool)
         self.coords = np.zeros((blocks, 3), dtype=np.int64)  # block index of each row
         self.n_blocks = 0
-        self._keys = np.zeros(0, dtype=np.int64)  # sorted block keys ...
-        self._rows = np.zeros(0, dtype=np.int64)  # ... and their rows
+        # block index (int32×3) -> row; it rehashes itself as it fills
+        self._index = o3c.HashMap(blocks, o3c.int32, (3,), o3c.int64, (1,), o3c.Device("CPU:0"))
 
     # ------------------------------------------------------------------ block table
     def _find(self, blocks: np.ndarray) -> np.ndarray:
-        """Rows of blocks (M×3 block indices); -1 for blocks not stored."""
+        """Rows of blocks (M×3 block indices, each within ``_MAX_BLOCK``); -1 for blocks not stored."""
         rows = np.full(len(blocks), -1, dtype=np.int64)
-        ok = np.all(np.abs(blocks) <= _MAX_BLOCK, axis=1)
-        if not len(self._keys) or not ok.any():
+        if not self.n_blocks or not len(blocks):
             return rows
-        keys = encode(blocks[ok])
-        pos = np.minimum(np.searchsorted(self._keys, keys), len(self._keys) - 1)
-        hit = self._keys[pos] == keys
-        rows[np.flatnonzero(ok)[hit]] = self._rows[pos[hit]]
+        slots, found = self._index.find(_keys(blocks))
+        found = found.numpy()
+        rows[found] = self._index.value_tensor().numpy()[slots.numpy()[found], 0]
         return rows
 
     def _rows_for(self, blocks: np.ndarray) -> np.ndarray:
@@ -83,11 +88,9 @@ class BlockGrid:
             rows[new] = np.arange(self.n_blocks, need)
             self.coords[rows[new]] = blocks[new]
             self.n_blocks = need
-            keys = encode(blocks[new])
-            order = np.argsort(keys)
-            at = np.searchsorted(self._keys, keys[order])
-            self._keys = np.insert(self._keys, at, keys[order])
-            self._rows = np.insert(self._rows, at, rows[new][order])
+            self._index.insert(
+                _keys(blocks[new]), o3c.Tensor.from_numpy(np.ascontiguousarray(rows[new].reshape(-1, 1)))
+            )
         return rows
 
     def _reserve(self, blocks: int) -> None:
@@ -114,14 +117,26 @@ class BlockGrid:
     # ------------------------------------------------------------------ queries
     def states_at_index(self, index: np.ndarray) -> np.ndarray:
         """int8 VoxelState of voxel indices (N×3); UNKNOWN where nothing is stored."""
-        index = np.ascontiguousarray(index, dtype=np.int64).reshape(-1, 3)
+        index = np.asarray(index, dtype=np.int64).reshape(-1, 3)
         out = np.full(len(index), UNKNOWN, dtype=np.int8)
-        if len(self._keys):
-            # one compiled pass: the planner's segment checks ask for a few dozen voxels at a
-            # time, where the half-dozen numpy calls of a vectorised look-up cost more than it
-            _states_at(
-                index, self._keys, self._rows, self.value, self.known, np.float32(self.model.l_occ), out
-            )
+        if not self.n_blocks or not len(index):
+            return out
+        block_of = np.floor_divide(index, BLOCK)
+        at = None  # the queries kept (None: all of them)
+        if np.abs(block_of).max() > _MAX_BLOCK:  # beyond any stored block: unknown
+            at = np.flatnonzero(np.all(np.abs(block_of) <= _MAX_BLOCK, axis=1))
+            index, block_of = index[at], block_of[at]
+        # each block once: one batched look-up in the hash map, then a gather per voxel
+        keys, which = np.unique(encode(block_of), return_inverse=True)
+        which = which.reshape(-1)
+        one = np.empty(len(keys), dtype=np.int64)  # a query in each block
+        one[which] = np.arange(len(which))
+        rows = self._find(block_of[one])[which]
+        stored = np.flatnonzero(rows >= 0)
+        rows, cell = rows[stored], _cell(index[stored])
+        out[stored if at is None else at[stored]] = self.model.classify(
+            self.value[rows, cell], self.known[rows, cell]
+        )
         return out
 
     def dense_states(self, lo: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
@@ -177,6 +192,12 @@ class BlockGrid:
         self.lo = np.asarray(lo, dtype=np.int64)
 
 
+def _keys(blocks: np.ndarray) -> o3c.Tensor:
+    """Block indices (M×3) as the hash map's keys: C-contiguous int32 (the hash map reads the raw
+    buffer, whatever strides the tensor has; ``touched_blocks`` gives a Fortran-ordered array)."""
+    return o3c.Tensor.from_numpy(np.ascontiguousarray(blocks, dtype=np.int32))
+
+
 def _cell(index: np.ndarray) -> np.ndarray:
     """Position of voxels (N×3 indices) inside their blocks (C order)."""
     r = np.mod(index, BLOCK)
@@ -196,26 +217,6 @@ def _blocks_into_box(rows, coords, value, known, l_occ, block, lo, out):  # prag
             k = coords[r, 2] * block + cell % block - lo[2]
             if 0 <= i < out.shape[0] and 0 <= j < out.shape[1] and 0 <= k < out.shape[2]:
                 out[i, j, k] = OCCUPIED if value[r, cell] > l_occ else FREE
-
-
-@numba.njit(nogil=True, cache=True)
-def _states_at(index, keys, rows, value, known, l_occ, out):  # pragma: no cover - compiled
-    """States of voxels (N×3 indices) into ``out`` (UNKNOWN already): each voxel's block found by
-    binary search in the sorted block ``keys`` (as :func:`~amslam.lib.voxel_grid.encode` packs
-    them); OCCUPIED above ``l_occ`` (compared in float32, as ``LogOddsModel.classify``)."""
-    offset = _MAX_BLOCK + 1
-    for n in range(len(index)):
-        b0, b1, b2 = index[n, 0] // BLOCK, index[n, 1] // BLOCK, index[n, 2] // BLOCK
-        if max(abs(b0), abs(b1), abs(b2)) > _MAX_BLOCK:
-            continue
-        key = ((b0 + offset) << 42) | ((b1 + offset) << 21) | (b2 + offset)
-        at = np.searchsorted(keys, key)
-        if at == len(keys) or keys[at] != key:
-            continue
-        row = rows[at]
-        cell = ((index[n, 0] % BLOCK) * BLOCK + index[n, 1] % BLOCK) * BLOCK + index[n, 2] % BLOCK
-        if known[row, cell]:
-            out[n] = OCCUPIED if value[row, cell] > l_occ else FREE
 
 
 @numba.njit(nogil=True, cache=True)

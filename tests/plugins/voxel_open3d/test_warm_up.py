@@ -18,7 +18,6 @@ KERNELS = (
     projective._fold_blocks,
     projective._flag_blocks,
     blocks._blocks_into_box,
-    blocks._states_at,
     blocks._known_extent,
 )
 
