@@ -4,7 +4,7 @@
 viewpoints, path costs, collision checks, volumes, save/load) on top of a small *storage* API
 (``integrate_depth``, ``states_at_index``, ``dense_states``, ``voxels``, ``extent``, ``to_arrays``,
 ``from_arrays``, ``shift_to``); a backend plugin supplies the storage (``numpy``: dense arrays,
-``open3d``: dense blocks and a dense window).
+``open3d``: dense blocks found through an Open3D hash map, and a dense window).
 
 A saved map (a run's ``map.npz``, a later mission's ``prior_map``) is written by
 :meth:`VoxelMapBase.save` and read by :func:`read_saved_map`, here, for the backends and the apps

@@ -25,7 +25,7 @@ import numba
 import numpy as np
 import open3d.core as o3c
 
-from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, LogOddsModel, encode
+from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, LogOddsModel
 from amslam.plugins.voxel_open3d.projective import (
     FrameUpdate,
     fold_into_blocks,
@@ -34,12 +34,12 @@ from amslam.plugins.voxel_open3d.projective import (
 )
 from amslam.types import BoundingBox
 
-#: voxels along a block's edge
+#: voxels along a block's edge (a power of two: blocks and cells by shifts and masks)
 BLOCK = 8
+_BLOCK_BITS = 3
 _VOXELS_PER_BLOCK = BLOCK**3
-#: block indices stored (``|i| < 2**20``: 8·2²⁰ voxels, 840 km at 0.1 m): what
-#: :func:`~amslam.lib.voxel_grid.encode` packs (point queries sort their blocks by it), well within
-#: the hash map's int32 keys
+#: block indices stored (``|i| < 2**20``: 8·2²⁰ voxels, 840 km at 0.1 m): point queries pack a
+#: block in an int64 key (21 bits an axis) to sort them, well within the hash map's int32 keys
 _MAX_BLOCK = (1 << 20) - 1
 
 
@@ -117,23 +117,21 @@ class BlockGrid:
     # ------------------------------------------------------------------ queries
     def states_at_index(self, index: np.ndarray) -> np.ndarray:
         """int8 VoxelState of voxel indices (N×3); UNKNOWN where nothing is stored."""
-        index = np.asarray(index, dtype=np.int64).reshape(-1, 3)
         out = np.full(len(index), UNKNOWN, dtype=np.int8)
         if not self.n_blocks or not len(index):
             return out
-        block_of = np.floor_divide(index, BLOCK)
+        # per axis (3×N): numpy reduces and shifts contiguous rows far faster than N×3 columns
+        index = np.ascontiguousarray(np.asarray(index, dtype=np.int64).reshape(-1, 3).T)
+        block_of = index >> _BLOCK_BITS  # floor division by BLOCK, negative indices too
         at = None  # the queries kept (None: all of them)
-        if np.abs(block_of).max() > _MAX_BLOCK:  # beyond any stored block: unknown
-            at = np.flatnonzero(np.all(np.abs(block_of) <= _MAX_BLOCK, axis=1))
-            index, block_of = index[at], block_of[at]
+        if max(-int(block_of.min()), int(block_of.max())) > _MAX_BLOCK:  # beyond every block
+            at = np.flatnonzero(np.all(np.abs(block_of) <= _MAX_BLOCK, axis=0))
+            index, block_of = index[:, at], block_of[:, at]
         # each block once: one batched look-up in the hash map, then a gather per voxel
-        keys, which = np.unique(encode(block_of), return_inverse=True)
-        which = which.reshape(-1)
-        one = np.empty(len(keys), dtype=np.int64)  # a query in each block
-        one[which] = np.arange(len(which))
-        rows = self._find(block_of[one])[which]
+        blocks, which = _distinct(block_of)
+        rows = self._find(blocks)[which]
         stored = np.flatnonzero(rows >= 0)
-        rows, cell = rows[stored], _cell(index[stored])
+        rows, cell = rows[stored], _cell(index)[stored]
         out[stored if at is None else at[stored]] = self.model.classify(
             self.value[rows, cell], self.known[rows, cell]
         )
@@ -183,13 +181,38 @@ class BlockGrid:
         blocks, which = np.unique(block_of, axis=0, return_inverse=True)
         self._clear(max(len(self.value), len(blocks)))
         rows = self._rows_for(blocks)[which.reshape(-1)]
-        cell = _cell(index)
+        cell = _cell(index.T)
         self.value[rows, cell] = values
         self.known[rows, cell] = True
 
     def shift_to(self, lo: np.ndarray) -> None:
         """Move the window hint to ``lo``: an unbounded map keeps every voxel."""
         self.lo = np.asarray(lo, dtype=np.int64)
+
+
+def _distinct(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct blocks (M×3) among block indices given per axis (3×N, each within
+    ``_MAX_BLOCK``), and which of them each one is."""
+    lo, hi = blocks.min(axis=1), blocks.max(axis=1)
+    extent = hi - lo + 1
+    rel = blocks - lo[:, None]
+    if float(np.prod(extent.astype(float))) <= max(8 * blocks.shape[1], 4096):
+        # queries close together (a segment, a viewpoint's rays): a flag per block of their box
+        # marks the distinct ones without sorting
+        flat = (rel[0] * extent[1] + rel[1]) * extent[2] + rel[2]
+        seen = np.zeros(int(np.prod(extent)), dtype=np.int64)
+        seen[flat] = 1
+        cells = np.flatnonzero(seen)
+        seen[cells] = np.arange(len(cells))
+        plane = extent[1] * extent[2]
+        found = np.stack([cells // plane, cells // extent[2] % extent[1], cells % extent[2]], axis=1)
+        return found + lo, seen[flat]
+    # spread out: sort their keys (21 bits an axis, as encode packs them)
+    keys, which = np.unique((rel[0] << 42) | (rel[1] << 21) | rel[2], return_inverse=True)
+    which = which.reshape(-1)
+    one = np.empty(len(keys), dtype=np.int64)  # a query in each distinct block
+    one[which] = np.arange(len(which))
+    return blocks[:, one].T, which
 
 
 def _keys(blocks: np.ndarray) -> o3c.Tensor:
@@ -199,9 +222,9 @@ def _keys(blocks: np.ndarray) -> o3c.Tensor:
 
 
 def _cell(index: np.ndarray) -> np.ndarray:
-    """Position of voxels (N×3 indices) inside their blocks (C order)."""
-    r = np.mod(index, BLOCK)
-    return (r[:, 0] * BLOCK + r[:, 1]) * BLOCK + r[:, 2]
+    """Position of voxels (indices given per axis, 3×N) inside their blocks (C order)."""
+    r = index & (BLOCK - 1)  # the index modulo BLOCK, negative indices too
+    return (r[0] * BLOCK + r[1]) * BLOCK + r[2]
 
 
 @numba.njit(nogil=True, cache=True)

@@ -79,6 +79,11 @@ def assert_same(grid, ref: Reference, seed: int):
     rng = np.random.default_rng(seed)
     query = rng.integers(lo - 5, hi + 5, (3000, 3))
     np.testing.assert_array_equal(grid.states_at_index(query), ref.states(query))
+    # the same with queries far apart (blocks then sorted, not flagged in their box) and beyond
+    # every block (2**40)
+    spread = np.vstack([query, [[8_000_000, -8_000_000, 3], [2**40, 0, 0]]])
+    np.testing.assert_array_equal(grid.states_at_index(spread), ref.states(spread))
+    np.testing.assert_array_equal(grid.states_at_index(query[:7]), ref.states(query[:7]))
     for _ in range(5):
         a = rng.integers(lo - 10, hi, 3)
         shape = tuple(int(s) for s in rng.integers(1, 40, 3))
@@ -123,3 +128,16 @@ def test_an_empty_block_grid_knows_nothing():
     assert np.all(grid.dense_states(np.array([-4, -4, -4]), (8, 8, 8)) == UNKNOWN)
     far = np.array([[2**40, 0, 0], [0, -(2**40), 0]])  # beyond what a block key holds: unknown
     assert np.all(grid.states_at_index(far) == UNKNOWN)
+
+
+def test_the_open3d_block_index_finds_every_block_at_its_row_whatever_the_array_layout():
+    grid = BlockGrid(VOXEL, MODEL, capacity=512)  # a hash map of one block: it rehashes as it grows
+    for frame in random_frames(3):
+        grid.integrate_frame(frame)
+    coords = grid.coords[: grid.n_blocks]
+    assert grid._index.size() == grid.n_blocks > 1
+    rows = np.arange(grid.n_blocks)
+    np.testing.assert_array_equal(grid._find(coords), rows)
+    np.testing.assert_array_equal(grid._find(np.asfortranarray(coords)), rows)  # read as C order
+    np.testing.assert_array_equal(grid._find(coords.astype(np.int32)[::-1]), rows[::-1])
+    assert np.all(grid._find(coords + np.array([0, 0, 10_000])) == -1)
