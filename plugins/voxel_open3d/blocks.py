@@ -117,15 +117,17 @@ class BlockGrid:
     # ------------------------------------------------------------------ queries
     def states_at_index(self, index: np.ndarray) -> np.ndarray:
         """int8 VoxelState of voxel indices (N×3); UNKNOWN where nothing is stored."""
-        out = np.full(len(index), UNKNOWN, dtype=np.int8)
-        if not self.n_blocks or not len(index):
-            return out
         # per axis (3×N): numpy reduces and shifts contiguous rows far faster than N×3 columns
         index = np.ascontiguousarray(np.asarray(index, dtype=np.int64).reshape(-1, 3).T)
+        out = np.full(index.shape[1], UNKNOWN, dtype=np.int8)
+        if not self.n_blocks or not len(out):
+            return out
         block_of = index >> _BLOCK_BITS  # floor division by BLOCK, negative indices too
         at = None  # the queries kept (None: all of them)
         if max(-int(block_of.min()), int(block_of.max())) > _MAX_BLOCK:  # beyond every block
             at = np.flatnonzero(np.all(np.abs(block_of) <= _MAX_BLOCK, axis=0))
+            if not len(at):
+                return out
             index, block_of = index[:, at], block_of[:, at]
         # each block once: one batched look-up in the hash map, then a gather per voxel
         blocks, which = _distinct(block_of)

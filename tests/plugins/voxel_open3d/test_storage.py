@@ -84,6 +84,7 @@ def assert_same(grid, ref: Reference, seed: int):
     spread = np.vstack([query, [[8_000_000, -8_000_000, 3], [2**40, 0, 0]]])
     np.testing.assert_array_equal(grid.states_at_index(spread), ref.states(spread))
     np.testing.assert_array_equal(grid.states_at_index(query[:7]), ref.states(query[:7]))
+    assert np.all(grid.states_at_index(np.array([[2**40, 0, 0], [0, 0, -(2**40)]])) == UNKNOWN)
     for _ in range(5):
         a = rng.integers(lo - 10, hi, 3)
         shape = tuple(int(s) for s in rng.integers(1, 40, 3))
