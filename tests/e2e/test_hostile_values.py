@@ -461,7 +461,8 @@ def test_an_inverted_geofence_is_refused(capsys):
 
 
 @pytest.mark.parametrize("name", ["demo", "demo_onnx", "lot_team", "pams_lot_a", "pams_lot_b", "pams_street",
-                                  "parking_lot", "px4_square", "small_house", "three_floors"])  # fmt: skip
+                                  "parking_lot", "px4_square", "small_house", "three_floors",
+                                  "warehouse"])  # fmt: skip
 def test_the_shipped_missions_stay_valid(capsys, name):
     status, lines = validate(capsys, name)
     assert status == 0 and lines == [], lines
