@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_every_package_folder_is_listed_in_pyproject():
-    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    listed = set(_setuptools()["packages"])
     found = {"amslam.missions"}
     for folder, package in PACKAGE_DIRS.items():
         for init in (ROOT / folder).rglob("__init__.py"):
@@ -47,7 +47,7 @@ def test_every_data_file_of_a_package_is_in_its_package_data():
     # once failed on a world that lived beside the checkout
     import fnmatch
 
-    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    setuptools = _setuptools()
     folders = {package: ROOT / folder for folder, package in PACKAGE_DIRS.items()}
     folders["amslam.missions"] = ROOT / "missions"
     files = [p for base in folders.values() for p in base.rglob("*") if p.is_file()]

@@ -497,10 +497,10 @@ class ContractedGraph:
         order = np.lexsort((spread, self.piece))
         first = np.ones(n, dtype=bool)
         first[1:] = self.piece[order[1:]] != self.piece[order[:-1]]
-        self.representative = np.empty(self.n_pieces, dtype=np.int64)
-        self.representative[self.piece[order[first]]] = order[first]
-        self.rep_position = pos[self.representative]
-        self.node_position = pos
+        representative = np.empty(self.n_pieces, dtype=np.int64)
+        representative[self.piece[order[first]]] = order[first]
+        self.rep_position = pos[representative]
+        self.node_positions = pos  # every fine node's position, by node
         # edges between pieces: the cheapest crossing's cost per metre times the representatives'
         # distance, one edge per ordered pair (the fine graph holds both directions)
         a, b = self.piece[rows[~inside]], self.piece[cols[~inside]]
@@ -522,11 +522,11 @@ class ContractedGraph:
         sp, tp = self.piece[sources], self.piece[targets]
         uniq, inverse = np.unique(sp, return_inverse=True)
         between = dijkstra.distances(self.graph, uniq)[inverse][:, tp]
-        to_rep = np.linalg.norm(self.node_position[sources] - self.rep_position[sp], axis=1)
-        from_rep = np.linalg.norm(self.rep_position[tp] - self.node_position[targets], axis=1)
+        to_rep = np.linalg.norm(self.node_positions[sources] - self.rep_position[sp], axis=1)
+        from_rep = np.linalg.norm(self.rep_position[tp] - self.node_positions[targets], axis=1)
         out = between + to_rep[:, None] + from_rep[None, :]
         same = sp[:, None] == tp[None, :]
-        a, b = self.node_position[sources], self.node_position[targets]
+        a, b = self.node_positions[sources], self.node_positions[targets]
         straight = np.linalg.norm(a[:, None] - b[None], axis=-1)
         return np.where(same, straight, out)
 

@@ -29,7 +29,7 @@ from pydantic import Field, model_validator
 
 from amslam.interfaces import BackendParams, FieldError
 from amslam.lib.class_colours import class_colour
-from amslam.plugins.sim.procedural import ProceduralWorldParams, _Builder, _Rect
+from amslam.plugins.sim.procedural import ProceduralWorldParams, _Builder, _Rect, _triangle_normals
 from amslam.plugins.sim.world import MeshPart, WorldSpec, boxes_mesh
 
 
@@ -142,8 +142,7 @@ def generate_hall(params: HallWorldParams, rng: np.random.Generator) -> WorldSpe
     for name, (z0, z1) in (("ground slab", (-p.slab, 0.0)), ("roof slab", (H, H + p.slab))):
         v, tr = boxes_mesh([(np.array([0.0, 0.0, z0]), np.array([W, D, z1]))])
         part = MeshPart.uniform(name, v, tr, 0, class_colour("floor"))
-        normal_z = np.cross(v[tr[:, 1]] - v[tr[:, 0]], v[tr[:, 2]] - v[tr[:, 0]])[:, 2]
-        part.albedo[normal_z < 0] = class_colour("ceiling")  # the bottom faces are ceilings
+        part.albedo[_triangle_normals(v, tr)[:, 2] < -0.5] = class_colour("ceiling")  # bottom faces
         parts.append(part)
 
     return WorldSpec(
