@@ -1,12 +1,14 @@
-"""Shared fixtures, and which tests run alone.
+"""Shared fixtures, and which tests run at normal priority.
 
-``make test`` runs the suite in two parts: every test but the ``realtime`` ones on two worker
-processes (pytest-xdist, one per core), then the ``realtime`` ones alone. A realtime test judges
-something measured on the wall clock while it runs — a flight against a vehicle in real time
-(MAVLink emulator, SITL), late control ticks, a thread kept running while a call holds or lets
-go of the interpreter lock — and a second worker beside it on two cores would be its load, not
-the code's. They are marked here by file, so that a new test in one of these files is run alone
-too; a test elsewhere that needs it takes ``@pytest.mark.realtime``.
+``make test`` runs the suite in two parts at once, each on two pytest-xdist workers: the
+``realtime`` tests at normal priority, and every other test at the lowest (``nice -n 19``). A
+realtime test judges something measured on the wall clock while it runs — a flight against a
+vehicle in real time (MAVLink emulator, SITL), late control ticks, a thread kept running while a
+call holds or lets go of the interpreter lock. Such a test mostly waits on the clock (the SITL
+exploration uses under a third of a core), so the other tests fill the cores meanwhile; the
+scheduler hands the cores to a realtime test whenever it wants them, so their load is not its
+load. They are marked here by file, so that a new test in one of these files runs at normal
+priority too; a test elsewhere that needs it takes ``@pytest.mark.realtime``.
 """
 
 from __future__ import annotations
@@ -27,17 +29,24 @@ REALTIME = (
     "core/test_dijkstra.py",
     "core/test_slam_thread.py",
     "core/test_mapper_thread.py",
-    "e2e/test_thread_rule.py",
     "e2e/test_detection_thread.py",
     "e2e/test_hostile_cli.py",
 )
 
 
+#: the longest realtime tests (the SITL flights, about 100 s and 20 s of wall clock each), started
+#: first: the realtime part lasts as long as its longest test only if that test does not start last
+LONGEST_FIRST = ("plugins/mavsdk_platform/test_sitl_exploration.py",)
+
+
 def pytest_collection_modifyitems(config, items):
+    def where(item) -> str:
+        return Path(item.path).resolve().relative_to(TESTS.resolve()).as_posix()
+
     for item in items:
-        where = Path(item.path).resolve().relative_to(TESTS.resolve()).as_posix()
-        if where.startswith(REALTIME):
+        if where(item).startswith(REALTIME):
             item.add_marker(pytest.mark.realtime)
+    items.sort(key=lambda item: not where(item).startswith(LONGEST_FIRST))  # stable: otherwise in order
 
 
 @pytest.fixture(scope="session")
