@@ -98,7 +98,9 @@ def test_other_threads_run_while_the_process_computes(tmp_path):
     there = SlamProcess(HeldLockSlam)
     there.configure(BackendParams(), _context(tmp_path))
     try:
-        assert beats_during(here.uncertainty)[0] <= 2  # the lock is held throughout: the test can fail
+        # the lock is held throughout (about 500 beats when it is not): the test can fail; a beat or
+        # two slips in as the call starts and ends, a few more when the machine is loaded
+        assert beats_during(here.uncertainty)[0] <= 5
         assert beats_during(there.uncertainty)[0] >= 20
     finally:
         there.close()
