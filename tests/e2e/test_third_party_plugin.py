@@ -75,7 +75,10 @@ def test_third_party_planner_is_listed_and_flies(installed_plugin, tmp_path):
     env = installed_plugin
     listed = subprocess.run([amslam, "plugins"], capture_output=True, text=True, env=env).stdout
     assert "nearest" in listed and "amslam-nearest-planner 0.3.0" in listed
-    mission = small_mission(tmp_path, name="thirdparty", planner="{plugin: nearest, min_gain: 0.5}")
+    # 40 s of exploring, then home and land: enough for the planner to plan, fly to and replan
+    mission = small_mission(
+        tmp_path, name="thirdparty", planner="{plugin: nearest, min_gain: 0.5}", max_time=40
+    )
     done = subprocess.run(
         [amslam, "run", str(mission), "--out", str(tmp_path / "runs"), "--quiet"],
         capture_output=True,
