@@ -38,7 +38,6 @@ blocked place forever.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -650,33 +649,58 @@ class PamsPlanner(_TargetPlanner):
         """The ordered samples (at most ``horizon``) of largest gain and that gain.
 
         Every one of the ``P(a, T)`` orders of the ``a`` free samples is evaluated; a path is cut
-        at the viewpoint where the entropy reaches ``threshold`` (the target is done there).
+        at the viewpoint where the entropy reaches ``threshold`` (the target is done there). The
+        orders are walked depth first in ``itertools.permutations``' order, each prefix's
+        information summed once and the last viewpoint of all paths through a prefix evaluated
+        at once (one stacked ``slogdet``): P(a, T)·T determinants one at a time took seconds per
+        plan with the default 120 samples. Ties keep the first order, as a plain loop over the
+        permutations would (``_better``).
         """
         left = np.flatnonzero(~st.used).tolist()
         T = min(self.params.horizon, len(left))
         if T == 0:
             return [], 0.0
         h0 = entropy(st.cov)
-        info0 = np.linalg.inv(st.cov)
-        meas = {i: np.linalg.inv(st.sample_covs[i]) for i in left}
-        best: tuple[float, list[int], float] | None = None
-        for path in itertools.permutations(left, T):
-            info, here, length, h = info0, start, 0.0, h0
-            taken: list[int] = []
-            for i in path:
-                info = info + meas[i]
-                length += float(np.linalg.norm(st.samples[i] - here))
-                here = st.samples[i]
-                taken.append(i)
-                h = -0.5 * float(np.linalg.slogdet(info)[1])  # entropy of Σ = info⁻¹
-                if h <= threshold:
-                    break
-            gain = h0 - h
-            utility = gain - self.params.cost_weight * length
-            if best is None or utility > best[0] + 1e-12:
-                best = (utility, taken, gain)
-        assert best is not None
-        return best[1], best[2]
+        meas = np.stack([np.linalg.inv(st.sample_covs[i]) for i in left])
+        points = st.samples[left]
+        # distances as the path sums them, one float each: from the start, and between samples
+        from_start = np.array([float(np.linalg.norm(p - start)) for p in points])
+        between = np.array([[float(np.linalg.norm(q - p)) for q in points] for p in points])
+        weight = self.params.cost_weight
+        best: list = [None]  # (utility, positions in ``left``, gain)
+
+        def offer(utility: np.ndarray, paths: list[list[int]], gain: np.ndarray) -> None:
+            """Offer paths in order: each replaces the best only by more than 1e-12."""
+            first = 0
+            while first < len(utility):
+                bar = -np.inf if best[0] is None else best[0][0] + 1e-12
+                over = np.flatnonzero(utility[first:] > bar)
+                if len(over) == 0:
+                    return
+                k = first + int(over[0])
+                best[0] = (float(utility[k]), paths[k], float(gain[k]))
+                first = k + 1
+
+        def extend(info: np.ndarray, last: int | None, length: float, taken: list[int]) -> None:
+            rest = [k for k in range(len(left)) if k not in taken]
+            steps = from_start[rest] if last is None else between[last, rest]
+            if len(taken) == T - 1:  # the paths' last viewpoints, all at once
+                h = -0.5 * np.linalg.slogdet(info + meas[rest])[1]
+                gain = h0 - h
+                offer(gain - weight * (length + steps), [[*taken, k] for k in rest], gain)
+                return
+            for k, step in zip(rest, steps, strict=True):
+                here_info, here_length = info + meas[k], length + float(step)
+                h = -0.5 * float(np.linalg.slogdet(here_info)[1])  # entropy of Σ = info⁻¹
+                if h <= threshold:  # cut here: every order through this prefix is this path
+                    offer(np.array([h0 - h - weight * here_length]), [[*taken, k]], np.array([h0 - h]))
+                else:
+                    extend(here_info, k, here_length, [*taken, k])
+
+        extend(np.linalg.inv(st.cov), None, 0.0, [])
+        assert best[0] is not None
+        utility, taken, gain = best[0]
+        return [left[k] for k in taken], gain
 
     def plan(self, request: PlanRequest) -> list[TourItem]:
         """The best path of views of the current target (empty when every target is done).

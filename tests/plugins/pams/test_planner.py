@@ -84,11 +84,15 @@ def test_entropy_and_information_gain_by_hand():
         entropy(np.diag([1.0, -1.0]))
 
 
-def test_number_of_candidate_paths_is_a_permutation_count(tmp_path, models_path, monkeypatch):
+def test_number_of_candidate_paths_is_a_permutation_count(tmp_path, models_path):
+    # every order is evaluated (tests/plugins/pams/test_best_path.py: the same choice as each of
+    # the P(a, T) orders one by one); here the count a plan reports
     assert count_paths(8, 3) == 336 and count_paths(5, 5) == 120 and count_paths(2, 3) == 0
+    events: list = []
     planner = _pams(
         tmp_path,
         models_path,
+        events,
         prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
         sampling="uniform",
         samples=7,
@@ -97,17 +101,9 @@ def test_number_of_candidate_paths_is_a_permutation_count(tmp_path, models_path,
         max_position_std=0.3,
         max_dimension_std=0.5,
     )
-    seen = []
-    real = pams_planner.itertools.permutations
-
-    def counting(items, T):
-        out = list(real(items, T))
-        seen.append(len(out))
-        return iter(out)
-
-    monkeypatch.setattr(pams_planner.itertools, "permutations", counting)
     tour = planner.plan(_request())
-    assert seen == [count_paths(7, 3)] == [210]
+    (path,) = [f for name, f in events if name == "pams_path"]
+    assert path["free"] == 7 and path["candidates"] == count_paths(7, 3) == 210 and path["chosen"] == 3
     assert len(tour) == 3
 
 
