@@ -14,9 +14,6 @@ import numpy as np
 
 from amslam.lib.voxel_grid import FREE, OCCUPIED, UNKNOWN, centres, to_index
 
-#: Half of the 26 neighbour offsets (the other half are their negatives).
-_HALF_OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o > (1, 1, 1)], dtype=np.int64) - 1
-
 
 def clearance_kernel(radius: float, voxel: float) -> np.ndarray:
     """Offsets of voxels whose box comes closer than ``radius`` to a voxel centre, as a mask.
@@ -307,6 +304,8 @@ class FreeSpaceGraph:
     ):
         from scipy import sparse
 
+        from amslam.lib.graph_kernels import neighbour_csr
+
         self.lo = np.asarray(lo, dtype=np.int64)
         self.vertical_ok = vertical_ok
         self.near_obstacle = near_obstacle
@@ -317,27 +316,12 @@ class FreeSpaceGraph:
         self.node_of_voxel = np.full(passable.shape, -1, dtype=np.int64)
         self.node_index = np.argwhere(passable)
         self.node_of_voxel[tuple(self.node_index.T)] = np.arange(len(self.node_index))
-        rows, cols, weights = [], [], []
-        for off in _HALF_OFFSETS:
-            # voxels a with a and a + off both inside the block and both passable
-            sa = tuple(slice(max(0, -o), s - max(0, o)) for o, s in zip(off, passable.shape, strict=True))
-            sb = tuple(slice(max(0, o), s - max(0, -o)) for o, s in zip(off, passable.shape, strict=True))
-            both = passable[sa] & passable[sb]
-            if vertical_ok is not None and off[2] != 0:
-                both &= vertical_ok[sa] & vertical_ok[sb]
-            rows.append(self.node_of_voxel[sa][both])
-            cols.append(self.node_of_voxel[sb][both])
-            length = voxel * float(np.linalg.norm(off))
-            if penalty is None:
-                weights.append(np.full(int(both.sum()), length))
-            else:
-                weights.append(length * 0.5 * (penalty[sa][both] + penalty[sb][both]))
-        r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
-        n = len(self.node_index)
-        half = sparse.csr_matrix((w, (r, c)), shape=(n, n))  # each edge once
         # Both directions stored, searched as a directed graph (with ``directed=False`` scipy
         # transposes the matrix at every call; amslam.lib.dijkstra takes it as it is)
-        self.graph = (half + half.T).tocsr()
+        data, indices, indptr = neighbour_csr(self.node_of_voxel, voxel, penalty, vertical_ok)
+        n = len(self.node_index)
+        self.graph = sparse.csr_matrix((data, indices, indptr), shape=(n, n))
+        self.graph.has_sorted_indices = True
 
     @property
     def n_nodes(self) -> int:

@@ -426,11 +426,13 @@ class VoxelMapBase(Mapping):
         # 99 % and could not find its way home; with this radius two runs in about 30 grazed an
         # obstacle at 0.248 m, robot radius 0.25 m, on paths laid off by the SLAM correction.)
         self.local_radius = float(context.robot.radius - 0.5 * p.local_voxel)
-        # compile the path-cost kernel (or load it from numba's cache) before take-off, not at
-        # the first plan: on a real vehicle the first plan is made while it flies
-        from amslam.lib.dijkstra import warm_up
+        # compile the path-cost and graph-building kernels (or load them from numba's cache)
+        # before take-off, not at the first plan: on a real vehicle the first plan is made while
+        # it flies
+        from amslam.lib import dijkstra, graph_kernels
 
-        warm_up()
+        dijkstra.warm_up()
+        graph_kernels.warm_up()
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)
