@@ -214,7 +214,11 @@ def vertical_ok(
         if unknown.any():
             seen_around = ~ndimage.binary_dilation(unknown, structure=clearance_kernel(radius, voxel))
             m = int(np.ceil(radius / voxel)) + 1
-            near_slab = ndimage.binary_dilation(slab, structure=np.ones((2 * m + 1,) * 3, dtype=bool))
+            # the (2m + 1)³ box as three 1-D dilations: the same voxels, a seventh of the work at m = 3
+            near_slab = slab
+            for axis in range(3):
+                segment = np.ones(tuple(2 * m + 1 if a == axis else 1 for a in range(3)), dtype=bool)
+                near_slab = ndimage.binary_dilation(near_slab, structure=segment)
             ok &= seen_around | ~near_slab
     big = slabs(states, voxel)
     if opening > 0 and big.any():
