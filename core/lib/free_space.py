@@ -88,7 +88,12 @@ def _disc(radius: float, voxel: float) -> np.ndarray:
 
 
 def narrow_slab_gaps(
-    states: np.ndarray, voxel: float, opening: float, unseen_reach: float = 0.0
+    states: np.ndarray,
+    voxel: float,
+    opening: float,
+    unseen_reach: float = 0.0,
+    *,
+    slab: np.ndarray | None = None,
 ) -> np.ndarray:
     """Free voxels in a slab's z layer, near it, in a part of the layer too narrow for an opening.
 
@@ -98,10 +103,11 @@ def narrow_slab_gaps(
     that no disc of radius ``opening`` of free voxels in that layer covers (a morphological opening
     per layer) are taken for such holes. A real
     opening between floors — a shaft, a stairwell, an atrium — is wider and keeps its free space.
+    ``slab``: the block's :func:`slabs`, when the caller has them (see :func:`obstacles`).
     """
     from scipy import ndimage
 
-    slab = slabs(states, voxel)
+    slab = slabs(states, voxel) if slab is None else slab.copy()
     if opening <= 0 or not slab.any():
         return np.zeros(states.shape, dtype=bool)
     slab |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(slab, structure=_CROSS)
@@ -140,16 +146,26 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
 
 
 def obstacles(
-    states: np.ndarray, voxel: float, unseen_reach: float = 0.0, slab_opening: float = 0.0
+    states: np.ndarray,
+    voxel: float,
+    unseen_reach: float = 0.0,
+    slab_opening: float = 0.0,
+    *,
+    slab: np.ndarray | None = None,
 ) -> np.ndarray:
     """Voxels the robot must keep its radius from: occupied ones, :func:`unseen_surface` and (with
     ``slab_opening``, on a block holding whole free regions, e.g. the path graph's) the
-    :func:`narrow_slab_gaps`."""
+    :func:`narrow_slab_gaps`.
+
+    ``slab``: the :func:`slabs` of the block, when the caller has them. They are the one rule that
+    is not local (a surface is a slab by the size of its whole component): a caller working on a
+    part of a larger block passes those of the whole block, and everything else here depends only
+    on the voxels within :func:`graph_rules_reach` of a voxel."""
     occ = states == OCCUPIED
     if unseen_reach > 0:
         occ |= unseen_surface(states, voxel, unseen_reach)
     if slab_opening > 0:
-        occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach)
+        occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach, slab=slab)
     return occ
 
 
@@ -184,6 +200,7 @@ def vertical_ok(
     observed: bool = True,
     opening: float = 0.0,
     unseen_reach: float = 0.0,
+    slab: np.ndarray | None = None,
 ) -> np.ndarray:
     """Voxels where a path may move vertically (climb, descend) near slabs, floors and ceilings.
 
@@ -201,13 +218,14 @@ def vertical_ok(
       floors are changed through wide openings (a shaft, a stairwell), not through a patch the map
       carved into a slab, which is only as wide as the pose error that carved it allows.
 
-    Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles).
+    Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles). ``slab``: the
+    block's :func:`slabs`, when the caller has them (see :func:`obstacles`).
     """
     from scipy import ndimage
 
     ok = np.ones(states.shape, dtype=bool)
-    slab = horizontal_surfaces(states)
-    if not slab.any():
+    surface = horizontal_surfaces(states)
+    if not surface.any():
         return ok
     if observed:
         unknown = states == UNKNOWN
@@ -215,16 +233,49 @@ def vertical_ok(
             seen_around = ~ndimage.binary_dilation(unknown, structure=clearance_kernel(radius, voxel))
             m = int(np.ceil(radius / voxel)) + 1
             # the (2m + 1)³ box as three 1-D dilations: the same voxels, a seventh of the work at m = 3
-            near_slab = slab
+            near_slab = surface
             for axis in range(3):
                 segment = np.ones(tuple(2 * m + 1 if a == axis else 1 for a in range(3)), dtype=bool)
                 near_slab = ndimage.binary_dilation(near_slab, structure=segment)
             ok &= seen_around | ~near_slab
-    big = slabs(states, voxel)
+    big = slabs(states, voxel) if slab is None else slab.copy()
     if opening > 0 and big.any():
         big |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(big, structure=_CROSS)
         ok &= ~ndimage.binary_dilation(big, structure=_disc(opening, voxel))
     return ok
+
+
+def _reach(structure: np.ndarray) -> np.ndarray:
+    """Per axis, how far from its centre a structuring element reaches (voxels)."""
+    hits = np.argwhere(structure)
+    if len(hits) == 0:
+        return np.zeros(3, dtype=np.int64)
+    return np.abs(hits - np.array(structure.shape) // 2).max(axis=0)
+
+
+def graph_rules_reach(
+    voxel: float, radii: tuple[float, ...], unseen_reach: float = 0.0, slab_opening: float = 0.0
+) -> np.ndarray:
+    """Per axis, how far (voxels) the path graph's rules look from a voxel: its passability, its
+    clearance penalty and whether it allows vertical moves depend only on the states within this
+    box, given the :func:`slabs` of the whole block (the one non-local rule).
+
+    For :func:`obstacles` inflated by each of ``radii`` and :func:`vertical_ok` with the first of
+    them; each step's reach added up along the chain of rules (a bound, not the least one). A
+    caller recomputes the rules near changed voxels only (the global map's graph) with it.
+    """
+    steps = max(1, int(round(unseen_reach / voxel))) if unseen_reach > 0 else 0
+    unseen = 1 + steps  # horizontal surfaces (1), grown through unknown voxels
+    disc = _reach(_disc(slab_opening, voxel)) if slab_opening > 0 else np.zeros(3, dtype=np.int64)
+    # the slabs and their unseen continuation widened by the disc; the free voxels' opening
+    narrow = np.maximum.reduce([unseen + disc, 2 * disc, np.array([0, 0, 1])])
+    obstacle = np.maximum(unseen, narrow)
+    inflated = [obstacle + _reach(clearance_kernel(r, voxel)) for r in radii]
+    m = int(np.ceil(radii[0] / voxel)) + 1  # vertical_ok's box round horizontal surfaces
+    vertical = np.maximum.reduce(
+        [_reach(clearance_kernel(radii[0], voxel)), np.full(3, 1 + m), unseen + disc]
+    )
+    return np.maximum.reduce([*inflated, vertical]).astype(np.int64)
 
 
 def segment_samples(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
