@@ -522,42 +522,22 @@ class ContractedGraph:
 
     def __init__(self, graph: FreeSpaceGraph, block: int):
         from scipy import sparse
-        from scipy.sparse import csgraph
+
+        from amslam.lib.graph_kernels import contract
 
         self.block = int(block)
         n = graph.n_nodes
         cell = graph.node_index // self.block
         cell_id = np.ravel_multi_index(tuple((cell - cell.min(axis=0)).T), tuple(np.ptp(cell, axis=0) + 1))
-        fine = graph.graph.tocoo()
-        rows, cols = fine.row.astype(np.int64), fine.col.astype(np.int64)
-        inside = cell_id[rows] == cell_id[cols]
-        within = sparse.csr_matrix((np.ones(int(inside.sum())), (rows[inside], cols[inside])), shape=(n, n))
-        self.n_pieces, self.piece = csgraph.connected_components(within, directed=False)
-        # each piece's representative: its node nearest the piece's centroid
         pos = graph.node_position(np.arange(n))
-        count = np.bincount(self.piece, minlength=self.n_pieces)
-        centroid = np.stack([np.bincount(self.piece, pos[:, i], self.n_pieces) for i in range(3)], 1)
-        centroid /= np.maximum(count, 1)[:, None]
-        spread = np.linalg.norm(pos - centroid[self.piece], axis=1)
-        order = np.lexsort((spread, self.piece))
-        first = np.ones(n, dtype=bool)
-        first[1:] = self.piece[order[1:]] != self.piece[order[:-1]]
-        representative = np.empty(self.n_pieces, dtype=np.int64)
-        representative[self.piece[order[first]]] = order[first]
+        # pieces (scipy's connected_components numbering), each one's representative (its node
+        # nearest the piece's centroid) and the edges between pieces (the cheapest crossing's cost
+        # per metre times the representatives' distance), compiled: see amslam.lib.graph_kernels
+        self.n_pieces, self.piece, representative, csr = contract(graph.graph, cell_id, pos)
         self.rep_position = pos[representative]
         self.node_positions = pos  # every fine node's position, by node
-        # edges between pieces: the cheapest crossing's cost per metre times the representatives'
-        # distance, one edge per ordered pair (the fine graph holds both directions)
-        a, b = self.piece[rows[~inside]], self.piece[cols[~inside]]
-        per_metre = fine.data[~inside] / np.linalg.norm(pos[rows[~inside]] - pos[cols[~inside]], axis=1)
-        pair = a * self.n_pieces + b
-        best = np.lexsort((per_metre, pair))
-        keep = np.ones(len(best), dtype=bool)
-        keep[1:] = pair[best[1:]] != pair[best[:-1]]
-        best = best[keep]
-        a, b = a[best], b[best]
-        length = np.linalg.norm(self.rep_position[a] - self.rep_position[b], axis=1) * per_metre[best]
-        self.graph = sparse.csr_matrix((length, (a, b)), shape=(self.n_pieces, self.n_pieces))
+        self.graph = sparse.csr_matrix(csr, shape=(self.n_pieces, self.n_pieces))
+        self.graph.has_sorted_indices = True
 
     def node_distances(self, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """S×T path lengths between fine graph nodes through the pieces; a straight line within a

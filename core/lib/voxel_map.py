@@ -650,15 +650,17 @@ class VoxelMapBase(Mapping):
         changed since the last build are recomputed, each group of them on a block widened by the
         reach again: the rules come out as a build from scratch gives them, at a fraction of the
         work (the hall changes some 40 × 35 × 25 voxels between plans, of 90 × 130 × 50). The
-        block is kept one reach plus a voxel beyond the extent (its outer layers unknown, like the
-        voxels beyond it) and made anew, round the mission area, when the map outgrows it.
+        block is kept at least one reach plus a voxel beyond the extent (its outer layers unknown,
+        like the voxels beyond it) and made anew, round the mission area, when the map outgrows it.
         """
         store = self.global_map
         pad = self._rules_reach() + 1
         rules = self._rules
         if rules is None or np.any(lo - pad < rules.lo) or np.any(hi + pad > rules.hi):
-            a, b = index_box(self.area, store.voxel)  # room to grow: the area, which the map rarely leaves
-            block_lo, block_hi = np.minimum(lo, a) - pad, np.maximum(hi, b) + pad
+            # room to grow: the area (the map leaves it a little, through doors and windows) and
+            # another reach
+            a, b = index_box(self.area, store.voxel)
+            block_lo, block_hi = np.minimum(lo, a) - 2 * pad, np.maximum(hi, b) + 2 * pad
             states = store.dense_states(block_lo, tuple(int(s) for s in block_hi - block_lo))
             slab = self._slabs(states)
             self._rules = _GraphRules(block_lo, states, slab, *self._graph_rules(states, block_lo, slab))

@@ -4,6 +4,7 @@ graph, lengths close to its, and a wall through a block is not a shortcut."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from amslam.lib.free_space import FreeSpaceGraph
 from amslam.lib.voxel_grid import FREE, OCCUPIED
@@ -85,3 +86,57 @@ def test_the_mapping_contracts_only_a_graph_larger_than_its_bound(tmp_path) -> N
     assert np.array_equal(exact.path_costs(nodes, nodes), graph.costs(nodes, nodes))
     assert np.array_equal(contracted.path_costs(nodes, nodes), graph.costs(nodes, nodes, contracted_block=4))
     assert not np.array_equal(exact.path_costs(nodes, nodes), contracted.path_costs(nodes, nodes))
+
+
+def scipy_contraction(g: FreeSpaceGraph, block: int):
+    """The contraction as scipy and numpy built it before the compiled kernels: (pieces, piece,
+    representatives' positions, the pieces' graph)."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    n = g.n_nodes
+    cell = g.node_index // block
+    cell_id = np.ravel_multi_index(tuple((cell - cell.min(axis=0)).T), tuple(np.ptp(cell, axis=0) + 1))
+    fine = g.graph.tocoo()
+    rows, cols = fine.row.astype(np.int64), fine.col.astype(np.int64)
+    inside = cell_id[rows] == cell_id[cols]
+    within = sparse.csr_matrix((np.ones(int(inside.sum())), (rows[inside], cols[inside])), shape=(n, n))
+    n_pieces, piece = csgraph.connected_components(within, directed=False)
+    pos = g.node_position(np.arange(n))
+    count = np.bincount(piece, minlength=n_pieces)
+    centroid = np.stack([np.bincount(piece, pos[:, i], n_pieces) for i in range(3)], 1)
+    centroid /= np.maximum(count, 1)[:, None]
+    spread = np.linalg.norm(pos - centroid[piece], axis=1)
+    order = np.lexsort((spread, piece))
+    first = np.ones(n, dtype=bool)
+    first[1:] = piece[order[1:]] != piece[order[:-1]]
+    representative = np.empty(n_pieces, dtype=np.int64)
+    representative[piece[order[first]]] = order[first]
+    rep_position = pos[representative]
+    a, b = piece[rows[~inside]], piece[cols[~inside]]
+    per_metre = fine.data[~inside] / np.linalg.norm(pos[rows[~inside]] - pos[cols[~inside]], axis=1)
+    pair = a * n_pieces + b
+    best = np.lexsort((per_metre, pair))
+    keep = np.ones(len(best), dtype=bool)
+    keep[1:] = pair[best[1:]] != pair[best[:-1]]
+    best = best[keep]
+    a, b = a[best], b[best]
+    length = np.linalg.norm(rep_position[a] - rep_position[b], axis=1) * per_metre[best]
+    return n_pieces, piece, rep_position, sparse.csr_matrix((length, (a, b)), shape=(n_pieces, n_pieces))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("block", [2, 4])
+def test_the_compiled_contraction_is_the_scipy_one_bit_for_bit(seed, block) -> None:
+    rng = np.random.default_rng(seed)
+    passable = rooms() & (rng.random((48, 16, 4)) < 0.8)  # ragged: many pieces per block
+    penalty = np.where(rng.random(passable.shape) < 0.3, 3.0, 1.0)
+    g = graph(passable, penalty)
+    c = g.contracted(block)
+    n_pieces, piece, rep_position, want = scipy_contraction(g, block)
+    assert c.n_pieces == n_pieces
+    np.testing.assert_array_equal(c.piece, piece)
+    np.testing.assert_array_equal(c.rep_position, rep_position)
+    np.testing.assert_array_equal(c.graph.indptr, want.indptr)
+    np.testing.assert_array_equal(c.graph.indices, want.indices)
+    np.testing.assert_array_equal(c.graph.data, want.data)
