@@ -145,21 +145,19 @@ class RayFan:
 
     def gains(self, block: _Block, base: np.ndarray) -> np.ndarray:
         """P×Y gain (m³) of candidates at block-flat voxel indices ``base`` (P,), for every yaw."""
+        from amslam.lib import gain_rays
+
         off = self.offsets @ np.asarray(block.strides)  # M×R flat offsets
         M, R = off.shape
         out = np.zeros((len(base), len(self.yaw_share)))
         chunk = max(1, _CHUNK_SAMPLES // (M * R))
-        w = self.weights.astype(np.float32)
+        w = np.ascontiguousarray(self.weights, dtype=np.float32)
+        off = np.ascontiguousarray(off, dtype=np.int64)
         for i in range(0, len(base), chunk):
-            b = base[i : i + chunk, None]
-            per_ray = np.zeros((len(b), R), np.float32)
-            open_ = np.ones((len(b), R), bool)  # not yet stopped by an occupied voxel
-            # step along all rays of all candidates together (a loop over steps, not over rays:
-            # numpy's accumulate along the step axis is several times slower)
-            for m in range(M):
-                st = block.flat[b + off[m]]
-                open_ &= st != OCCUPIED
-                per_ray += w[m] * ((st == UNKNOWN) & open_)  # _IGNORE neither counts nor blocks
+            b = base[i : i + chunk]
+            # each ray's unknown volume up to its first occupied voxel (_IGNORE neither counts nor
+            # blocks), compiled: numpy cannot stop a ray (amslam.lib.gain_rays)
+            per_ray = gain_rays.per_ray(block.flat, b, off, w, int(OCCUPIED), int(UNKNOWN))
             per_az = per_ray.reshape(len(b), self.n_az, self.n_el).sum(axis=2)
             out[i : i + chunk] = per_az @ self.yaw_share.T
         return out

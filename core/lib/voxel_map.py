@@ -476,13 +476,14 @@ class VoxelMapBase(Mapping):
         # 99 % and could not find its way home; with this radius two runs in about 30 grazed an
         # obstacle at 0.248 m, robot radius 0.25 m, on paths laid off by the SLAM correction.)
         self.local_radius = float(context.robot.radius - 0.5 * p.local_voxel)
-        # compile the path-cost and graph-building kernels (or load them from numba's cache)
+        # compile the path-cost, graph-building and view-gain kernels (or load them from numba's cache)
         # before take-off, not at the first plan: on a real vehicle the first plan is made while
         # it flies
-        from amslam.lib import dijkstra, graph_kernels
+        from amslam.lib import dijkstra, gain_rays, graph_kernels
 
         dijkstra.warm_up()
         graph_kernels.warm_up()
+        gain_rays.warm_up()
         v = p.global_voxel
         lo = np.floor((self.area.lo - p.area_margin) / v).astype(np.int64)
         hi = np.ceil((self.area.hi + p.area_margin) / v).astype(np.int64)
