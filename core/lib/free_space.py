@@ -467,7 +467,7 @@ class FreeSpaceGraph:
             uniq, inverse = np.unique(s_nodes[ok_s], return_inverse=True)
             # Not scipy's Dijkstra: it holds the interpreter, ours lets other threads run (the control
             # loop of a real vehicle while the planner thread asks for a tour's costs; amslam.lib.dijkstra)
-            node_dist = dijkstra.distances(self.graph, uniq)[inverse][:, t_nodes[ok_t]]
+            node_dist = dijkstra.distances(self.graph, uniq, self.weight_classes())[inverse][:, t_nodes[ok_t]]
         s_off = np.linalg.norm(sources[ok_s] - self.node_position(s_nodes[ok_s]), axis=1)
         t_off = np.linalg.norm(targets[ok_t] - self.node_position(t_nodes[ok_t]), axis=1)
         sub = node_dist + s_off[:, None] + t_off[None, :]
@@ -476,6 +476,15 @@ class FreeSpaceGraph:
         sub = np.where(same, direct, sub)
         out[np.ix_(np.nonzero(ok_s)[0], np.nonzero(ok_t)[0])] = sub
         return out
+
+    def weight_classes(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The graph's distinct edge weights (:func:`amslam.lib.dijkstra.weight_classes`: nine
+        with a penalty of two values), found once per graph: its searches queue by weight."""
+        from amslam.lib import dijkstra
+
+        if not hasattr(self, "_weight_classes"):
+            self._weight_classes = dijkstra.weight_classes(self.graph)
+        return self._weight_classes
 
     def contracted(self, block: int) -> ContractedGraph:
         """This graph contracted to blocks of ``block`` voxels a side (built once per graph)."""

@@ -39,3 +39,23 @@ def test_other_threads_run_while_it_searches():
     dijkstra.warm_up()
     inside, seconds = beats_during(lambda: dijkstra.distances(graph, sources))
     assert inside >= 5, f"{inside} beats of the other thread during a {seconds:.3f} s search"
+
+
+def test_the_search_by_weight_queues_gives_the_heaps_distances_bit_for_bit():
+    rng = np.random.default_rng(4)
+    shape = (30, 24, 10)
+    passable = rng.random(shape) > 0.25
+    passable[15] = False  # two halves that do not reach each other
+    penalty = np.where(rng.random(shape) < 0.3, 3.0, 1.0)  # the free-space graph's two multipliers
+    g = FreeSpaceGraph(passable, np.zeros(3, np.int64), 0.25, 0.5, np.zeros(shape, np.int8), penalty=penalty)
+    classes = g.weight_classes()
+    assert classes is not None and len(classes[1]) == 9  # three lengths by three mean penalties
+    sources = rng.choice(g.n_nodes, 12, replace=False)
+    by_queue = dijkstra.distances(g.graph, sources, classes)
+    np.testing.assert_array_equal(by_queue, dijkstra.distances(g.graph, sources))
+    assert np.isinf(by_queue).any() and np.isfinite(by_queue).any()
+    np.testing.assert_array_equal(by_queue, csgraph.dijkstra(g.graph, indices=sources))
+
+
+def test_a_graph_of_many_weights_is_searched_with_the_heap():
+    assert _voxel_graph((8, 8, 4)).weight_classes() is None  # a penalty of every value
