@@ -8,7 +8,9 @@ tour's path costs while the control thread ticks. Each time the control thread l
 planner: most of a SITL demo flight's late ticks (docs/flight.md). This kernel releases the lock
 (``nogil``) for all its sources at once, so the two threads run on two cores.
 
-Same algorithm and results as scipy's (binary heap, lazy deletion); the first call compiles it
+Same algorithm and results as scipy's (binary heap, lazy deletion); on a graph of few distinct
+edge weights (the free-space graph has nine) one FIFO queue per weight replaces the heap, with
+the same distances bit for bit (:func:`weight_classes`). The first call compiles the kernels
 (about a second, cached on disk beside this file), which ``warm_up`` does before a flight.
 """
 
