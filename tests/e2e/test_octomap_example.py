@@ -59,7 +59,7 @@ def test_passes_the_mapping_contract(octomap_example):
 
 
 def test_mission_with_octomap_flies(octomap_example, tmp_path):
-    mission = small_mission(tmp_path, name="octomap", mapping="{plugin: octomap}", max_time=30)
+    mission = small_mission(tmp_path, name="octomap", mapping="{plugin: octomap}", max_time=15)
     done = _run(AMSLAM, "run", mission, "--out", tmp_path / "runs", "--quiet")
     assert "verdict: completed" in done.stdout, done.stdout + done.stderr
     run_dir = next((tmp_path / "runs").iterdir())
