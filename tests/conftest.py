@@ -34,9 +34,17 @@ REALTIME = (
 )
 
 
-#: the longest realtime tests (the SITL flights, about 100 s and 20 s of wall clock each), started
-#: first: the realtime part lasts as long as its longest test only if that test does not start last
-LONGEST_FIRST = ("plugins/mavsdk_platform/test_sitl_exploration.py",)
+#: the longest tests, started first: a part lasts about as long as its longest test only if that
+#: test does not start last (the SITL flights, about 100 s and 20 s of wall clock each; the thread
+#: rule's two flights and the flights other end-to-end tests share, 10-40 s each)
+LONGEST_FIRST = (
+    "plugins/mavsdk_platform/test_sitl_exploration.py",
+    "e2e/test_thread_rule.py",
+    "e2e/test_octomap_example.py",
+    "e2e/test_rerun_view.py",
+    "e2e/test_export_mcap.py",
+    "e2e/test_ground_truth_withheld.py",
+)
 
 
 def pytest_collection_modifyitems(config, items):
@@ -46,7 +54,12 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if where(item).startswith(REALTIME):
             item.add_marker(pytest.mark.realtime)
-    items.sort(key=lambda item: not where(item).startswith(LONGEST_FIRST))  # stable: otherwise in order
+
+    def rank(item) -> int:
+        here = where(item)
+        return next((k for k, long in enumerate(LONGEST_FIRST) if here.startswith(long)), len(LONGEST_FIRST))
+
+    items.sort(key=rank)  # stable: otherwise in order
 
 
 @pytest.fixture(scope="session")
