@@ -659,8 +659,13 @@ class VoxelMapBase(Mapping):
         rules = self._rules
         if rules is None or np.any(lo - pad < rules.lo) or np.any(hi + pad > rules.hi):
             # room to grow: the area (the map leaves it a little, through doors and windows) and
-            # another reach
+            # another reach; when unknown space is not planned through, at most half the map's
+            # size on each side: a mission area far larger than what is mapped (a waypoint
+            # mission's 200 × 200 m, say) made the first block 8 M voxels and its build 8 s
             a, b = index_box(self.area, store.voxel)
+            if not self.params.plan_through_unknown:
+                room = (hi - lo) // 2
+                a, b = np.maximum(a, lo - room), np.minimum(b, hi + room)
             block_lo, block_hi = np.minimum(lo, a) - 2 * pad, np.maximum(hi, b) + 2 * pad
             states = store.dense_states(block_lo, tuple(int(s) for s in block_hi - block_lo))
             slab = self._slabs(states)
