@@ -1,7 +1,7 @@
 """Shared fixtures, and which tests run at normal priority.
 
-``make test`` runs the suite in two parts at once, each on two pytest-xdist workers: the
-``realtime`` tests at normal priority, and every other test at the lowest (``nice -n 19``). A
+``make test`` runs the suite in two parts at once on pytest-xdist workers: the ``realtime``
+tests on two at normal priority, every other test on three at the lowest (``nice -n 19``). A
 realtime test judges something measured on the wall clock while it runs — a flight against a
 vehicle in real time (MAVLink emulator, SITL), late control ticks, a thread kept running while a
 call holds or lets go of the interpreter lock. Such a test mostly waits on the clock (the SITL

@@ -699,7 +699,7 @@ class PamsPlanner(_TargetPlanner):
 
         extend(np.linalg.inv(st.cov), None, 0.0, [])
         assert best[0] is not None
-        utility, taken, gain = best[0]
+        _, taken, gain = best[0]
         return [left[k] for k in taken], gain
 
     def plan(self, request: PlanRequest) -> list[TourItem]:
