@@ -84,7 +84,9 @@ def stages(planner: CopPlanner, request: PlanRequest, repeats: int) -> dict[str,
     budget = planner.summary.budget
     t_cop, tour = timed(lambda: cop_tour(graph.costs, graph.gains, w, budget), repeats)
     t_alg1, _ = timed(
-        lambda: refine_with_slc(graph, tour, w, request.slc_candidates, budget * p.slc_budget_factor, p),
+        lambda: refine_with_slc(
+            graph, tour, w, request.slc_candidates, budget * p.slc_budget_factor, p, request.slc_gain
+        ),
         repeats,
     )
     return {"graph": t_graph, "corr": t_corr, "construct": t_cop, "alg1": t_alg1}

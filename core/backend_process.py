@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from amslam.interfaces import Backend, BackendParams, RunContext, Slam
-from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
+from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate, SlcGainModel
 
 __all__ = ["BackendProcess", "BackendProcessError", "SlamProcess", "implementation"]
 
@@ -268,6 +268,9 @@ class SlamProcess(Slam):
 
     def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:
         return self._process.call("information_gain", keypose_ids, travel_distances)
+
+    def slc_gain_model(self, keypose_ids: list[int]) -> SlcGainModel | None:
+        return self._process.call("slc_gain_model", keypose_ids)
 
 
 if __name__ == "__main__":

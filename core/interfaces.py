@@ -39,6 +39,7 @@ from amslam.types import (
     PlanRequest,
     RobotSpec,
     SlcCandidate,
+    SlcGainModel,
     TourItem,
     VehicleStatus,
     Viewpoint,
@@ -393,6 +394,12 @@ class Slam(Backend):
     def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:
         """Eq. (10): trace reduction from a virtual factor to each key pose."""
         return np.zeros(len(keypose_ids))
+
+    def slc_gain_model(self, keypose_ids: list[int]) -> SlcGainModel | None:
+        """What scores chains of loop closures at ``keypose_ids`` from the current key pose (eq. 10
+        given the closures already planned, Algorithm 1). None: the planner uses each candidate's
+        own ``info_gain``."""
+        return None
 
 
 class Planner(Backend):

@@ -294,6 +294,7 @@ class PlanningService:
         start = inputs.snapshot.position_world
         offered = self._slc_candidates(inputs) if inputs.slc is not None else ()
         vps, costs, slc_costs = self._tour_costs(start, vps, offered)
+        slc_gain = self.slam.slc_gain_model([c.keypose_id for c in offered]) if offered else None
         request = PlanRequest(
             start=start,
             start_yaw=inputs.snapshot.yaw_world,
@@ -302,6 +303,7 @@ class PlanningService:
             camera=self.camera,
             slc_candidates=offered,
             slc_costs=slc_costs,
+            slc_gain=slc_gain,
             landmarks=tuple(self.slam.landmarks()),
         )
         with self.boundary.calling("planner", "plan()"):

@@ -16,6 +16,7 @@ Yaw is in radians in (-π, π]. Units are SI.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping as MappingOf
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
@@ -264,6 +265,72 @@ class SlcCandidate:
     info_gain: float = 0.0
 
 
+@dataclass(frozen=True)
+class OdometryNoise:
+    """A VIO's relative-pose noise: random walks in the distance travelled (std ∝ √distance).
+
+    The SLAM backend's odometry factors and the planner's virtual ones (eq. 10) use the same
+    numbers, so what a planned loop closure is predicted to remove is what flying it would.
+    """
+
+    translation: float  # horizontal, m/√m travelled
+    vertical: float  # m/√m travelled
+    translation_min: float  # floor, m
+    yaw: float  # rad/√m travelled
+    yaw_per_rad: float  # rad per radian turned
+    yaw_min: float  # floor, rad
+    roll_pitch: float  # rad (the IMU observes them)
+
+    def sigmas(self, distance: float, dyaw: float) -> np.ndarray:
+        """Stds over ``distance`` metres turning ``dyaw`` radians, in gtsam's Pose3 tangent order
+        (roll, pitch, yaw, x, y, z)."""
+        root = math.sqrt(max(0.0, float(distance)))
+        st = max(self.translation_min, self.translation * root)
+        sz = max(self.translation_min, self.vertical * root)
+        sy = max(self.yaw_min, self.yaw * root + self.yaw_per_rad * abs(float(dyaw)))
+        return np.array([self.roll_pitch, self.roll_pitch, sy, st, st, sz])
+
+
+@dataclass(frozen=True)
+class SlcGainModel:
+    """What eq. (10) needs to score a *sequence* of loop closures without the factor graph.
+
+    Algorithm 1 of paper 1 re-estimates each candidate's gain given the loop closures already in
+    the refined tour (line 6). Every virtual odometry factor of such a chain joins two of the
+    poses ``S`` = {current key pose, candidate key poses}, so the joint covariance of ``S`` and
+    ``Σ_{S,V} Σ_{V,S}`` (V: the variables whose trace eq. 10 measures) give the trace reduction
+    of any chain exactly (Woodbury; :func:`amslam.lib.slc_gain.chain_gain`).
+
+    Attributes:
+        keypose_ids: the current key pose first, then each candidate key pose once.
+        poses: (n, 4, 4) their estimates, world frame.
+        covariance: (6n, 6n) their joint covariance Σ_SS, gtsam's Pose3 tangent order per pose.
+        gram: (6n, 6n) Σ_{S,V} Σ_{V,S}.
+        odometry: the noise of a virtual odometry factor over a travelled distance.
+    """
+
+    keypose_ids: tuple[int, ...]
+    poses: np.ndarray
+    covariance: np.ndarray
+    gram: np.ndarray
+    odometry: OdometryNoise
+
+    def __post_init__(self) -> None:
+        n = len(self.keypose_ids)
+        if len(set(self.keypose_ids)) != n:
+            raise ValueError(f"SlcGainModel: key pose ids repeat: {self.keypose_ids}")
+        if np.shape(self.poses) != (n, 4, 4):
+            raise ValueError(
+                f"SlcGainModel: poses {np.shape(self.poses)} for {n} key poses, expected ({n}, 4, 4)"
+            )
+        for name in ("covariance", "gram"):
+            if np.shape(getattr(self, name)) != (6 * n, 6 * n):
+                raise ValueError(
+                    f"SlcGainModel: {name} {np.shape(getattr(self, name))} for {n} key poses, "
+                    f"expected ({6 * n}, {6 * n})"
+                )
+
+
 class TourItemKind(StrEnum):
     EXPLORE = "explore"
     SLC = "slc"
@@ -291,6 +358,8 @@ class PlanRequest:
         costs: (N+1)×(N+1) path costs in metres; index 0 is the robot; ``inf`` = unreachable.
         slc_candidates: loop-closure candidates with their predicted information gain.
         slc_costs: (C)×(N+1) path cost from each candidate to the robot and each viewpoint.
+        slc_gain: the SLAM backend's model for scoring chains of loop closures (eq. 10 given the
+            tour so far); None when the backend has none (each candidate's own ``info_gain`` then).
         camera: the camera model, for field-of-view overlap.
         landmarks: the SLAM backend's current object map (world frame), for planners that plan
             views of known objects (paper 2's PAMS) rather than of frontiers.
@@ -303,6 +372,7 @@ class PlanRequest:
     camera: CameraModel
     slc_candidates: tuple[SlcCandidate, ...] = ()
     slc_costs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    slc_gain: SlcGainModel | None = None
     landmarks: tuple[Landmark, ...] = ()
 
 

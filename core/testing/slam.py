@@ -20,8 +20,18 @@ import pytest
 
 from amslam.geometry import pose_from
 from amslam.interfaces import Slam
+from amslam.lib.slc_gain import chain_gain
 from amslam.testing.contract import BackendContract
-from amslam.types import R_BODY_CAM, Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
+from amslam.types import (
+    R_BODY_CAM,
+    Detection,
+    KeyPose,
+    Landmark,
+    LoopClosureResult,
+    Odometry,
+    SlcCandidate,
+    SlcGainModel,
+)
 
 #: Camera mounted at the body origin looking along body +x.
 T_BODY_CAM = np.eye(4)
@@ -147,6 +157,12 @@ class SlamContract(BackendContract):
         ids = [k.id for k in slam.keyposes()[:3]]
         gain = np.asarray(slam.information_gain(ids, [1.0] * len(ids)))
         assert gain.shape == (len(ids),) and np.all(np.isfinite(gain)) and np.all(gain >= -1e-9)
+        model = slam.slc_gain_model(ids)
+        if model is not None:  # a backend that scores chains of loop closures (Algorithm 1)
+            assert isinstance(model, SlcGainModel) and set(ids) <= set(model.keypose_ids)
+            current = model.keypose_ids[0]
+            one = [chain_gain(model, [(current, i, 1.0)]) for i in ids if i != current]
+            assert np.all(np.isfinite(one)) and np.all(np.asarray(one) >= -1e-9)
 
     def test_loop_closure_adds_only_what_it_is_handed_now(self, flown) -> None:
         """``try_loop_closure`` gets the detections seen now, at ``odom``; the earlier ones were fed

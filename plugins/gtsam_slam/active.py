@@ -16,7 +16,7 @@ from amslam.plugins.gtsam_slam.frontend import FrontEnd
 from amslam.plugins.gtsam_slam.graph import LandmarkRec
 from amslam.plugins.gtsam_slam.information import virtual_factor
 from amslam.plugins.gtsam_slam.params import ActiveParams
-from amslam.types import SlcCandidate
+from amslam.types import SlcCandidate, SlcGainModel
 
 __all__ = ["ActiveParams", "ActiveSlam"]
 
@@ -65,6 +65,18 @@ class ActiveSlam:
             jac.append(J)
         return lg.information_gain(cur, [kps[k].key for k in keypose_ids], jac, self._ig_keys())
 
+    def slc_gain_model(self, keypose_ids: list[int]) -> SlcGainModel | None:
+        """Eq. (10) for chains of virtual factors among the current key pose and ``keypose_ids``
+        (Algorithm 1 re-estimates each candidate given the loop closures already planned)."""
+        kps = self.front.kps
+        if not kps:
+            return None
+        ids = list(dict.fromkeys([kps[-1].id, *keypose_ids]))
+        keys = [kps[i].key for i in ids]
+        covariance, gram = self.graph.linearized().joint_blocks(keys, self._ig_keys())
+        poses = np.array([self.graph.estimate.atPose3(k).matrix() for k in keys])
+        return SlcGainModel(tuple(ids), poses, covariance, gram, self.graph.noise.odometry_noise())
+
     def virtual_factor(self, keypose_id: int, travel_distance: float) -> gtsam.BetweenFactorPose3:
         """The virtual factor :meth:`information_gain` evaluates (for brute-force checks)."""
         kps = self.front.kps
@@ -77,8 +89,10 @@ class ActiveSlam:
 
         A cluster needs ``cluster_min_landmarks`` landmarks (three fix position and yaw). Its
         viewpoint is the oldest key pose from which any landmark of the cluster lies within
-        ``sensing_range``; the candidate's information gain uses the straight-line distance from
-        the current pose as the travel distance (the planner refines with path costs).
+        ``sensing_range``. The candidate's information gain here uses the straight-line distance
+        from the current pose as the travel distance, a first estimate: the planner re-scores
+        each candidate with the map's path costs and the loop closures already in its tour
+        (:meth:`slc_gain_model`).
         """
         from sklearn.cluster import DBSCAN
 

@@ -32,7 +32,7 @@ from amslam.plugins.gtsam_slam.params import (
     LoopClosureParams,
     ShapeParams,
 )
-from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate
+from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate, SlcGainModel
 
 if TYPE_CHECKING:
     import gtsam
@@ -259,6 +259,10 @@ class GtsamSlam(Slam):
     def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:
         """Eq. (10) for a virtual odometry factor from the current pose to each key pose."""
         return self._active.information_gain(keypose_ids, travel_distances)
+
+    def slc_gain_model(self, keypose_ids: list[int]) -> SlcGainModel | None:
+        """Eq. (10) for chains of loop closures among the current key pose and ``keypose_ids``."""
+        return self._active.slc_gain_model(keypose_ids)
 
     def virtual_factor(self, keypose_id: int, travel_distance: float) -> gtsam.BetweenFactorPose3:
         """The virtual factor :meth:`information_gain` evaluates (for brute-force checks)."""

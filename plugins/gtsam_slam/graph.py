@@ -19,7 +19,6 @@ merge (:mod:`.merge`) is N robots on one graph. Both use the same :class:`NoiseM
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -31,6 +30,7 @@ from amslam.lib import shapes
 from amslam.plugins.gtsam_slam.information import LinearizedGraph
 from amslam.plugins.gtsam_slam.params import GraphParams
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks
+from amslam.types import OdometryNoise
 
 __all__ = ["GraphParams", "LandmarkRec", "NoiseModels", "Observation", "PoseKeys", "SlamGraph"]
 
@@ -43,13 +43,20 @@ class NoiseModels:
 
     def odometry(self, distance: float, dyaw: float) -> gtsam.noiseModel.Base:
         """VIO motion over ``distance`` metres turning ``dyaw`` radians."""
+        return gtsam.noiseModel.Diagonal.Sigmas(self.odometry_noise().sigmas(distance, dyaw))
+
+    def odometry_noise(self) -> OdometryNoise:
+        """The odometry model as plain numbers (the planner's virtual factors use the same)."""
         p = self.p
-        st = max(p.odometry_sigma_translation_min, p.odometry_sigma_translation * math.sqrt(distance))
-        sz = max(p.odometry_sigma_translation_min, p.odometry_sigma_vertical * math.sqrt(distance))
-        sy = p.odometry_sigma_yaw * math.sqrt(distance) + p.odometry_sigma_yaw_per_rad * abs(dyaw)
-        sy = max(p.odometry_sigma_yaw_min, sy)
-        sr = p.odometry_sigma_roll_pitch
-        return gtsam.noiseModel.Diagonal.Sigmas(np.array([sr, sr, sy, st, st, sz]))
+        return OdometryNoise(
+            translation=p.odometry_sigma_translation,
+            vertical=p.odometry_sigma_vertical,
+            translation_min=p.odometry_sigma_translation_min,
+            yaw=p.odometry_sigma_yaw,
+            yaw_per_rad=p.odometry_sigma_yaw_per_rad,
+            yaw_min=p.odometry_sigma_yaw_min,
+            roll_pitch=p.odometry_sigma_roll_pitch,
+        )
 
     def drift_variance(self, travel: np.ndarray, ranges: np.ndarray) -> np.ndarray:
         """Variance (m², ranges × travel) a point seen at ``ranges`` moves by after ``travel`` m of VIO:

@@ -29,6 +29,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from threadpoolctl import threadpool_limits
 
+from amslam.lib.slc_gain import trace_reduction
+
 __all__ = ["LinearizedGraph", "brute_force_information_gain"]
 
 
@@ -130,12 +132,19 @@ class LinearizedGraph:
             ik = self.index([k])
             C = np.hstack([block[:, col_of[current]], block[:, col_of[k]]])  # Σ_{:,S}
             idx = np.concatenate([it, ik])
-            Sss = C[idx]
-            W = np.eye(J.shape[0]) + J @ Sss @ J.T
             CV = C if rows is None else C[rows]
-            G = CV.T @ CV  # Σ_{S,V} Σ_{V,S}
-            out[c] = float(np.trace(np.linalg.solve(W, J @ G @ J.T)))
+            out[c] = trace_reduction(C[idx], CV.T @ CV, J)
         return out
+
+    def joint_blocks(
+        self, keys: Sequence[int], over: Sequence[int] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``Σ_SS`` and ``Σ_{S,V} Σ_{V,S}`` for the variables ``S = keys`` (each once), ``V = over``
+        (None: every variable): what eq. (10) of any set of factors on ``S`` needs
+        (:class:`amslam.types.SlcGainModel`)."""
+        block = self.columns(list(keys))
+        CV = block if over is None else block[self.index(list(over))]
+        return block[self.index(list(keys))], CV.T @ CV
 
 
 def virtual_factor(

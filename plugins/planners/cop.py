@@ -19,11 +19,13 @@ per step instead of recomputed.
 **Algorithm 1 (uncertainty-reduction planning).** The COP tour is walked in order. For each next
 exploration viewpoint ``VP``: its remaining gain ``r_VP · max(0, 1 − Σ_{u ∈ refined} w(u, VP))``
 (constraint (8) of the paper) and its utility ``IG / cost`` from the previous stop; among the
-loop-closure candidates not yet used whose travel fits the remaining budget, the best scaled IG
-``slc_scale · IG``; if that beats the viewpoint's utility the candidate is inserted first, then the
-viewpoint if the budget still allows; otherwise the viewpoint alone if it fits, else the refined
-tour ends. At most one SLC goes between consecutive exploration viewpoints, and a candidate is
-used at most once per tour.
+loop-closure candidates not yet used whose travel (the map's path cost) fits the remaining
+budget, the best scaled IG ``slc_scale · IG``, each candidate's IG re-estimated given the loop
+closures already in the refined tour (eq. 10 of the chain of virtual factors, line 6 of the
+algorithm; :func:`amslam.lib.slc_gain.chain_gain`); if that beats the viewpoint's utility the
+candidate is inserted first, then the viewpoint if the budget still allows; otherwise the
+viewpoint alone if it fits, else the refined tour ends. At most one SLC goes between
+consecutive exploration viewpoints, and a candidate is used at most once per tour.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 from pydantic import Field
 
 from amslam.interfaces import BackendParams, Planner, RunContext
+from amslam.lib.slc_gain import Leg, chain_gain
 from amslam.lib.tours import (
     PlanningGraph,
     budget_from_nearest,
@@ -45,7 +48,7 @@ from amslam.lib.tours import (
     two_opt,
 )
 from amslam.plugins.planners.correlation import fov_correlation
-from amslam.types import PlanRequest, SlcCandidate, TourItem, TourItemKind
+from amslam.types import PlanRequest, SlcCandidate, SlcGainModel, TourItem, TourItemKind
 
 _EPS = 1e-9
 
@@ -173,8 +176,17 @@ def refine_with_slc(
     candidates: tuple[SlcCandidate, ...],
     budget: float,
     params: CopParams,
-) -> list[tuple[str, int]]:
+    gain_model: SlcGainModel | None = None,
+) -> tuple[list[tuple[str, int]], list[float]]:
     """Algorithm 1 of paper 1: insert loop-closure stops along the COP tour.
+
+    Line 6 ("estimate cost & IG for LC(j)") at every step of the tour: a candidate's cost is the
+    map's path cost from the previous stop, and with ``gain_model`` its IG is eq. (10) of the
+    virtual factors the refined tour already holds plus this one, minus theirs (the chain of
+    paper 1 §VI-C: from the current pose, or the last planned loop closure, to the candidate's
+    key pose over the metres flown in between along the tour). A second closure of the same
+    drift is then worth less than the first. Without a model each candidate keeps its own
+    ``info_gain``.
 
     Args:
         graph: the planning graph; ``graph.slc_costs`` holds the candidates' costs.
@@ -183,19 +195,36 @@ def refine_with_slc(
         candidates: loop-closure candidates, row ``j`` of ``graph.slc_costs``.
         budget: maximum length of the refined open tour.
         params: planner parameters (scale, thresholds).
+        gain_model: the SLAM backend's model for chains of loop closures, or None.
 
     Returns:
-        The refined tour as ``("vp", node)`` and ``("slc", j)`` stops.
+        The refined tour as ``("vp", node)`` and ``("slc", j)`` stops, and the IG each inserted
+        loop closure was chosen with.
     """
-    ig = np.array([c.info_gain for c in candidates], dtype=float)
-    usable = (ig > params.slc_min_gain) & np.isfinite(ig)
+    own_ig = np.array([c.info_gain for c in candidates], dtype=float)
+    usable = (own_ig > params.slc_min_gain) & np.isfinite(own_ig)
+    chained = gain_model is not None and all(c.keypose_id in gain_model.keypose_ids for c in candidates)
     refined: list[tuple[str, int]] = []
+    gains: list[float] = []
     in_path = np.zeros(graph.size, dtype=bool)
     used = 0.0
+    legs: list[Leg] = []  # the virtual factors of the loop closures planned so far
+    anchor = gain_model.keypose_ids[0] if chained else -1  # where the robot's pose is last tied
+    since_anchor = 0.0  # metres flown along the refined tour since then
+    chain_ig = 0.0
 
     def cost_from(stop: tuple[str, int], node: int) -> float:
         kind, i = stop
         return float(graph.slc_costs[i, node] if kind == "slc" else graph.costs[i, node])
+
+    def ig_given_tour(fits: np.ndarray, to_slc: np.ndarray) -> np.ndarray:
+        if not chained:
+            return own_ig
+        ig = np.full(len(candidates), -np.inf)
+        for j in np.flatnonzero(fits):
+            leg = (anchor, candidates[j].keypose_id, since_anchor + float(to_slc[j]))
+            ig[j] = chain_gain(gain_model, [*legs, leg]) - chain_ig
+        return ig
 
     prev: tuple[str, int] = ("vp", 0)  # the robot
     for node in tour:
@@ -203,31 +232,42 @@ def refine_with_slc(
         remaining = graph.gains[v] * max(0.0, 1.0 - float(w[in_path, v].sum()))
         vp_cost = cost_from(prev, node)
         utility = remaining / (vp_cost + params.utility_epsilon)
-        best = -1
+        best, ig = -1, own_ig
         if prev[0] == "vp" and usable.any():
             to_slc = graph.slc_costs[:, prev[1]]
             fits = usable & (used + to_slc <= budget + _EPS)
             if fits.any():
+                ig = ig_given_tour(fits, to_slc)
                 best = int(np.flatnonzero(fits)[np.argmax(ig[fits])])
+                if ig[best] <= params.slc_min_gain:
+                    best = -1
         if best >= 0 and params.slc_scale * ig[best] > utility:
             refined.append(("slc", best))
+            gains.append(float(ig[best]))
             usable[best] = False
-            used += float(graph.slc_costs[best, prev[1]])
+            to_best = float(graph.slc_costs[best, prev[1]])
+            used += to_best
+            if chained:
+                legs.append((anchor, candidates[best].keypose_id, since_anchor + to_best))
+                chain_ig += gains[-1]
+                anchor, since_anchor = candidates[best].keypose_id, 0.0
             prev = ("slc", best)
             on = float(graph.slc_costs[best, node])
             if used + on <= budget + _EPS:
                 refined.append(("vp", node))
                 in_path[v] = True
                 used += on
+                since_anchor += on
                 prev = ("vp", node)
         elif used + vp_cost <= budget + _EPS:
             refined.append(("vp", node))
             in_path[v] = True
             used += vp_cost
+            since_anchor += vp_cost
             prev = ("vp", node)
         else:
             break
-    return refined
+    return refined, gains
 
 
 class CopPlanner(Planner):
@@ -277,20 +317,33 @@ class CopPlanner(Planner):
         s.selected, s.budget = len(tour), budget
         s.cop_cost = tour_cost(graph.costs, tour)
         s.cop_reward = cop_reward(graph.gains, w, np.array(tour, dtype=int) - 1)
+        slc_gains: list[float] = []
         if with_slc:
-            stops = refine_with_slc(
-                graph, tour, w, request.slc_candidates, budget * p.slc_budget_factor, self.params
+            stops, slc_gains = refine_with_slc(
+                graph,
+                tour,
+                w,
+                request.slc_candidates,
+                budget * p.slc_budget_factor,
+                self.params,
+                request.slc_gain,
             )
         else:
             stops = [("vp", node) for node in tour]
-        items = [self._item(graph, request.slc_candidates, stop) for stop in stops]
+        chosen_gain = iter(slc_gains)
+        items = [
+            self._item(graph, request.slc_candidates, stop, next(chosen_gain) if stop[0] == "slc" else 0.0)
+            for stop in stops
+        ]
         s.refined_cost = _refined_cost(graph, stops)
         s.slc_inserted = [request.slc_candidates[j].keypose_id for kind, j in stops if kind == "slc"]
         self._report()
         return items
 
     @staticmethod
-    def _item(graph: PlanningGraph, candidates: tuple[SlcCandidate, ...], stop: tuple[str, int]) -> TourItem:
+    def _item(
+        graph: PlanningGraph, candidates: tuple[SlcCandidate, ...], stop: tuple[str, int], slc_gain: float
+    ) -> TourItem:
         kind, i = stop
         if kind == "vp":
             return explore_item(graph.viewpoints[i - 1])
@@ -299,7 +352,7 @@ class CopPlanner(Planner):
             kind=TourItemKind.SLC,
             position=np.asarray(c.position, dtype=float),
             yaw=float(c.yaw),
-            gain=float(c.info_gain),
+            gain=float(slc_gain),
             ref=int(c.keypose_id),
         )
 

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from amslam.geometry import pose_from
+from amslam.lib.slc_gain import chain_gain
 from amslam.lib.tours import PlanningGraph, tour_cost
 from amslam.plugins.planners.cop import CopParams, CopPlanner, cop_reward, cop_tour, refine_with_slc
 from amslam.plugins.planners.correlation import fov_correlation
-from amslam.types import SlcCandidate, TourItemKind
+from amslam.types import OdometryNoise, SlcCandidate, SlcGainModel, TourItemKind
 
 from .conftest import make_request
 
@@ -188,9 +192,9 @@ def test_remaining_ig_accounts_for_viewpoints_already_in_the_refined_path():
     cand = (SlcCandidate(7, np.zeros(3), 0.0, (1, 2, 3), info_gain=0.2),)
     params = CopParams(slc_scale=10.0)  # scaled IG 2 < 20/4.5, but > 0 remaining of the twin
     same = np.ones((2, 2))
-    assert refine_with_slc(graph, [1, 2], same, cand, 100.0, params) == [("vp", 1), ("slc", 0), ("vp", 2)]
+    assert refine_with_slc(graph, [1, 2], same, cand, 100.0, params)[0] == [("vp", 1), ("slc", 0), ("vp", 2)]
     distinct = np.eye(2)  # 2 < 20/4.5 at both steps
-    assert refine_with_slc(graph, [1, 2], distinct, cand, 100.0, params) == [("vp", 1), ("vp", 2)]
+    assert refine_with_slc(graph, [1, 2], distinct, cand, 100.0, params)[0] == [("vp", 1), ("vp", 2)]
 
 
 def test_events_and_summary_are_reported(camera, tmp_path):
@@ -218,3 +222,54 @@ def test_every_planner_accepts_the_runner_request_shape(camera, name):
     tour = backend.plan(req)
     assert tour and all(t.kind is TourItemKind.EXPLORE for t in tour)
     assert {t.ref for t in tour} <= {0, 1}
+
+
+def two_place_model(b_variance: float = 0.01, correlated: bool = False) -> SlcGainModel:
+    """A drifted current key pose (id 1, variance 1) and two old key poses 100 (known well) and 101;
+    with ``correlated`` the two old ones are known well *relative to each other* too (seen together)."""
+    poses = np.array([pose_from(np.array(p), 0.0) for p in ([0.0, 0, 1], [0.0, 1, 1], [0.5, -1, 1])])
+    cov = np.zeros((18, 18))
+    cov[:6, :6] = np.eye(6)
+    cov[6:12, 6:12] = 0.01 * np.eye(6)
+    cov[12:, 12:] = b_variance * np.eye(6)
+    if correlated:
+        cov[6:12, 12:] = cov[12:, 6:12] = 0.0099 * np.eye(6)
+    noise = OdometryNoise(0.05, 0.012, 0.005, 0.004, 0.01, 0.002, 0.002)
+    return SlcGainModel((1, 100, 101), poses, cov, cov @ cov, noise)  # V = S: gram = Σ_SS Σ_SS
+
+
+def test_a_second_closure_is_scored_given_the_first(camera):
+    # Standalone, both candidates are worth inserting (test_at_most_one_slc_between_...). Given the
+    # first, the second closes a loop the first already closed when the two places are known
+    # relative to each other, and is skipped; when the second place is itself uncertain, tying it
+    # to the robot (now known well) still pays, and it goes in.
+    req = line_request(camera, [[0, 1.0, 1], [0.5, -1, 1]], [5.0, 4.0])
+    p = planner(budget_factor=4.0, budget_k=2)
+    assert [k for k, _ in kinds(p.plan(req))].count("slc") == 2
+    tour = p.plan(dataclasses.replace(req, slc_gain=two_place_model(correlated=True)))
+    assert [k for k, _ in kinds(tour)].count("slc") == 1
+    model = two_place_model(b_variance=0.5)
+    tour = p.plan(dataclasses.replace(req, slc_gain=model))
+    slcs = [t for t in tour if t.kind is TourItemKind.SLC]
+    assert len(slcs) == 2
+    # each stop carries the gain it was chosen with: the first alone, the second given the first
+    first, second = (t.ref for t in slcs)
+    assert slcs[0].gain == pytest.approx(chain_gain(model, [(1, first, 1.0)]), rel=0.05)
+    assert 0 < slcs[1].gain < slcs[0].gain
+
+
+def test_the_chain_uses_the_maps_path_costs_not_straight_lines(camera):
+    req = line_request(camera, [[0, 1.0, 1]], [5.0])
+    model = two_place_model()
+    near = planner(budget_factor=4.0, budget_k=2).plan(dataclasses.replace(req, slc_gain=model))
+    far_costs = req.slc_costs.copy()
+    far_costs[0] += 36.0  # a wall around the candidate: every way to it is 36 m longer
+    far = planner(budget_factor=40.0, budget_k=2).plan(
+        dataclasses.replace(req, slc_gain=model, slc_costs=far_costs)
+    )
+    (g_near,) = [t.gain for t in near if t.kind is TourItemKind.SLC]
+    (g_far,) = [t.gain for t in far if t.kind is TourItemKind.SLC]
+    assert g_near == pytest.approx(chain_gain(model, [(1, 100, 1.0)]))
+    assert kinds(far)[0] == ("slc", 100)
+    assert g_far == pytest.approx(chain_gain(model, [(1, 100, 37.0)]))
+    assert g_far < g_near
