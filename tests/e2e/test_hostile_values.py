@@ -460,8 +460,8 @@ def test_an_inverted_geofence_is_refused(capsys):
     )
 
 
-@pytest.mark.parametrize("name", ["demo", "demo_onnx", "lot_team", "pams_lot_a", "pams_lot_b", "pams_street",
-                                  "parking_lot", "px4_square", "small_house", "three_floors",
+@pytest.mark.parametrize("name", ["demo", "demo_onnx", "lot_team", "one_floor", "pams_lot_a", "pams_lot_b",
+                                  "pams_street", "parking_lot", "px4_square", "small_house", "three_floors",
                                   "warehouse"])  # fmt: skip
 def test_the_shipped_missions_stay_valid(capsys, name):
     status, lines = validate(capsys, name)
