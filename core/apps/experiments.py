@@ -1,7 +1,8 @@
 """Experiments: one mission flown several ways over several seeds, summarised in tables and plots.
 
-* ``slc-ablation`` — the mission with semantic loop closure on and off (paper 1 Tables I, II and
-  Fig. 7): end position and yaw error of VIO vs SLAM, pose and landmark uncertainty.
+* ``slc-ablation`` — one or more missions with semantic loop closure on and off (paper 1 Tables
+  I, II and Fig. 7): end position and yaw error of VIO vs SLAM, pose and landmark uncertainty,
+  mean ± std per world and over all.
 * ``planners`` — the mission with each exploration planner (COP, TSP, greedy): explored volume
   against distance travelled and time.
 
@@ -45,7 +46,7 @@ def _fmt(x: Any, digits: int = 3) -> str:
 
 
 def slc_ablation(
-    spec: str,
+    specs: list[str],
     registry: Registry,
     seeds: list[int],
     out: Path,
@@ -54,22 +55,36 @@ def slc_ablation(
     runner: FlightRunner = SERIAL,
     resume: str | None = None,
 ) -> Path:
-    """Fly ``spec`` with SLC on and off for each seed; write tables and the Fig. 7 plot."""
-    folder = experiment_folder(out, "slc-ablation", spec, resume)
-    cases = [(seed, slc) for seed in seeds for slc in ("on", "off")]
+    """Fly every mission with SLC on and off for each seed; write tables and the Fig. 7 plot."""
+    folder = experiment_folder(out, "slc-ablation", specs[0] if len(specs) == 1 else "worlds", resume)
+    cases = [(spec, seed, slc) for spec in specs for seed in seeds for slc in ("on", "off")]
     flights = [
         Flight(spec, (*overrides, f"seed={seed}", f"exploration.slc={'true' if slc == 'on' else 'false'}"))
-        for seed, slc in cases
+        for spec, seed, slc in cases
     ]
     flown = fly_all(flights, folder, runner, log, registry)
     rows = []
-    for seed in seeds:
-        pair = {slc: rec for (s_, slc), rec in zip(cases, flown, strict=True) if s_ == seed}
-        rows.append({"seed": seed, **pair})
+    for spec in specs:
+        for seed in seeds:
+            pair = {
+                slc: rec for (w, s_, slc), rec in zip(cases, flown, strict=True) if (w, s_) == (spec, seed)
+            }
+            rows.append({"world": Path(spec).stem, "seed": seed, **pair})
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(slc_tables(rows))
     plot_fig7(rows, folder / "uncertainty_slc_on_off.png")
     return folder
+
+
+def _mean_std(values: Any, digits: int = 1, unit: str = " %") -> str:
+    """``mean ± std`` (population std) of the finite ones among ``values``, with how many when
+    some runs did not measure it; "—" when none did."""
+    all_ = list(values)
+    finite = [float(v) for v in all_ if v is not None and np.isfinite(v)]
+    if not finite:
+        return "—"
+    text = f"{np.mean(finite):.{digits}f} ± {np.std(finite):.{digits}f}{unit}"
+    return text if len(finite) == len(all_) else f"{text} ({len(finite)} of {len(all_)})"
 
 
 def _xyz(offset: Any) -> str:
@@ -87,77 +102,132 @@ def _yaw_deg(err: dict[str, Any], name: str) -> float | None:
     return None if rad is None else float(np.degrees(rad))
 
 
+def _ablation_figures(row: dict) -> dict[str, Any]:
+    """One seed's figures: SLAM (SLC on) against VIO and against SLAM with SLC off."""
+    on, off = row["on"]["metrics"], row["off"]["metrics"]
+    err, err_off = on.get("final_error", {}), off.get("final_error", {})
+    vio_p, slam_p, off_p = (
+        err.get("vio_position_m"),
+        err.get("slam_position_m"),
+        err_off.get("slam_position_m"),
+    )
+    vio_y, slam_y, off_y = _yaw_deg(err, "vio"), _yaw_deg(err, "slam"), _yaw_deg(err_off, "slam")
+    u_on, u_off = on.get("uncertainty", {}), off.get("uncertainty", {})
+    p_on, p_off = u_on.get("final_mean_pose_trace"), u_off.get("final_mean_pose_trace")
+    l_on, l_off = u_on.get("final_mean_landmark_trace"), u_off.get("final_mean_landmark_trace")
+    length = on.get("distance_m")
+    nan = float("nan")
+    return {
+        "vio_p": vio_p,
+        "slam_p": slam_p,
+        "vio_y": vio_y,
+        "slam_y": slam_y,
+        "length": length,
+        "pos_vs_vio": _pct_reduction(vio_p, slam_p) if vio_p is not None and slam_p is not None else nan,
+        "yaw_vs_vio": _pct_reduction(abs(vio_y), abs(slam_y))
+        if vio_y is not None and slam_y is not None
+        else nan,
+        "pos_vs_off": _pct_reduction(off_p, slam_p) if off_p is not None and slam_p is not None else nan,
+        "yaw_vs_off": _pct_reduction(abs(off_y), abs(slam_y))
+        if off_y is not None and slam_y is not None
+        else nan,
+        "drift": 100.0 * vio_p / length if vio_p is not None and length else nan,
+        "pose_unc": _pct_reduction(p_off, p_on) if p_on is not None and p_off else nan,
+        "lm_unc": _pct_reduction(l_off, l_on) if l_on is not None and l_off else nan,
+        "p_on": p_on,
+        "p_off": p_off,
+        "l_on": l_on,
+        "l_off": l_off,
+        "upon": list(u_on.get("pose_reduction_upon_slc_percent") or []),
+        "accepted": on.get("slc", {}).get("accepted", 0),
+        "attempts": on.get("slc", {}).get("attempts"),
+        "completed": [row[k]["metrics"].get("verdict") == "completed" for k in ("on", "off")],
+        "slam_below_vio": slam_p is not None and vio_p is not None and slam_p < vio_p,
+    }
+
+
 def slc_tables(rows: list[dict]) -> str:
     """Markdown tables like paper 1 Tables I and II from the runs of an ablation.
 
     Table I (SLC on): the end position error of VIO and SLAM with its X/Y/Z components (estimate
     minus truth), VIO's drift as a share of the trajectory, the yaw errors in degrees (signed) and
     the trajectory length. Table II: the mean pose covariance trace's drop across each accepted
-    SLC ("upon SLC"), and the final mean pose and landmark traces with SLC against without.
+    SLC ("upon SLC"), and the final mean pose and landmark traces with SLC against without. Then a
+    summary per world and over all flights, mean ± std over seeds: the reductions against VIO
+    and against the same seed flown with SLC off.
     """
+    figures = [_ablation_figures(row) for row in rows]
     lines = [
         "## End-of-mission errors with SLC on (like paper 1 Table I)",
         "",
-        "| seed | traj. len. (m) | SLC accepted | VIO pos. err (m) (X, Y, Z) | SLAM pos. err (m) (X, Y, Z) | "
-        "reduction | VIO drift (% of traj.) | VIO yaw err (°) | SLAM yaw err (°) | reduction |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| world | seed | traj. len. (m) | SLC accepted | VIO pos. err (m) (X, Y, Z) | "
+        "SLAM pos. err (m) (X, Y, Z) | reduction | VIO drift (% of traj.) | VIO yaw err (°) | "
+        "SLAM yaw err (°) | reduction |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    pos_red, yaw_red, drift, pose_unc_red, lm_unc_red, upon = [], [], [], [], [], []
-    for row in rows:
-        m = row["on"]["metrics"]
-        err = m.get("final_error", {})
-        vio_p, slam_p = err.get("vio_position_m"), err.get("slam_position_m")
-        vio_y, slam_y = _yaw_deg(err, "vio"), _yaw_deg(err, "slam")
-        rp = _pct_reduction(vio_p, slam_p) if vio_p is not None else float("nan")
-        ry = (
-            _pct_reduction(abs(vio_y), abs(slam_y))
-            if vio_y is not None and slam_y is not None
-            else float("nan")
-        )
-        length = m.get("distance_m")
-        d = 100.0 * vio_p / length if vio_p is not None and length else float("nan")
-        pos_red.append(rp)
-        yaw_red.append(ry)
-        drift.append(d)
+    for row, f in zip(rows, figures, strict=True):
+        err = row["on"]["metrics"].get("final_error", {})
         lines.append(
-            f"| {row['seed']} | {_fmt(length, 1)} | {m.get('slc', {}).get('accepted', 0)} | "
-            f"{_fmt(vio_p, 2)} {_xyz(err.get('vio_offset_m'))} | "
-            f"{_fmt(slam_p, 2)} {_xyz(err.get('slam_offset_m'))} | "
-            f"{_fmt(rp, 1)} % | {_fmt(d, 2)} % | {_fmt(vio_y, 2)} | {_fmt(slam_y, 2)} | {_fmt(ry, 1)} % |"
+            f"| {row.get('world', '')} | {row['seed']} | {_fmt(f['length'], 1)} | {f['accepted']} | "
+            f"{_fmt(f['vio_p'], 2)} {_xyz(err.get('vio_offset_m'))} | "
+            f"{_fmt(f['slam_p'], 2)} {_xyz(err.get('slam_offset_m'))} | "
+            f"{_fmt(f['pos_vs_vio'], 1)} % | {_fmt(f['drift'], 2)} % | {_fmt(f['vio_y'], 2)} | "
+            f"{_fmt(f['slam_y'], 2)} | {_fmt(f['yaw_vs_vio'], 1)} % |"
         )
     lines += [
-        f"| **mean** | | | | | **{_fmt(_mean(pos_red), 1)} %** | {_fmt(_mean(drift), 2)} % | | | "
-        f"**{_fmt(_mean(yaw_red), 1)} %** |",
+        f"| **mean** | | | | | | **{_fmt(_mean(f['pos_vs_vio'] for f in figures), 1)} %** | "
+        f"{_fmt(_mean(f['drift'] for f in figures), 2)} % | | | "
+        f"**{_fmt(_mean(f['yaw_vs_vio'] for f in figures), 1)} %** |",
         "",
         "## Uncertainty reduction, upon SLC and SLC on vs off (like paper 1 Table II / Fig. 7)",
         "",
-        "| seed | avg. pose upon SLC | pose tr(Σ) on | pose tr(Σ) off | reduction | "
+        "| world | seed | avg. pose upon SLC | pose tr(Σ) on | pose tr(Σ) off | reduction | "
         "landmark tr(Σ) on | landmark tr(Σ) off | reduction | traj. len. on (m) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for row in rows:
-        on = row["on"]["metrics"].get("uncertainty", {})
-        off = row["off"]["metrics"].get("uncertainty", {})
-        p_on, p_off = on.get("final_mean_pose_trace"), off.get("final_mean_pose_trace")
-        l_on, l_off = on.get("final_mean_landmark_trace"), off.get("final_mean_landmark_trace")
-        rp = _pct_reduction(p_off, p_on) if p_on is not None and p_off else float("nan")
-        rl = _pct_reduction(l_off, l_on) if l_on is not None and l_off else float("nan")
-        drops = on.get("pose_reduction_upon_slc_percent") or []
-        upon += drops
-        pose_unc_red.append(rp)
-        lm_unc_red.append(rl)
+    for row, f in zip(rows, figures, strict=True):
         lines.append(
-            f"| {row['seed']} | {'; '.join(f'{x:.1f} %' for x in drops) or '—'} | "
-            f"{_fmt(p_on, 4)} | {_fmt(p_off, 4)} | {_fmt(rp, 1)} % | "
-            f"{_fmt(l_on, 4)} | {_fmt(l_off, 4)} | {_fmt(rl, 1)} % | "
-            f"{_fmt(row['on']['metrics'].get('distance_m'), 1)} |"
+            f"| {row.get('world', '')} | {row['seed']} | "
+            f"{'; '.join(f'{x:.1f} %' for x in f['upon']) or '—'} | "
+            f"{_fmt(f['p_on'], 4)} | {_fmt(f['p_off'], 4)} | {_fmt(f['pose_unc'], 1)} % | "
+            f"{_fmt(f['l_on'], 4)} | {_fmt(f['l_off'], 4)} | {_fmt(f['lm_unc'], 1)} % | "
+            f"{_fmt(f['length'], 1)} |"
         )
     lines += [
-        f"| **mean** | {_fmt(_mean(upon), 1)} % | | | **{_fmt(_mean(pose_unc_red), 1)} %** | | | "
-        f"**{_fmt(_mean(lm_unc_red), 1)} %** | |",
+        f"| **mean** | | {_fmt(_mean(x for f in figures for x in f['upon']), 1)} % | | | "
+        f"**{_fmt(_mean(f['pose_unc'] for f in figures), 1)} %** | | | "
+        f"**{_fmt(_mean(f['lm_unc'] for f in figures), 1)} %** | |",
         "",
+        "## Summary, mean ± std over seeds",
+        "",
+        "Reductions of SLAM with SLC on against VIO (paper 1 Table I) and against SLAM with SLC off "
+        "(the same seed); uncertainty: final mean traces, SLC on against off.",
+        "",
+        "| world | seeds | completed (on / off) | SLAM < VIO | SLC accepted / attempted | "
+        "pos. vs VIO | pos. vs SLC off | yaw vs VIO | yaw vs SLC off | pose tr(Σ) | landmark tr(Σ) | "
+        "upon SLC |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    return "\n".join(lines)
+    worlds = list(dict.fromkeys(row.get("world", "") for row in rows))
+    groups = [
+        (w, [f for row, f in zip(rows, figures, strict=True) if row.get("world", "") == w]) for w in worlds
+    ]
+    if len(worlds) > 1:
+        groups.append(("**all**", figures))
+    for name, fs in groups:
+        attempts = [f["attempts"] for f in fs if f["attempts"] is not None]
+        done_on, done_off = (sum(f["completed"][k] for f in fs) for k in (0, 1))
+        lines.append(
+            f"| {name} | {len(fs)} | {done_on} / {done_off} | "
+            f"{sum(f['slam_below_vio'] for f in fs)} of {len(fs)} | "
+            f"{sum(f['accepted'] for f in fs)} / {sum(attempts) if attempts else '—'} | "
+            + " | ".join(
+                _mean_std(f[key] for f in fs)
+                for key in ("pos_vs_vio", "pos_vs_off", "yaw_vs_vio", "yaw_vs_off", "pose_unc", "lm_unc")
+            )
+            + f" | {_mean_std(x for f in fs for x in f['upon'])} |"
+        )
+    return "\n".join([*lines, ""])
 
 
 def plot_fig7(rows: list[dict], path: Path) -> None:
@@ -498,11 +568,12 @@ def _how(args) -> dict[str, Any]:
 def amslam_experiments():
     return {
         "slc-ablation": Experiment(
-            "the mission with semantic loop closure on and off (paper 1 Tables I, II, Fig. 7)",
+            "one or more missions with semantic loop closure on and off (paper 1 Tables I, II, Fig. 7)",
             lambda args, registry: slc_ablation(
-                args.mission, registry, _seeds(args), Path(args.out), **_how(args)
+                [args.mission, *args.more], registry, _seeds(args), Path(args.out), **_how(args)
             ),
             flight_arguments,
+            several_missions=True,
         ),
         "planners": Experiment(
             "the mission with each exploration planner (COP, TSP, greedy)",

@@ -7,6 +7,7 @@ from amslam.apps.experiments import planner_table, plot_exploration, plot_fig7, 
 
 def metrics(vio: float, slam: float, pose: float, landmark: float, accepted: int = 1) -> dict:
     return {
+        "verdict": "completed",
         "distance_m": 100.0,
         "final_error": {
             "vio_position_m": vio,
@@ -50,9 +51,31 @@ def test_slc_tables_compute_reductions(tmp_path):
     assert "| -4.00 | 1.00 | 75.0 % |" in table  # |yaw| 4° -> 1°
     assert "**65.0 %**" in table  # mean of 80 % and 50 % position-error reduction
     assert "| 1 | 40.0 %; 20.0 % | 0.5000 | 1.0000 | 50.0 % | 0.4000 | 0.8000 | 50.0 % | 100.0 |" in table
-    assert "| **mean** | 30.0 % |" in table  # the drops upon SLC of all flights
+    assert "| **mean** | | 30.0 % |" in table  # the drops upon SLC of all flights
+    # summary: SLAM on vs VIO 80 % / 50 %, on vs off 80 % / 50 %, pose trace 50 % / 50 %
+    assert (
+        "| 2 | 2 / 2 | 2 of 2 | 2 / — | 65.0 ± 15.0 % | 65.0 ± 15.0 % | 75.0 ± 0.0 % | 0.0 ± 0.0 % | "
+        in table
+    )
     plot_fig7(rows, tmp_path / "fig7.png")
     assert (tmp_path / "fig7.png").stat().st_size > 10_000
+
+
+def test_slc_tables_summarise_each_world_and_all_of_them():
+    def row(world, seed, slam_on, slam_off, verdict="completed"):
+        on, off = metrics(1.0, slam_on, 0.5, 0.4), metrics(1.0, slam_off, 1.0, 0.8)
+        on["slc"]["attempts"] = 2
+        off["verdict"], on["verdict"] = verdict, "completed"
+        return {"world": world, "seed": seed, "on": {"metrics": on}, "off": {"metrics": off}}
+
+    rows = [row("a", 1, 0.2, 0.4), row("a", 2, 0.4, 0.8), row("b", 1, 0.5, 1.0, verdict="crashed")]
+    table = slc_tables(rows)
+    assert "| a | 1 | 100.0 | 1 |" in table and "| b | 1 | 100.0 | 1 |" in table
+    # world a: vs VIO 80 % and 60 %; vs SLC off 50 % both; 2 accepted of 4 attempts
+    assert "| a | 2 | 2 / 2 | 2 of 2 | 2 / 4 | 70.0 ± 10.0 % | 50.0 ± 0.0 % |" in table
+    assert "| b | 1 | 1 / 0 | 1 of 1 | 1 / 2 | 50.0 ± 0.0 % | 50.0 ± 0.0 % |" in table
+    # over all three: vs VIO 80, 60, 50 %
+    assert "| **all** | 3 | 3 / 2 | 3 of 3 | 3 / 6 | 63.3 ± 12.5 % | 50.0 ± 0.0 % |" in table
 
 
 def test_planner_table_and_plot(tmp_path):
@@ -92,6 +115,7 @@ def test_slc_tables_read_runs_from_before_the_per_axis_errors():
     table = slc_tables([{"seed": 3, "on": {"metrics": old}, "off": {"metrics": old}}])
     assert "| 3 | 100.0 | 1 | 1.00 — | 0.50 — | 50.0 % | 1.00 % | 5.73 | 2.86 | 50.0 % |" in table
     assert "| 3 | — |" in table
+    assert "| 1 | 1 / 1 | 1 of 1 | 1 / — |" in table  # no attempts recorded
 
 
 def test_the_pose_trace_drop_across_each_accepted_slc():
