@@ -210,7 +210,9 @@ def run_experiment(args: argparse.Namespace, registry: Registry) -> int:
         extra = " ".join(args.more)
         raise AmslamError(f"experiment {args.experiment} flies one mission; also given: {extra}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    print(f"experiment {args.experiment} on {args.mission}, seeds {seeds}", flush=True)
+    print(
+        f"experiment {args.experiment} on {' '.join([args.mission, *args.more])}, seeds {seeds}", flush=True
+    )
     started = time.time()
     try:
         folder = experiment.run(args, registry)

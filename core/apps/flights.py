@@ -4,12 +4,13 @@ An experiment lists its flights first (:class:`Flight`: a mission and its ``--se
 then :func:`fly_all` flies those not flown yet and returns one record per flight, in the order
 given, for the experiment's tables:
 
-* **Serially** in this process (the default, and the only way without Ray installed).
-* **As Ray tasks** with ``--ray``: each flight a task of one CPU in its own worker process, on a
-  local Ray (``ray.init()`` on this machine: as many flights at once as it has cores) or on a
-  cluster (``--address ray://HEAD:10001``, or ``auto`` inside one). Ray is an optional extra,
-  ``pip install 'amslam[ray]'``. On a cluster the run folders are written on the node that flew
-  them: give ``--out`` a folder every node shares, or only the records come back.
+* **As Ray tasks** (``--executor ray``, the default when Ray is installed): each flight a task of
+  one CPU in its own worker process, on a local Ray (``ray.init()`` on this machine: as many
+  flights at once as it has cores) or on a cluster (``--address ray://HEAD:10001``, or ``auto``
+  inside one). Ray is an optional extra, ``pip install 'amslam[ray]'``. On a cluster the run
+  folders are written on the node that flew them: give ``--out`` a folder every node shares, or
+  only the records come back.
+* **Serially** in this process (``--executor serial``; the default without Ray installed).
 * **Resumable**: every finished flight leaves ``flights/<key>.json`` in the experiment folder
   (its record, written atomically). ``--resume FOLDER`` flies in that experiment folder again
   and skips each flight whose record is there, so an experiment stopped half-way (a killed
@@ -36,7 +37,8 @@ from amslam.errors import AmslamError
 from amslam.registry import Registry, build_plugin_manager
 from amslam.rundir import new_folder, write_atomically
 
-RAY_HINT = "Ray is not installed: pip install 'amslam[ray]' (or fly without --ray)"
+RAY_HINT = "Ray is not installed: pip install 'amslam[ray]' (or fly with --executor serial)"
+EXECUTORS = ("ray", "serial")
 
 
 @dataclass(frozen=True)
@@ -60,14 +62,24 @@ class Flight:
 
 
 def flight_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--ray``, ``--address``, ``--resume``: how an experiment's flights are run."""
+    """``--executor``, ``--address``, ``--resume``: how an experiment's flights are run."""
     parser.add_argument(
-        "--ray", action="store_true", help="fly the runs as Ray tasks (local Ray unless --address)"
+        "--executor",
+        choices=EXECUTORS,
+        help="ray: each flight a Ray task, on a local Ray unless --address (the default when Ray is "
+        "installed); serial: one flight after another in this process (the default without Ray)",
     )
-    parser.add_argument("--address", help="Ray cluster to use with --ray (ray://HOST:PORT, or auto)")
+    parser.add_argument("--ray", action="store_true", help="the same as --executor ray")
+    parser.add_argument("--address", help="Ray cluster for --executor ray (ray://HOST:PORT, or auto)")
     parser.add_argument(
         "--resume", metavar="FOLDER", help="an experiment folder to go on in: its finished flights are kept"
     )
+
+
+def ray_installed() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("ray") is not None
 
 
 @dataclass(frozen=True)
@@ -79,9 +91,29 @@ class FlightRunner:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> FlightRunner:
-        if getattr(args, "address", None) and not getattr(args, "ray", False):
-            raise AmslamError("--address names a Ray cluster: give --ray too")
-        return cls(bool(getattr(args, "ray", False)), getattr(args, "address", None))
+        """The runner the command line asks for; Ray when nothing is said and it is installed.
+
+        Raises:
+            AmslamError: ``--ray`` with ``--executor serial``, ``--address`` with a serial
+                executor, or ``--executor ray`` without Ray installed.
+        """
+        # A parser without --executor (the benchmark scripts, each with its own --ray) flies
+        # serially unless asked; an experiment's command line that says nothing flies on Ray when
+        # it is installed.
+        chooses = hasattr(args, "executor")
+        executor = args.executor if chooses else None
+        if getattr(args, "ray", False):
+            if executor == "serial":
+                raise AmslamError("--ray and --executor serial disagree: give one of them")
+            executor = "ray"
+        address = getattr(args, "address", None)
+        if executor is None:
+            executor = "ray" if address or (chooses and ray_installed()) else "serial"
+        if address and executor != "ray":
+            raise AmslamError("--address names a Ray cluster: it needs --executor ray")
+        if executor == "ray" and not ray_installed():
+            raise AmslamError(RAY_HINT)
+        return cls(executor == "ray", address)
 
 
 #: flights one after another in this process
@@ -154,9 +186,10 @@ def fly_benchmark(
     flights: Sequence[Flight], args: argparse.Namespace, benchmark: str
 ) -> tuple[Path, list[dict[str, Any]]] | None:
     """A benchmark script's flights: a new folder ``<benchmark>-buildings-<time>`` under
-    ``args.out`` (or ``args.resume``), flown as ``args`` says (``--ray``, ``--address``), one
-    progress line per flight on stdout. None once the error is printed on stderr (no Ray
-    installed, ``--address`` without ``--ray``, an ``--resume`` that is no benchmark folder)."""
+    ``args.out`` (or ``args.resume``), flown as ``args`` says (``--executor``, ``--address``), one
+    progress line per flight on stdout. None once the error is printed on stderr (``--executor
+    ray`` without Ray installed, ``--address`` with a serial executor, an ``--resume`` that is no
+    benchmark folder)."""
     try:
         folder = experiment_folder(Path(args.out), benchmark, "buildings", args.resume)
         print(f"benchmark folder: {folder} ({len(flights)} flights)", flush=True)

@@ -63,8 +63,37 @@ def test_resume_needs_an_experiment_folder_and_address_needs_ray(tmp_path: Path)
         experiment_folder(tmp_path, "test", "demo", resume=str(tmp_path))
     import argparse
 
-    with pytest.raises(AmslamError, match="give --ray too"):
-        FlightRunner.from_args(argparse.Namespace(ray=False, address="auto"))
+    with pytest.raises(AmslamError, match="needs --executor ray"):
+        FlightRunner.from_args(argparse.Namespace(executor="serial", ray=False, address="auto"))
+    with pytest.raises(AmslamError, match="disagree"):
+        FlightRunner.from_args(argparse.Namespace(executor="serial", ray=True, address=None))
+
+
+@pytest.mark.parametrize("installed", [True, False])
+def test_experiments_fly_on_ray_by_default_when_it_is_installed(monkeypatch, installed: bool) -> None:
+    import argparse
+
+    from amslam.apps import flights
+    from amslam.cli import build_parser
+    from amslam.registry import build_plugin_manager
+
+    monkeypatch.setattr(flights, "ray_installed", lambda: installed)
+    parser = build_parser(build_plugin_manager())
+    args = parser.parse_args(["experiment", "slc-ablation", "demo"])
+    assert FlightRunner.from_args(args) == FlightRunner(ray=installed)
+    args = parser.parse_args(["experiment", "slc-ablation", "demo", "--executor", "serial"])
+    assert FlightRunner.from_args(args) == FlightRunner(ray=False)
+    args = parser.parse_args(["experiment", "slc-ablation", "demo", "--executor", "ray"])
+    if installed:
+        assert FlightRunner.from_args(args) == FlightRunner(ray=True)
+        assert FlightRunner.from_args(argparse.Namespace(ray=True, address="auto")) == FlightRunner(
+            True, "auto"
+        )
+    else:
+        with pytest.raises(AmslamError, match=r"pip install 'amslam\[ray\]'.*--executor serial"):
+            FlightRunner.from_args(args)
+    # a benchmark script's parser has only --ray: serial unless asked
+    assert FlightRunner.from_args(argparse.Namespace(ray=False, address=None)) == FlightRunner(ray=False)
 
 
 def test_flights_run_as_tasks_on_a_local_two_cpu_ray(tmp_path: Path) -> None:

@@ -248,7 +248,18 @@ def test_a_closed_stdout_does_not_stop_the_flight(tmp_path):
 def test_a_closed_stdout_does_not_stop_an_experiment(tmp_path):
     mission, out = small_mission(tmp_path, max_time=5), tmp_path / "out"
     # --quiet: its runs' status lines (stderr is a pipe) would be on stderr besides the nothing checked
-    args = ("--quiet", "experiment", "planners", str(mission), "--seeds", "1", "--out", str(out))
+    args = (
+        "--quiet",
+        "experiment",
+        "planners",
+        str(mission),
+        "--seeds",
+        "1",
+        "--executor",
+        "serial",
+        "--out",
+        str(out),
+    )
     first, status, stderr = first_line_then_close(*args)
     assert first == f"experiment planners on {mission}, seeds [1]\n"
     assert status == 141 and stderr == "", stderr
@@ -306,7 +317,7 @@ def test_an_experiment_whose_every_run_failed_exits_1(tmp_path):
     mission = small_mission(tmp_path, max_time=30)
     wide = ("--set", "robot.radius=2.5")  # no room to take off anywhere: every run fails
     out = ("--out", str(tmp_path / "out"))
-    done = amslam("experiment", "planners", str(mission), "--seeds", "1", *wide, *out)
+    done = amslam("experiment", "planners", str(mission), "--seeds", "1", "--executor", "serial", *wide, *out)
     assert done.returncode == 1, done.stderr
     # that one line only: no warning from averaging or plotting series that no run produced
     (line,) = done.stderr.splitlines()
