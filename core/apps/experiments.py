@@ -73,7 +73,66 @@ def slc_ablation(
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(slc_tables(rows))
     plot_fig7(rows, folder / "uncertainty_slc_on_off.png")
+    plot_trajectories(rows, folder / "trajectories.png")
     return folder
+
+
+def plot_trajectories(rows: list[dict], path: Path) -> None:
+    """Paper 1 Fig. 5 / Fig. 8 style: per world, the first seed with both flights' folders, the
+    true trajectory against VIO and SLAM with SLC on, and SLAM with SLC off, from above (X-Y) and
+    from the side (X-Z). Nothing is drawn when no pair of flights left its trajectories."""
+    from amslam.errors import RunFileError
+    from amslam.rundir import read_tum
+
+    def tracks(row: dict) -> dict[str, np.ndarray] | None:
+        out = {}
+        for label, key, name in (
+            ("truth", "on", "ground_truth"),
+            ("VIO", "on", "vio"),
+            ("SLAM, SLC on", "on", "slam"),
+            ("SLAM, SLC off", "off", "slam"),
+        ):
+            folder = row[key].get("run_dir")
+            if not folder:
+                return None
+            try:
+                out[label] = read_tum(Path(folder) / f"{name}.tum").poses[:, :3]
+            except RunFileError:
+                return None
+        return out
+
+    chosen: dict[str, tuple[int, dict[str, np.ndarray]]] = {}
+    for row in rows:
+        world = row.get("world", "")
+        if world not in chosen and (t := tracks(row)) is not None:
+            chosen[world] = (row["seed"], t)
+    if not chosen:
+        return
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    styles = {"truth": ("k", "-"), "VIO": ("tab:red", "--"), "SLAM, SLC on": ("tab:blue", "-")}
+    styles["SLAM, SLC off"] = ("tab:orange", ":")
+    fig, axes = plt.subplots(len(chosen), 2, figsize=(12, 4.2 * len(chosen)), squeeze=False)
+    for (world, (seed, t)), (top, side) in zip(chosen.items(), axes, strict=True):
+        for label, xyz in t.items():
+            colour, line = styles[label]
+            top.plot(xyz[:, 0], xyz[:, 1], line, color=colour, lw=1, label=label)
+            side.plot(xyz[:, 0], xyz[:, 2], line, color=colour, lw=1, label=label)
+        top.set_title(f"{world}, seed {seed}: from above")
+        side.set_title(f"{world}, seed {seed}: from the side")
+        top.set_aspect("equal", adjustable="datalim")
+        top.set_xlabel("x (m)")
+        top.set_ylabel("y (m)")
+        side.set_xlabel("x (m)")
+        side.set_ylabel("z (m)")
+        top.legend(fontsize=7)
+    fig.suptitle("Trajectories: truth, VIO and SLAM with and without semantic loop closure")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def _mean_std(values: Any, digits: int = 1, unit: str = " %") -> str:

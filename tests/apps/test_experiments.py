@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from amslam.apps.experiments import planner_table, plot_exploration, plot_fig7, slc_tables
 
 
@@ -124,3 +126,30 @@ def test_the_pose_trace_drop_across_each_accepted_slc():
     series = [(0.0, 0.0, 0.1, 0.0), (5.0, 3.0, 0.2, 0.0), (10.0, 6.0, 0.05, 0.0), (15.0, 9.0, 0.06, 0.0)]
     assert reduction_upon_slc(series, [7.5]) == [75.0]  # 0.2 before, 0.05 after
     assert reduction_upon_slc(series, [10.0, 20.0, -1.0]) == [75.0]  # no sample after 20 s or before -1 s
+
+
+def test_trajectory_plot_per_world_from_the_run_folders(tmp_path):
+    from amslam.apps.experiments import plot_trajectories
+
+    def run(name: str, drift: float) -> str:
+        folder = tmp_path / name
+        folder.mkdir()
+        t = np.linspace(0, 10, 20)
+        for which, d in (("ground_truth", 0.0), ("vio", drift), ("slam", drift / 5)):
+            lines = [f"{ti} {ti} {np.sin(ti) + d * ti} 1.2 0 0 0 1" for ti in t]
+            (folder / f"{which}.tum").write_text("\n".join(lines) + "\n")
+        return str(folder)
+
+    failed = {"run_dir": None, "metrics": {"verdict": "failed"}}
+    rows = [
+        {"world": "a", "seed": 1, "on": failed, "off": {"run_dir": run("a1off", 0.1)}},  # skipped
+        {"world": "a", "seed": 2, "on": {"run_dir": run("a2on", 0.1)}, "off": {"run_dir": run("a2off", 0.1)}},
+        {"world": "b", "seed": 1, "on": {"run_dir": run("b1on", 0.2)}, "off": {"run_dir": run("b1off", 0.2)}},
+    ]
+    plot_trajectories(rows, tmp_path / "t.png")
+    import matplotlib.image
+
+    image = matplotlib.image.imread(tmp_path / "t.png")
+    assert image.shape[0] > image.shape[1] * 0.6  # two worlds: two rows of panels
+    plot_trajectories(rows[:1], tmp_path / "none.png")
+    assert not (tmp_path / "none.png").exists()
