@@ -12,8 +12,9 @@ order is an open travelling-salesman tour from the robot (exact below 13 targets
 distance × bearing, at the flight height) is scored with the fitted models
 (:mod:`amslam.plugins.pams.uncertainty`): predicted confidence ``f^s(range, angle)`` and predicted
 measurement variances ``f^g(range, angle)``. The valid set ``X^visible`` is the intersection of the
-high-confidence region (confidence ≥ ``min_confidence``) and the low-uncertainty region (predicted
-std ≤ ``max_position_std`` for positions, ≤ ``max_dimension_std`` for dimensions), minus cells
+high-confidence region (confidence ≥ ``min_confidence``) and the low-uncertainty region (each
+component's error predicted within ``max_position_error`` for positions, ``max_dimension_error``
+for dimensions, with probability ``error_confidence``: paper 2's 95 %, 0.1 m, 0.2 m), minus cells
 too close to other objects or outside the area. Samples are drawn from it either uniformly
 (``sampling: uniform``, ``samples`` cells at random) or as the centroids of its connected regions
 (``sampling: centroid``), paper 2 Fig. 6. Each faces the object.
@@ -224,11 +225,20 @@ class PamsParams(BackendParams):
     sampling: Literal["uniform", "centroid"] = Field("centroid", description="how samples are drawn (Fig. 6)")
     samples: int = Field(8, ge=1, le=10_000, description="uniform sampling: samples per target")
     min_confidence: float = Field(0.8, ge=0.0, le=1.0, description="high-confidence region threshold")
-    max_position_std: float = Field(
-        0.1, gt=0.0, le=100, description="low-uncertainty region: position std limit, m"
+    # Paper 2 Fig. 6: "95 % confidence in localization and dimension estimation (with less than
+    # 0.1 m and 0.2 m error, respectively)": a cell qualifies when a measurement's error on each
+    # component is predicted within the limit with that probability (Gaussian: std ≤ limit / 1.96).
+    max_position_error: float = Field(
+        0.1, gt=0.0, le=100, description="low-uncertainty region: position error limit, m"
     )
-    max_dimension_std: float = Field(
-        0.2, gt=0.0, le=100, description="low-uncertainty region: dimension std limit, m"
+    max_dimension_error: float = Field(
+        0.2, gt=0.0, le=100, description="low-uncertainty region: dimension error limit, m"
+    )
+    error_confidence: float = Field(
+        0.95,
+        gt=0.0,
+        lt=1.0,
+        description="low-uncertainty region: probability that each error is within its limit",
     )
     min_region_share: float = Field(
         0.1,
@@ -284,6 +294,19 @@ class PamsParams(BackendParams):
     default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
 
     _prior_file = field_validator("prior_objects")(_prior_objects_file)
+
+
+def region_std_limits(params: PamsParams, components: list[str]) -> np.ndarray:
+    """Each component's largest predicted std inside the low-uncertainty region: its error limit
+    over the two-sided Gaussian quantile of ``error_confidence`` (0.1 m / 1.96 ≈ 0.051 m at 95 %)."""
+    from scipy.special import erfinv  # imported when PAMS samples, not when it is listed
+
+    z = math.sqrt(2.0) * float(erfinv(params.error_confidence))
+    errors = [
+        params.max_position_error if c in POSITION_COMPONENTS else params.max_dimension_error
+        for c in components
+    ]
+    return np.array(errors) / z
 
 
 class PriorVisitParams(BackendParams):
@@ -590,9 +613,7 @@ class PamsPlanner(_TargetPlanner):
         pos, rng, angle, shape = self.candidate_grid(tid, height)
         conf = m.confidence(rng, angle)
         var = m.variances(rng, angle)
-        limits = np.array(
-            [p.max_position_std if c in POSITION_COMPONENTS else p.max_dimension_std for c in m.components]
-        )
+        limits = region_std_limits(p, m.components)
         confident = (conf >= p.min_confidence) & self._free(pos[:, :2], skip=tid, height=height)
         good = confident & np.all(np.sqrt(var) <= limits, axis=1)
         if not good.any() and confident.any():

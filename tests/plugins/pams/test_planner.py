@@ -98,8 +98,8 @@ def test_number_of_candidate_paths_is_a_permutation_count(tmp_path, models_path)
         samples=7,
         horizon=3,
         target_std=1e-4,
-        max_position_std=0.3,
-        max_dimension_std=0.5,
+        max_position_error=0.6,
+        max_dimension_error=1.0,
     )
     tour = planner.plan(_request())
     (path,) = [f for name, f in events if name == "pams_path"]
@@ -116,8 +116,8 @@ def test_viewpoints_lie_in_the_predicted_good_region_and_face_the_object(tmp_pat
         models_path,
         prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
         min_confidence=0.8,
-        max_position_std=0.1,
-        max_dimension_std=0.2,
+        max_position_error=0.2,  # the test's synthetic models reach ~0.085 m, not the paper's 0.051
+        max_dimension_error=0.4,
     )
     tour = planner.plan(_request())
     assert tour and all(item.kind == TourItemKind.EXPLORE for item in tour)
@@ -129,7 +129,8 @@ def test_viewpoints_lie_in_the_predicted_good_region_and_face_the_object(tmp_pat
         rng = float(np.linalg.norm(p - centre))
         angle = abs(math.atan2(p[1] - centre[1], p[0] - centre[0]))
         assert car.confidence(rng, angle)[0] >= 0.8
-        assert np.all(np.sqrt(car.variances(rng, angle)[0]) <= [0.1, 0.1, 0.2, 0.2])
+        # errors within their limits with 95 % (error_confidence): stds within limit / 1.96
+        assert np.all(np.sqrt(car.variances(rng, angle)[0]) <= np.array([0.2, 0.2, 0.4, 0.4]) / 1.959964)
         assert p[2] == pytest.approx(2.0)  # the robot's height
         # outside the car's footprint plus clearance
         assert np.linalg.norm(p[:2] - centre[:2]) >= 0.5 * math.hypot(4.6, 1.9) + 1.0 - 1e-9
@@ -157,8 +158,8 @@ def test_viewpoints_avoid_other_objects_and_leave_the_area_alone(tmp_path, model
             sampling="uniform",
             samples=30,
             target_classes=["car"],
-            max_position_std=0.3,
-            max_dimension_std=0.5,
+            max_position_error=0.6,
+            max_dimension_error=1.0,
         ),
         ctx,
     )
@@ -184,8 +185,8 @@ def test_neighbours_block_viewpoints_unless_low_enough_to_overfly(tmp_path, mode
             sampling="uniform",
             samples=120,
             target_classes=["car"],
-            max_position_std=0.3,
-            max_dimension_std=0.5,
+            max_position_error=0.6,
+            max_dimension_error=1.0,
             **params,
         )
         planner.plan(_request(start=(0.0, 0.0, 3.4)))
@@ -369,3 +370,18 @@ def test_prior_visit_looks_once_at_each_object_in_tsp_order(tmp_path):
     # after the first two looks only the third object is left; after it, nothing
     assert [t.ref for t in planner.plan(_request(tour[1].position))] == [2]
     assert planner.plan(_request(tour[2].position)) == []
+
+
+def test_the_low_uncertainty_region_is_the_papers_95_percent_within_the_error_limits():
+    from amslam.plugins.pams.planner import PamsParams, region_std_limits
+
+    limits = region_std_limits(PamsParams(), ["x", "y", "length", "width"])
+    np.testing.assert_allclose(
+        limits, [0.1 / 1.959964, 0.1 / 1.959964, 0.2 / 1.959964, 0.2 / 1.959964], rtol=1e-6
+    )
+    # a Gaussian error with that std is within the limit 95 % of the time
+    from scipy.stats import norm
+
+    assert norm.cdf(0.1, scale=limits[0]) - norm.cdf(-0.1, scale=limits[0]) == pytest.approx(0.95)
+    looser = region_std_limits(PamsParams(error_confidence=0.68), ["x"])
+    assert looser[0] > limits[0]
