@@ -3,8 +3,8 @@
 * ``slc-ablation`` — one or more missions with semantic loop closure on and off (paper 1 Tables
   I, II and Fig. 7): end position and yaw error of VIO vs SLAM, pose and landmark uncertainty,
   mean ± std per world and over all.
-* ``planners`` — the mission with each exploration planner (COP, TSP, greedy): explored volume
-  against distance travelled and time.
+* ``planners`` — one or more missions with each exploration planner (COP, TSP, greedy):
+  explored volume against distance travelled and time, mean ± std per world and over all.
 
 Every run is an ordinary run folder under ``<out>/<experiment>-<mission>-<timestamp>/runs``; the
 experiment folder adds ``results.json``, ``table.md`` and PNG plots.
@@ -329,7 +329,7 @@ def plot_fig7(rows: list[dict], path: Path) -> None:
 
 
 def planner_comparison(
-    spec: str,
+    specs: list[str],
     registry: Registry,
     seeds: list[int],
     out: Path,
@@ -339,16 +339,17 @@ def planner_comparison(
     runner: FlightRunner = SERIAL,
     resume: str | None = None,
 ) -> Path:
-    """Fly ``spec`` with each planner for each seed; tabulate and plot exploration progress."""
-    folder = experiment_folder(out, "planners", spec, resume)
-    cases = [(seed, planner) for seed in seeds for planner in planners]
+    """Fly every mission with each planner for each seed; tabulate and plot exploration progress."""
+    folder = experiment_folder(out, "planners", specs[0] if len(specs) == 1 else "worlds", resume)
+    cases = [(spec, seed, planner) for spec in specs for seed in seeds for planner in planners]
     flights = [
-        Flight(spec, (*overrides, f"seed={seed}", f"planner.plugin={planner}")) for seed, planner in cases
+        Flight(spec, (*overrides, f"seed={seed}", f"planner.plugin={planner}"))
+        for spec, seed, planner in cases
     ]
     flown = fly_all(flights, folder, runner, log, registry)
     rows = [
         {"seed": seed, "planner": planner, "world": Path(spec).stem, **rec}
-        for (seed, planner), rec in zip(cases, flown, strict=True)
+        for (spec, seed, planner), rec in zip(cases, flown, strict=True)
     ]
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     (folder / "table.md").write_text(planner_table(rows))
@@ -406,6 +407,31 @@ def planner_table(rows: list[dict]) -> str:
             f"{_fmt(_mean(d for d, _ in p90), 1)} | "
             f"{_fmt(_mean(t for _, t in p90), 1)} |"
         )
+    lines += [
+        "",
+        "Per world, mean ± std over seeds:",
+        "",
+        "| world | planner | completed | explored (%) | distance (m) | time to 90 % (s) "
+        "| distance to 90 % (m) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for world in dict.fromkeys(r.get("world", "") for r in rows):
+        for planner in dict.fromkeys(r["planner"] for r in rows):
+            sel = [
+                (r, x)
+                for r, x in zip(rows, to90, strict=True)
+                if (r.get("world", ""), r["planner"]) == (world, planner)
+            ]
+            if not sel:
+                continue
+            ms = [r["metrics"] for r, _ in sel]
+            lines.append(
+                f"| {world} | {planner} | {sum(m.get('verdict') == 'completed' for m in ms)} of {len(ms)} | "
+                f"{_mean_std((m.get('explored_percent') for m in ms), unit='')} | "
+                f"{_mean_std((m.get('distance_m') for m in ms), unit='')} | "
+                f"{_mean_std((t for _, (_, t) in sel), unit='')} | "
+                f"{_mean_std((d for _, (d, _) in sel), unit='')} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -635,11 +661,12 @@ def amslam_experiments():
             several_missions=True,
         ),
         "planners": Experiment(
-            "the mission with each exploration planner (COP, TSP, greedy)",
+            "one or more missions with each exploration planner (COP, TSP, greedy)",
             lambda args, registry: planner_comparison(
-                args.mission, registry, _seeds(args), Path(args.out), **_how(args)
+                [args.mission, *args.more], registry, _seeds(args), Path(args.out), **_how(args)
             ),
             flight_arguments,
+            several_missions=True,
         ),
         "pams": Experiment(
             "PAMS against the prior-visit baseline on one or more worlds (paper 2 Fig. 9)",

@@ -105,6 +105,7 @@ def test_planner_table_and_plot(tmp_path):
     assert "| cop | demo | 1 | completed | 95.0 | 120.0 | 300.0 | 4.17 | 40.0 | 50.0 |" in table
     assert "| greedy | demo | 1 | completed | 90.0 | 125.0 | 300.0 | 3.84 | 100.0 | 100.0 |" in table
     assert "| greedy | 1 | 90.0 | 125.0 | 300.0 | 100.0 | 100.0 |" in table
+    assert "| demo | cop | 1 of 1 | 95.0 ± 0.0 | 120.0 ± 0.0 | 50.0 ± 0.0 | 40.0 ± 0.0 |" in table
     plot_exploration(rows, tmp_path / "p.png")
     assert (tmp_path / "p.png").exists()
 

@@ -99,7 +99,7 @@ def test_set_plugins_disable_is_honoured_like_the_file(tmp_path):
         (("experiment", "planners", "demo", "--first-seed", "-3"), "--first-seed: -3 is not at least 0"),
         (("experiment", "no-such", "demo"), "argument NAME: invalid choice: 'no-such'"),
         (("fly-to-the-moon",), "invalid choice: 'fly-to-the-moon'"),
-        (("experiment", "planners", "demo", "three_floors"), "planners flies one mission; also given"),
+        (("experiment", "multi-robot", "demo", "three_floors"), "multi-robot flies one mission; also given"),
     ],
 )
 def test_bad_arguments(args, expected):
