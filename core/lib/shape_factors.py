@@ -44,6 +44,7 @@ import gtsam
 import numpy as np
 
 __all__ = [
+    "cuboid_centre_tie",
     "cuboid_error",
     "cuboid_factor",
     "cuboid_keys",
@@ -235,3 +236,28 @@ def cylinder_factor(
         return e
 
     return gtsam.CustomFactor(noise, [pose_key, root_key, axis_key, radius_key], error)
+
+
+# -------------------------------------------------------------------------------------------
+# two cuboid landmarks of one object
+# -------------------------------------------------------------------------------------------
+def cuboid_centre_tie(
+    object_key_a: int, object_key_b: int, noise: gtsam.noiseModel.Base
+) -> gtsam.CustomFactor:
+    """A zero-offset tie of two cuboids' centres (two landmarks found to be one object).
+
+    ``e = t(O_a) − t(O_b)`` (3 × 1, world frame). Under ``O·Exp([ω; v])`` a pose's translation
+    moves by ``R v``, so ``∂e/∂O_a = [0, R_a]`` and ``∂e/∂O_b = [0, −R_b]``. Only the centres are
+    tied, as a point landmark's fusion ties its point: the boxes' rotations and dimensions keep
+    their own measurements.
+    """
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+        k = this.keys()
+        Oa, Ob = values.atPose3(k[0]), values.atPose3(k[1])
+        if H is not None:
+            H[0] = np.hstack([np.zeros((3, 3)), Oa.rotation().matrix()])
+            H[1] = np.hstack([np.zeros((3, 3)), -Ob.rotation().matrix()])
+        return np.asarray(Oa.translation() - Ob.translation(), float)
+
+    return gtsam.CustomFactor(noise, [object_key_a, object_key_b], error)

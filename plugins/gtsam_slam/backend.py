@@ -215,26 +215,21 @@ class GtsamSlam(Slam):
             )
         )
 
-    def _landmark_marginals(self) -> dict[int, np.ndarray]:
-        from gtsam.symbol_shorthand import L
-
-        return self._graph.marginals([L(lm.id) for lm in self._graph.graph_landmarks()])
-
     def landmarks(self) -> list[Landmark]:
-        """Landmarks in the graph with class, position, marginal covariance and observation count."""
-        from gtsam.symbol_shorthand import L
-
+        """Landmarks in the graph with class, position, marginal covariance and observation count
+        (a shape landmark's position and covariance are its reference point's)."""
         g = self._graph
-        cov = self._landmark_marginals()
+        lms = g.graph_landmarks()
+        cov = g.position_covariances(lms)
         out = []
-        for lm in g.graph_landmarks():
+        for lm in lms:
             n = lm.count + sum(o.count for o in g.landmarks.values() if o.alias_of == lm.id)
             out.append(
                 Landmark(
                     lm.id,
                     lm.class_name,
                     g.point(lm.id),
-                    cov.get(L(lm.id), np.full((3, 3), np.nan)),
+                    cov.get(lm.id, np.full((3, 3), np.nan)),
                     n,
                     lm.first_keypose,
                     g.shapes.estimate(lm.id, g.estimate),
@@ -243,17 +238,15 @@ class GtsamSlam(Slam):
         return out
 
     def uncertainty(self) -> tuple[float, float]:
-        """(mean trace of the 6×6 pose marginals, mean trace of the landmark marginals)."""
-        from gtsam.symbol_shorthand import L
-
+        """(mean trace of the 6×6 pose marginals, mean trace of the landmarks' position marginals)."""
         g = self._graph
         pose_keys = [k.key for k in self._front.kps]
-        landmark_keys = [L(lm.id) for lm in g.graph_landmarks()]
-        cov = g.marginals(pose_keys + landmark_keys)
-        if not cov:
+        pose_cov = g.marginals(pose_keys)
+        landmark_cov = g.position_covariances(g.graph_landmarks())
+        if not pose_cov and not landmark_cov:
             return (0.0, 0.0)
-        poses = [np.trace(cov[k]) for k in pose_keys]
-        lms = [np.trace(cov[k]) for k in landmark_keys]
+        poses = [np.trace(c) for c in pose_cov.values()]
+        lms = [np.trace(c) for c in landmark_cov.values()]
         return (float(np.mean(poses)) if poses else 0.0, float(np.mean(lms)) if lms else 0.0)
 
     def information_gain(self, keypose_ids: list[int], travel_distances: list[float]) -> np.ndarray:

@@ -1,8 +1,11 @@
 """The semantic factor graph (paper 1 §V-B; paper 2 §IV-B): keys, noise models, fusion, marginals.
 
 One :class:`SlamGraph` holds the variables of one map: key poses (one chain per robot, each robot's
-keys made by its own :class:`PoseKeys`), object landmarks ``L(j)`` (reference points, ``Point3``)
-and the variables of the shape landmarks (:mod:`.shape_landmarks`, eqs. 1–2 of paper 2). It is
+keys made by its own :class:`PoseKeys`), point landmarks ``L(j)`` (``Point3``, the ``centroid``
+classes) and the variables of the shape landmarks (:mod:`.shape_landmarks`, eqs. 1–2 of paper 2),
+which have no ``L(j)``: a shape landmark's position is its reference point (cuboid centre,
+cylinder root), read off its own variables (:meth:`SlamGraph.point`,
+:meth:`SlamGraph.position_covariances`). It is
 solved incrementally by iSAM2 (a fresh graph of new factors and values per update) and keeps the
 whole history for marginals, eq. (10) and batch optimisation.
 
@@ -12,9 +15,11 @@ merge (:mod:`.merge`) is N robots on one graph. Both use the same :class:`NoiseM
 * VIO odometry between consecutive key poses: translation and yaw as random walks in the
   distance travelled (std ∝ √distance), yaw also per radian turned, roll and pitch tight (the IMU
   observes them); optionally an attitude factor per key pose (gravity);
-* ``BearingRangeFactor3D`` from a key pose to a landmark, range noise growing with range, widened
-  by the slack of a partial shape view, with a robust kernel;
-* a stiff zero-offset ``BetweenFactorPoint3`` fusing two landmarks of one object.
+* one factor per detection: ``BearingRangeFactor3D`` from a key pose to a point landmark, range
+  noise growing with range, with a robust kernel; a shape class's detection is its eq. 1 / eq. 2
+  factor alone (with ``shapes.factors`` off, a range-bearing factor on the shape's reference
+  variable instead);
+* a stiff zero-offset tie of the reference points fusing two landmarks of one object.
 """
 
 from __future__ import annotations
@@ -204,10 +209,36 @@ class SlamGraph:
             return self.new_values.atPose3(key).matrix()
         return self.estimate.atPose3(key).matrix()
 
-    def point(self, lm_id: int) -> np.ndarray:
-        if self.new_values.exists(L(lm_id)):
-            return np.asarray(self.new_values.atPoint3(L(lm_id)))
-        return np.asarray(self.estimate.atPoint3(L(lm_id)))
+    def shape_model(self, lm_id: int) -> str | None:
+        """A landmark's shape model (``cuboid`` / ``cylinder``), or ``None`` for a point landmark."""
+        model = self.shapes.model(self.landmarks[lm_id].class_name)
+        return model if model in ("cuboid", "cylinder") else None
+
+    def position_key(self, lm_id: int) -> int:
+        """The variable holding a landmark's position: ``L(j)``, or a shape's reference variable."""
+        model = self.shape_model(lm_id)
+        return L(lm_id) if model is None else self.shapes.reference_key(model, lm_id)
+
+    def point(self, lm_id: int, values: gtsam.Values | None = None) -> np.ndarray:
+        """A landmark's position (world frame) at ``values`` (default: the current estimate, with the
+        values not yet optimised): the point landmark, or the shape's reference point."""
+        if values is None:
+            values = self.new_values if self.new_values.exists(self.position_key(lm_id)) else self.estimate
+        model = self.shape_model(lm_id)
+        if model is None:
+            return np.asarray(values.atPoint3(L(lm_id)))
+        return self.shapes.reference_point(model, lm_id, values)
+
+    def position_covariance(self, lm_id: int, marginal: np.ndarray, values: gtsam.Values) -> np.ndarray:
+        """A landmark's 3 × 3 position covariance from the marginal of :meth:`position_key`."""
+        model = self.shape_model(lm_id)
+        return marginal if model is None else self.shapes.reference_covariance(model, lm_id, marginal, values)
+
+    def position_covariances(self, lms: list[LandmarkRec]) -> dict[int, np.ndarray]:
+        """Position covariances (landmark id → 3 × 3) of landmarks of the graph at the estimate."""
+        keys = {lm.id: self.position_key(lm.id) for lm in lms}
+        cov = self.marginals(list(keys.values()))
+        return {j: self.position_covariance(j, cov[k], self.estimate) for j, k in keys.items() if k in cov}
 
     def cached(self, name: str, compute: Callable[[], object]) -> object:
         """``compute()``, once per graph version."""
@@ -279,28 +310,43 @@ class SlamGraph:
     def bearing_range(
         self, pose_key: int, lm_id: int, p_body: np.ndarray, robust: bool = True
     ) -> gtsam.NonlinearFactor:
+        """A range-bearing factor from a key pose to a landmark's position (:meth:`position_key`)."""
         rng = float(np.linalg.norm(p_body))
         noise = self.noise.bearing_range(
             rng, self.shapes.point_slack(lm_id, pose_key), self.shapes.point_scale(lm_id, pose_key), robust
         )
-        return gtsam.BearingRangeFactor3D(pose_key, L(lm_id), gtsam.Unit3(p_body), rng, noise)
+        if self.shape_model(lm_id) == "cuboid":  # to the box pose's translation, its centre
+            return gtsam.BearingRangeFactorPose3(
+                pose_key, self.position_key(lm_id), gtsam.Unit3(p_body), rng, noise
+            )
+        return gtsam.BearingRangeFactor3D(pose_key, self.position_key(lm_id), gtsam.Unit3(p_body), rng, noise)
+
+    def measured_as_point(self, lm: LandmarkRec) -> bool:
+        """Whether a detection of ``lm`` is measured by a range-bearing factor: a point landmark's,
+        or a shape's with ``shapes.factors`` off; otherwise its eq. 1 / eq. 2 factor alone
+        (:meth:`observe_shape`) measures it."""
+        return self.shape_model(lm.id) is None or not self.shapes.p.factors
 
     def observe(self, lm: LandmarkRec, ob: Observation, p_world: np.ndarray) -> None:
-        """Record an observation; its factor joins the graph if the landmark is in it."""
+        """Record an observation; its range-bearing factor joins the graph if the landmark is in it
+        and is measured as a point (:meth:`measured_as_point`)."""
         self.observations.append(ob)
         lm.observations.append(ob)
         lm.sum_world = lm.sum_world + p_world
         lm.var_sum += self.noise.detection_variance(ob.p_body)
         lm.seen_by(ob.robot, ob.keypose, ob.distance)
-        if lm.in_graph:
+        if lm.in_graph and self.measured_as_point(lm):
             self.add_factor(self.bearing_range(ob.pose_key, lm.id, ob.p_body))
 
     def admit(self, lm: LandmarkRec) -> None:
-        """Put a tentative landmark into the graph with all its buffered observations."""
+        """Put a tentative landmark into the graph with all its buffered observations (a shape
+        landmark's variables and held-back measurements enter with :meth:`observe_shape`)."""
         lm.in_graph = True
-        self.new_values.insert(L(lm.id), lm.sum_world / lm.count)
-        for o in lm.observations:
-            self.add_factor(self.bearing_range(o.pose_key, lm.id, o.p_body))
+        if self.shape_model(lm.id) is None:
+            self.new_values.insert(L(lm.id), lm.sum_world / lm.count)
+        if self.measured_as_point(lm):
+            for o in lm.observations:
+                self.add_factor(self.bearing_range(o.pose_key, lm.id, o.p_body))
 
     def observe_shape(self, lm: LandmarkRec, pose_key: int, shape_body: dict) -> None:
         """Queue or add the eq. 1 / eq. 2 factor of one shape measurement (body frame) of ``lm``."""
@@ -310,14 +356,15 @@ class SlamGraph:
         if not lm.in_graph:
             return
         if not rec.in_graph:
-            sh.initial_values(lm.id, shapes.transform_shape(shape_body, self.pose(pose_key)), self.new_values)
-        est = sh.estimate(lm.id, self.new_values) or sh.estimate(lm.id, self.estimate)
-        if not sh.p.factors:  # shapes are reported, not optimised: keep the variables anchored
-            if not self.estimate.exists(gtsam.symbol("o" if rec.model == "cuboid" else "b", lm.id)):
-                k, s = rec.pending[0]
-                self.add_factor(sh.factor(k, k, lm.id, s, self.pose(k), est, lambda n: n))
+            first = shapes.transform_shape(shape_body, self.pose(pose_key))
+            sh.initial_values(lm.id, first, self.new_values)
+            if not sh.p.factors:  # shapes are reported, not optimised: their other variables anchored
+                for f in sh.anchor(lm.id, first):
+                    self.add_factor(f)
+        if not sh.p.factors:
             rec.pending = []
             return
+        est = sh.estimate(lm.id, self.new_values) or sh.estimate(lm.id, self.estimate)
         for k, s in rec.pending:
             self.add_factor(sh.factor(k, k, lm.id, s, self.pose(k), est, self.noise.robust))
         rec.pending = []
@@ -348,9 +395,18 @@ class SlamGraph:
         skip = set(skip_pose_keys)
         target.sum_world = target.sum_world + dup.sum_world
         if dup.in_graph:
-            self.add_factor(
-                gtsam.BetweenFactorPoint3(L(target.id), L(dup.id), np.zeros(3), self.noise.fusion())
-            )
+            if self.shape_model(target.id) is None:
+                self.add_factor(
+                    gtsam.BetweenFactorPoint3(L(target.id), L(dup.id), np.zeros(3), self.noise.fusion())
+                )
+            else:
+                self.add_factor(self.shapes.tie(target.id, dup.id, self.noise.fusion()))
+        elif not self.measured_as_point(dup):
+            # a tentative shape's held-back measurements become the target's, each still counted once
+            sh = self.shapes
+            est = sh.estimate(target.id, self.new_values) or sh.estimate(target.id, self.estimate)
+            for k, s in sh.take_measurements(target.id, dup.id, skip):
+                self.add_factor(sh.factor(k, k, target.id, s, self.pose(k), est, self.noise.robust))
         else:
             for o in dup.observations:
                 if o.pose_key not in skip:

@@ -201,7 +201,11 @@ class LoopCloser:
             target = old[int(a)]
             group = groups[int(b)]
             for o in group:
-                # The panorama's own measurement, now tied to the old landmark.
+                # The panorama's own measurement, now tied to the old landmark. A shape's detection
+                # already measuring the old landmark itself (its eq. 1 / eq. 2 factor) is not
+                # measured again as a point.
+                if not g.measured_as_point(target) and g.live_id(o.landmark) == target.id:
+                    continue
                 g.add_factor(g.bearing_range(o.pose_key, target.id, o.p_body))
             # The robot is tied to this landmark again: the front end may track it with a tight gate.
             latest = max(group, key=lambda o: o.distance)

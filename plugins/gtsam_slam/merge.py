@@ -27,8 +27,8 @@ onboard front end — into one :class:`.graph.SlamGraph`, robot after robot:
    onboard shape front end (:mod:`.shape_landmarks`): associated by overlap with a landmark's
    window points or fitted shape, measured as a shape fitted to the points of the last
    ``shapes.window`` seconds of the robot's log, giving the eq. 1 / eq. 2 factors
-   (:mod:`.shape_factors`) and the shape's reference point (cuboid centre, cylinder root) as the
-   landmark's point, with the onboard noise: each window fit weighed by the range and viewing
+   (:mod:`.shape_factors`), one per detection, whose reference point (cuboid centre, cylinder
+   root) is the landmark's position, with the onboard noise: each window fit weighed by the range and viewing
    angle of the cameras that saw it (``shapes.view_noise``, the characterised models of paper 2
    §IV-C). A log keeps 128 points per detection, so a window holds as many points as onboard.
 4. **Fusion and joint optimisation** (``refine_rounds``) — Levenberg–Marquardt on the whole graph
@@ -59,7 +59,6 @@ from typing import Annotated, Literal
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
@@ -380,8 +379,10 @@ class _Merger:
         cov: dict[int, np.ndarray] = {}
         for lm in live:
             if lm.in_graph:
-                pos[lm.id] = np.asarray(values.atPoint3(L(lm.id)))
-                cov[lm.id] = marginals.marginalCovariance(L(lm.id))
+                pos[lm.id] = g.point(lm.id, values)
+                cov[lm.id] = g.position_covariance(
+                    lm.id, marginals.marginalCovariance(g.position_key(lm.id)), values
+                )
                 continue
             seen = [
                 (transform_points(values.atPose3(o.pose_key).matrix(), o.p_body[None])[0], o)
@@ -448,9 +449,9 @@ class _Merger:
             if shape and shape.get("model") == "cuboid" == g.shapes.model(lm.class_name):
                 shape = self.complete(lm, shape, values)
             shape = shape or g.shapes.estimate(lm.id, values)
-            position = np.asarray(values.atPoint3(L(lm.id)))
+            position = g.point(lm.id, values)
             if shape and shape.get("model") == g.shapes.model(lm.class_name):
-                position = shapes.shape_center(shape)  # the shape's reference point, as L(j) is
+                position = shapes.shape_center(shape)  # the fitted shape's reference point
             out.append(
                 Landmark(
                     new_id,

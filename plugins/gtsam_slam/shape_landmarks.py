@@ -13,9 +13,10 @@ front end of the shape classes:
   with their stamps; a **measurement** is the shape fitted (:mod:`.shapes`) to the points of the
   last ``window`` seconds (the paper accumulates 1–3 s of LIDAR scans with LIDAR odometry; VIO
   is locally exact in the same way), expressed in the key pose's body frame with VIO. It yields
-  the eq. 1 / eq. 2 factor (:mod:`.shape_factors`) and, for the point landmark ``L(j)`` the rest
-  of the backend uses (association, loop closure, covariances), the shape's reference point
-  (cuboid centre, cylinder root) as a range-bearing measurement.
+  one factor, eq. 1 / eq. 2 (:mod:`.shape_factors`): a detection is measured once. The position
+  the rest of the backend uses (association, loop closure, covariances, the reported landmark)
+  is the shape's reference point (cuboid centre, cylinder root) read off the shape's own
+  variables (:meth:`reference_key`), not a second, point measurement of the same fit.
 """
 
 from __future__ import annotations
@@ -30,7 +31,13 @@ import numpy as np
 
 from amslam.geometry import yaw_matrix
 from amslam.lib import shapes
-from amslam.lib.shape_factors import cuboid_factor, cuboid_keys, cylinder_factor, cylinder_keys
+from amslam.lib.shape_factors import (
+    cuboid_centre_tie,
+    cuboid_factor,
+    cuboid_keys,
+    cylinder_factor,
+    cylinder_keys,
+)
 from amslam.lib.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
 from amslam.lib.viewing import viewing_angle
 from amslam.plugins.gtsam_slam.params import ShapeParams, SizePrior
@@ -387,12 +394,66 @@ class ShapeLandmarks:
         return out
 
     def absorb(self, keep_id: int, gone_id: int) -> None:
-        """Landmark ``keep_id`` takes the points, cameras and per-key-pose slack of its twin ``gone_id``."""
+        """Landmark ``keep_id`` takes the points, cameras and per-key-pose noise (slack, loose
+        extents, scale) of its twin ``gone_id``."""
         keep, gone = self.recs[keep_id], self.recs[gone_id]
         keep.points = sorted(keep.points + gone.points, key=lambda tq: tq[0])
         keep.cameras = sorted(keep.cameras + gone.cameras, key=lambda tq: tq[0])
+        self._take_noise(keep, gone)
+
+    @staticmethod
+    def _take_noise(keep: _ShapeRec, gone: _ShapeRec) -> None:
         for kp, v in gone.slack.items():
             keep.slack.setdefault(kp, v)
+        for kp, lv in gone.loose.items():
+            keep.loose.setdefault(kp, lv)
+        for kp, sc in gone.scale.items():
+            keep.scale.setdefault(kp, sc)
+
+    def take_measurements(self, keep_id: int, gone_id: int, skip: set[int]) -> list[tuple[int, dict]]:
+        """The measurements (key pose, body-frame shape) twin ``gone_id`` holds back while it is
+        tentative, handed to ``keep_id`` with their noise, except those from key poses ``skip``:
+        once fused they are measurements of ``keep_id``, each still counted once."""
+        keep, gone = self.recs[keep_id], self.recs[gone_id]
+        self._take_noise(keep, gone)
+        out = [(k, s) for k, s in gone.pending if k not in skip]
+        gone.pending = []
+        return out
+
+    @staticmethod
+    def reference_key(model: str, lm_id: int) -> int:
+        """The variable holding a shape landmark's reference point: the cuboid's pose (its centre
+        is the pose's translation), the cylinder's root."""
+        return cuboid_keys(lm_id)[0] if model == "cuboid" else cylinder_keys(lm_id)[0]
+
+    @staticmethod
+    def reference_point(model: str, lm_id: int, values: gtsam.Values) -> np.ndarray:
+        """A shape landmark's reference point (world frame) at ``values``."""
+        key = ShapeLandmarks.reference_key(model, lm_id)
+        if model == "cuboid":
+            return np.asarray(values.atPose3(key).translation(), float)
+        return np.asarray(values.atPoint3(key), float)
+
+    @staticmethod
+    def reference_covariance(
+        model: str, lm_id: int, marginal: np.ndarray, values: gtsam.Values
+    ) -> np.ndarray:
+        """The 3 × 3 world-frame covariance of the reference point from its variable's marginal.
+
+        A ``Pose3``'s marginal is over its tangent ``[ω; v]`` with ``v`` in the box frame (the
+        translation moves by ``R v``), so the centre's covariance is ``R Σ_vv Rᵀ``."""
+        if model != "cuboid":
+            return np.asarray(marginal, float)
+        R = values.atPose3(ShapeLandmarks.reference_key(model, lm_id)).rotation().matrix()
+        return R @ np.asarray(marginal, float)[3:, 3:] @ R.T
+
+    def tie(self, keep_id: int, gone_id: int, noise: gtsam.noiseModel.Base) -> gtsam.NonlinearFactor:
+        """The zero-offset tie of two shape landmarks of one object (their reference points)."""
+        model = self.recs[keep_id].model
+        a, b = self.reference_key(model, keep_id), self.reference_key(model, gone_id)
+        if model == "cuboid":
+            return cuboid_centre_tie(a, b, noise)
+        return gtsam.BetweenFactorPoint3(a, b, np.zeros(3), noise)
 
     def new_odometry_frame(self) -> None:
         """Forget the time windows (points, cameras, fits, ground), which are kept in the odometry
@@ -489,6 +550,35 @@ class ShapeLandmarks:
         return cylinder_factor(
             pose_key, b, n, r, shape_body["root"], shape_body["axis"], shape_body["radius"], noise
         )
+
+    def anchor(self, lm_id: int, shape_world: dict) -> list[gtsam.NonlinearFactor]:
+        """With ``factors`` off: priors holding a shape's variables at its first fit (world frame),
+        all but its reference point, which the detections measure as a point. The shape is reported,
+        the graph stays determined, and no detection is counted twice."""
+        p = self.p
+        if shape_world["model"] == "cuboid":
+            o, d = cuboid_keys(lm_id)
+            free = 1e3  # the centre: a prior this loose says nothing next to a detection's metres
+            rotation = gtsam.noiseModel.Diagonal.Sigmas(np.array([p.sigma_rotation] * 3 + [free] * 3))
+            return [
+                gtsam.PriorFactorPose3(o, gtsam.Pose3(shapes.cuboid_pose(shape_world)), rotation),
+                gtsam.PriorFactorPoint3(
+                    d,
+                    np.asarray(shape_world["dims"], float),
+                    gtsam.noiseModel.Isotropic.Sigma(3, p.sigma_dims),
+                ),
+            ]
+        _, n, r = cylinder_keys(lm_id)
+        return [
+            gtsam.PriorFactorUnit3(
+                n,
+                gtsam.Unit3(np.asarray(shape_world["axis"], float)),
+                gtsam.noiseModel.Isotropic.Sigma(2, p.sigma_axis),
+            ),
+            gtsam.PriorFactorVector(
+                r, np.array([shape_world["radius"]]), gtsam.noiseModel.Isotropic.Sigma(1, p.sigma_radius)
+            ),
+        ]
 
     def estimate(self, lm_id: int, values: gtsam.Values) -> dict | None:
         """The optimised shape of a landmark (world frame), or ``None`` if it has no variables."""

@@ -10,6 +10,7 @@ import pytest
 from gtsam.symbol_shorthand import X
 
 from amslam.lib.shape_factors import (
+    cuboid_centre_tie,
     cuboid_error,
     cuboid_factor,
     cuboid_keys,
@@ -125,6 +126,20 @@ def test_custom_factors_linearize_with_the_analytic_jacobians() -> None:
         np.array([0.5, 0.5, -1.0]), np.array([0.0, 0.0, 1.0]), 0.25, jacobians=True,
     )  # fmt: skip
     np.testing.assert_allclose(A, np.hstack(J), atol=1e-9)
+
+
+def test_cuboid_centre_tie_jacobians_match_numerical() -> None:
+    """The tie of two boxes' centres: its error is the centres' difference, its Jacobians GTSAM's."""
+    rng = np.random.default_rng(6)
+    Oa, Ob = _random_pose(rng), _random_pose(rng)
+    a, b = cuboid_keys(0)[0], cuboid_keys(1)[0]
+    v = gtsam.Values()
+    v.insert(a, Oa)
+    v.insert(b, Ob)
+    A, rhs = cuboid_centre_tie(a, b, gtsam.noiseModel.Unit.Create(3)).linearize(v).jacobian()
+    np.testing.assert_allclose(-rhs, Oa.translation() - Ob.translation(), atol=1e-12)
+    Jn = numerical_jacobians(lambda p, q: p.translation() - q.translation(), [Oa, Ob])
+    np.testing.assert_allclose(A, np.hstack(Jn), atol=1e-6)
 
 
 def test_factors_recover_objects_from_noisy_measurements() -> None:

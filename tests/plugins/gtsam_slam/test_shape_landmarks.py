@@ -102,6 +102,58 @@ def test_information_gain_over_shape_variables_equals_brute_force(mapped: GtsamS
     np.testing.assert_allclose(fast, brute, rtol=1e-6)
 
 
+def _last_frame(slam: GtsamSlam, classes: tuple[str, ...]) -> int:
+    """How many factors one more detection frame of ``classes`` adds, seen from the last pose of
+    :func:`_fly` (no new key pose: the robot has not moved)."""
+    rng = np.random.default_rng(5)
+    T_body_cam = CameraModel.forward_mount(35.0)
+    a = 2 * np.pi * 39 / 40
+    T_wb = _pose(np.array([6.0 + 7.0 * np.cos(a), 2.0 + 7.0 * np.sin(a), 3.5]), a + np.pi)
+    T_cw = np.linalg.inv(T_wb @ T_body_cam)
+    cam_pos = (T_wb @ T_body_cam)[:3, 3]
+    points = {
+        "car": box_points(rz(CAR_YAW), CAR_C, CAR_DIMS, cam_pos, rng, n=400, noise=0.02),
+        "pole": cylinder_points(POLE_ROOT, POLE_R, POLE_H, cam_pos, rng, n=200, noise=0.02),
+    }
+    dets = []
+    for cls in classes:
+        pc = points[cls] @ T_cw[:3, :3].T + T_cw[:3, 3]
+        dets.append(Detection(cls, 0.9, np.median(pc, axis=0), pc))
+    before = slam.graph()[0].size()
+    keyposes = slam.num_keyposes
+    slam.add_detections(Odometry(39.5, T_wb), T_body_cam, dets)
+    assert slam.num_keyposes == keyposes  # no odometry factor in the count
+    return slam.graph()[0].size() - before
+
+
+@pytest.mark.parametrize("factors", [True, False])
+def test_a_shape_detection_is_measured_once(factors: bool) -> None:
+    """Paper 2 §IV-B: a shape detection is one factor, its eq. 1 / eq. 2 factor (with ``factors``
+    off, one range-bearing factor on the shape's reference variable), never also a point landmark
+    measured from the same fit; the graph has no point-landmark variables for shape classes."""
+    import gtsam
+
+    slam = GtsamSlam()
+    params = GtsamSlam.Params(
+        landmark_models={"car": "cuboid", "pole": "cylinder", "ground": "plane"},
+        association={"max_range": 12.0},
+        shapes={"factors": factors},
+    )
+    slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
+    _fly(slam, np.random.default_rng(2))
+    assert _last_frame(slam, ("car",)) == 1
+    assert _last_frame(slam, ("pole",)) == 1
+    assert _last_frame(slam, ("car", "pole")) == 2
+    graph, values = slam.graph()
+    assert not any(gtsam.Symbol(k).chr() == ord("l") for k in values.keys())  # noqa: SIM118
+    ranged = [graph.at(i) for i in range(graph.size()) if "BearingRange" in type(graph.at(i)).__name__]
+    assert bool(ranged) == (not factors)
+    # the reported position and covariance are the shape's reference point's
+    car = next(lm for lm in slam.landmarks() if lm.class_name == "car")
+    assert np.linalg.norm(car.position - CAR_C) < 0.3
+    assert np.all(np.isfinite(car.covariance)) and np.all(np.linalg.eigvalsh(car.covariance) > 0)
+
+
 def test_centroid_is_the_default_model() -> None:
     slam = GtsamSlam()
     slam.configure(GtsamSlam.Params(), RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
