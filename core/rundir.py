@@ -419,7 +419,7 @@ def read_run_mission(path: Path) -> dict[str, Any]:
 def landmark_records(landmarks: Iterable[Landmark]) -> list[dict[str, Any]]:
     """Landmarks as the records of ``landmarks.json``: ``id``, ``class``, ``position``,
     ``covariance`` (nulls where not finite: a backend without uncertainty), ``observations`` and,
-    when fitted, ``shape``."""
+    when fitted, ``shape``; when kept, ``class_probabilities`` (class → probability)."""
     return [
         jsonable(
             {
@@ -429,6 +429,7 @@ def landmark_records(landmarks: Iterable[Landmark]) -> list[dict[str, Any]]:
                 "covariance": np.atleast_2d(np.asarray(lm.covariance, float)),
                 "observations": lm.observations,
                 **({"shape": lm.shape} if lm.shape else {}),
+                **({"class_probabilities": lm.class_probabilities} if lm.class_probabilities else {}),
             }
         )
         for lm in landmarks
@@ -454,7 +455,8 @@ def _is_covariance_row(value: Any) -> bool:
 
 def read_landmarks(path: Path) -> list[dict[str, Any]]:
     """``landmarks.json``, checked: a list of ``{id?, class, position, covariance?, observations?,
-    shape?}`` (:func:`landmark_records`). A covariance holding nulls (unknown) becomes None.
+    shape?, class_probabilities?}`` (:func:`landmark_records`). A covariance holding nulls
+    (unknown) becomes None.
 
     Raises:
         RunFileError: the file cannot be read, is not JSON, or a record is malformed;
@@ -481,4 +483,10 @@ def read_landmarks(path: Path) -> list[dict[str, Any]]:
         shape = lm.get("shape")
         if shape is not None and not (isinstance(shape, dict) and isinstance(shape.get("model"), str)):
             raise RunFileError(f"{where}: 'shape' must be an object with a 'model'")
+        probs = lm.get("class_probabilities")
+        if probs is not None and not (
+            isinstance(probs, dict)
+            and all(isinstance(c, str) and _is_vector([p], 1) and 0 <= p <= 1 for c, p in probs.items())
+        ):
+            raise RunFileError(f"{where}: 'class_probabilities' must map class names to numbers in [0, 1]")
     return landmarks

@@ -240,6 +240,9 @@ class Landmark:
     observations: int
     first_keypose: int = -1
     shape: dict | None = None  # model-specific parameters (cuboid, cylinder), see paper 2
+    #: the object's class posterior from its detections' class scores (class → probability, the
+    #: classes the map has seen; paper 2's per-object class probability), or None if not kept
+    class_probabilities: dict[str, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -216,8 +216,8 @@ class GtsamSlam(Slam):
         )
 
     def landmarks(self) -> list[Landmark]:
-        """Landmarks in the graph with class, position, marginal covariance and observation count
-        (a shape landmark's position and covariance are its reference point's)."""
+        """Landmarks in the graph with class, position, marginal covariance, observation count and
+        class posterior (a shape landmark's position and covariance are its reference point's)."""
         g = self._graph
         lms = g.graph_landmarks()
         cov = g.position_covariances(lms)
@@ -233,6 +233,7 @@ class GtsamSlam(Slam):
                     n,
                     lm.first_keypose,
                     g.shapes.estimate(lm.id, g.estimate),
+                    g.class_probabilities(lm),
                 )
             )
         return out

@@ -198,7 +198,17 @@ class FrontEnd:
                 g.observe(
                     lm,
                     Observation(
-                        self.robot, kp, rec.key, rec.distance, odom.stamp, d.class_name, pb, po, lm_id, points
+                        self.robot,
+                        kp,
+                        rec.key,
+                        rec.distance,
+                        odom.stamp,
+                        d.class_name,
+                        pb,
+                        po,
+                        lm_id,
+                        points,
+                        d.confidence,
                     ),
                     pw,
                 )
@@ -316,7 +326,11 @@ class FrontEnd:
         drift_var = g.noise.drift_variance(travel, np.linalg.norm(p_body, axis=1))
         d2 = np.sum((p_world[:, None, :] - pos[None, :, :]) ** 2, axis=2)
         m2 = d2 / (det_var[:, None] + p.object_sigma**2 + lm_var[None, :] + drift_var)
-        same_class = np.array(classes)[:, None] == np.array([lm.class_name for lm in cands])[None, :]
+        if p.class_gate is None:
+            same_class = np.array(classes)[:, None] == np.array([lm.class_name for lm in cands])[None, :]
+        else:  # a landmark whose class posterior clearly disagrees (below the gate) is not a candidate
+            post = [g.class_probabilities(lm, classes) for lm in cands]
+            same_class = np.array([[q.get(c, 0.0) >= p.class_gate for q in post] for c in classes])
         gated = same_class & (d2 <= p.gate**2) & (m2 <= p.chi2)
         return m2, gated
 
@@ -330,8 +344,8 @@ class FrontEnd:
         ``plane`` detections feed the ground buffer and leave. A ``cuboid`` / ``cylinder``
         detection is associated by overlap, its points join its landmark's window and the
         window's fitted shape becomes the measurement: its reference point (box centre, cylinder
-        root) replaces the visible-surface centroid as the detection's point, so ``L(j)`` is the
-        shape's reference point. A detection that yields no shape is dropped.
+        root) replaces the visible-surface centroid as the detection's point: the landmark's
+        position is the shape's reference point. A detection that yields no shape is dropped.
 
         Returns:
             The detections and body-frame points that go on to :meth:`associate`;

@@ -37,7 +37,37 @@ from amslam.plugins.gtsam_slam.params import GraphParams
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks
 from amslam.types import OdometryNoise
 
-__all__ = ["GraphParams", "LandmarkRec", "NoiseModels", "Observation", "PoseKeys", "SlamGraph"]
+__all__ = [
+    "GraphParams",
+    "LandmarkRec",
+    "NoiseModels",
+    "Observation",
+    "PoseKeys",
+    "SlamGraph",
+    "class_posterior",
+]
+
+#: detector scores are clipped to [SCORE_CLIP, 1 − SCORE_CLIP]: a score of 1 would make one
+#: detection's label certain for good
+SCORE_CLIP = 0.01
+
+
+def class_posterior(evidence: dict[str, list[float]], classes: Iterable[str]) -> dict[str, float]:
+    """An object's class posterior from its detections (a Bayesian update, not a score histogram).
+
+    The detector reports its top class ``c`` and a score ``p``; read as a symmetric confusion
+    model, ``P(c | true k) = p`` if ``c = k``, else ``(1 − p)/(K − 1)`` over the ``K`` classes the
+    map knows (at least 2), with a uniform prior. Each detection multiplies the posterior of its
+    own class by ``p (K − 1)/(1 − p)`` relative to every other (the common factor cancels), so
+    ``ln P(k) = Σ_{i labelled k} (logit p_i + ln(K − 1))`` + const: ``evidence`` keeps, per
+    label, ``[Σ logit p_i, count]``, and a class the map learns later is simply one more ``K``.
+    One detection gives its label probability ``p``; agreeing ones sharpen it.
+    """
+    names = sorted(set(classes) | set(evidence))
+    ln_other = math.log(max(len(names), 2) - 1)
+    logs = np.array([evidence[c][0] + evidence[c][1] * ln_other if c in evidence else 0.0 for c in names])
+    w = np.exp(logs - logs.max())
+    return dict(zip(names, (w / w.sum()).tolist(), strict=True))
 
 
 class NoiseModels:
@@ -137,6 +167,7 @@ class Observation:
     p_odom: np.ndarray  # the same in the robot's odometry frame (VIO), for panoramas
     landmark: int  # the landmark the front end associated it with
     points: np.ndarray | None = None  # the object's points, body frame (kept at the base only)
+    confidence: float = 1.0  # the detector's score of ``class_name``
 
 
 @dataclass
@@ -154,10 +185,19 @@ class LandmarkRec:
     last_keypose: int = 0
     last_distance: float = 0.0
     var_sum: float = 0.0  # sum of the observations' isotropic position variances, m²
+    #: class → [Σ logit(score), count] of the detections labelled with it (:func:`class_posterior`)
+    class_evidence: dict[str, list[float]] = field(default_factory=dict)
 
     @property
     def count(self) -> int:
         return len(self.observations)
+
+    def add_class_evidence(self, class_name: str, score: float) -> None:
+        """One detection labelled ``class_name`` with the detector's ``score``."""
+        p = min(max(float(score), SCORE_CLIP), 1.0 - SCORE_CLIP)
+        e = self.class_evidence.setdefault(class_name, [0.0, 0.0])
+        e[0] += math.log(p / (1.0 - p))
+        e[1] += 1.0
 
     def seen_by(self, robot: int, keypose: int, distance: float) -> None:
         """Record a sighting (kept monotonic per robot: a loop closure may tie it to an older pose)."""
@@ -185,6 +225,7 @@ class SlamGraph:
         self._cache: dict[str, tuple[int, object]] = {}
         self.landmarks: dict[int, LandmarkRec] = {}
         self.observations: list[Observation] = []
+        self.classes: set[str] = set()  # every class detected so far (the posteriors' K)
 
     # ---------------------------------------------------------------- plumbing
 
@@ -303,6 +344,22 @@ class SlamGraph:
     def landmark_position(self, lm: LandmarkRec) -> np.ndarray:
         return self.point(lm.id) if lm.in_graph else lm.sum_world / max(lm.count, 1)
 
+    def class_probabilities(self, lm: LandmarkRec, also: Iterable[str] = ()) -> dict[str, float]:
+        """A landmark's class posterior over the classes the map has seen and ``also`` (those of
+        detections being associated) (:func:`class_posterior`)."""
+        return class_posterior(lm.class_evidence, self.classes.union(also))
+
+    def classes_agree(self, a: LandmarkRec, b: LandmarkRec, gate: float | None) -> bool:
+        """Whether two landmarks may be one object by their classes: the same label (``gate``
+        None), or each one's posterior gives the other's label at least ``gate`` (an object whose
+        class posterior clearly disagrees is not merged)."""
+        if gate is None:
+            return a.class_name == b.class_name
+        return (
+            self.class_probabilities(a).get(b.class_name, 0.0) >= gate
+            and self.class_probabilities(b).get(a.class_name, 0.0) >= gate
+        )
+
     def landmark_variance(self, lm: LandmarkRec) -> float:
         """Isotropic variance of a landmark's position as the mean of its observations, m²."""
         return lm.var_sum / max(lm.count, 1) ** 2
@@ -332,6 +389,8 @@ class SlamGraph:
         and is measured as a point (:meth:`measured_as_point`)."""
         self.observations.append(ob)
         lm.observations.append(ob)
+        self.classes.add(ob.class_name)
+        lm.add_class_evidence(ob.class_name, ob.confidence)
         lm.sum_world = lm.sum_world + p_world
         lm.var_sum += self.noise.detection_variance(ob.p_body)
         lm.seen_by(ob.robot, ob.keypose, ob.distance)
@@ -413,6 +472,10 @@ class SlamGraph:
                     self.add_factor(self.bearing_range(o.pose_key, target.id, o.p_body))
         target.observations.extend(dup.observations)
         target.var_sum += dup.var_sum
+        for c, (logits, n) in dup.class_evidence.items():
+            e = target.class_evidence.setdefault(c, [0.0, 0.0])
+            e[0] += logits
+            e[1] += n
         if dup.last_distance > target.last_distance or dup.last_robot != target.last_robot:
             target.seen_by(dup.last_robot, dup.last_keypose, dup.last_distance)
         dup.observations = []
@@ -428,6 +491,7 @@ class SlamGraph:
         positions: Callable[[LandmarkRec], np.ndarray] | None = None,
         include: Callable[[LandmarkRec], bool] = lambda lm: True,
         covariances: dict[int, np.ndarray] | None = None,
+        class_gate: float | None = None,
     ) -> int:
         """Fuse same-class landmarks that sit on each other and that no key pose saw apart.
 
@@ -438,7 +502,7 @@ class SlamGraph:
         isotropic observation variance, or with ``covariances`` (landmark id → 3×3 marginal) the
         sum of their marginals; pairs are then taken most likely first. ``positions`` (landmark →
         position) defaults to the current estimate; only the landmarks ``include`` accepts are
-        considered.
+        considered, and their classes must agree (:meth:`classes_agree` with ``class_gate``).
 
         Returns:
             How many landmarks were fused.
@@ -458,7 +522,9 @@ class SlamGraph:
                 return np.inf
             return float(diff @ np.linalg.solve(covariances[a.id] + covariances[b.id], diff))
 
-        pairs = [(a, b) for i, a in enumerate(live) for b in live[i + 1 :] if a.class_name == b.class_name]
+        pairs = [
+            (a, b) for i, a in enumerate(live) for b in live[i + 1 :] if self.classes_agree(a, b, class_gate)
+        ]
         if covariances is not None:
             pairs.sort(key=lambda ab: m2(*ab))
         fused = 0

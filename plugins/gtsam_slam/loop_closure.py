@@ -224,7 +224,7 @@ class LoopCloser:
         # The panorama matches only the objects it sees; duplicates of objects just outside it were
         # also created while drifting and now, corrected, sit on their old twins: fuse them with
         # the bar matched pairs must pass.
-        if g.fuse_duplicates(p.fuse_ratio * p.tolerance, self.chi2):
+        if g.fuse_duplicates(p.fuse_ratio * p.tolerance, self.chi2, class_gate=self.front.p.class_gate):
             g.flush(extra_iterations=2)
 
     def _report(self, result: LoopClosureResult, **extra: float) -> LoopClosureResult:

@@ -417,6 +417,7 @@ class _Merger:
                         lm.id in pos and not self.is_shape(lm.class_name)
                     ),  # shapes: fuse_shapes
                     covariances=cov,
+                    class_gate=self.p.association.class_gate,
                 )
             n += self.fuse_shapes(values)
             if n == 0:
@@ -461,6 +462,7 @@ class _Merger:
                     lm.count,
                     -1,
                     shape,
+                    g.class_probabilities(lm),
                 )
             )
             contributors[new_id] = tuple(sorted({o.robot for o in lm.observations}))

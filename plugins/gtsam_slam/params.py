@@ -170,6 +170,16 @@ class AssociationParams(BaseModel):
     )
     min_confidence: float = Field(0.3, ge=0, le=1, description="ignore weaker detections")
     max_range: float = Field(8.0, gt=0, le=1000, description="ignore detections farther than this, m")
+    class_gate: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="None: a detection is associated only with landmarks of its class, and only"
+        " landmarks of one class are fused. A probability: with landmarks whose class posterior"
+        " (from their detections' scores, reported as class_probabilities) gives the detection's"
+        " class at least this, and two landmarks fused only if each one's posterior gives the"
+        " other's class at least this (a posterior that clearly disagrees keeps objects apart)",
+    )
 
 
 class GraphParams(BaseModel):

@@ -60,7 +60,15 @@ def test_a_stream_read_line_by_line_skips_what_is_not_a_pose():
 
 
 def test_landmarks_written_by_the_run_folder_read_back(tmp_path: Path):
-    chair = Landmark(3, "chair", np.array([1.0, 2.0, 0.5]), np.eye(3) * 0.01, 7, shape={"model": "cuboid"})
+    chair = Landmark(
+        3,
+        "chair",
+        np.array([1.0, 2.0, 0.5]),
+        np.eye(3) * 0.01,
+        7,
+        shape={"model": "cuboid"},
+        class_probabilities={"chair": 0.9, "table": 0.1},
+    )
     unknown = Landmark(4, "table", np.array([0.0, 1.0, 0.7]), np.full((3, 3), np.nan), 2)  # no uncertainty
     path = write_landmarks(tmp_path / "landmarks.json", [chair, unknown])
     first, second = read_landmarks(path)
@@ -71,8 +79,10 @@ def test_landmarks_written_by_the_run_folder_read_back(tmp_path: Path):
         "covariance": (np.eye(3) * 0.01).tolist(),
         "observations": 7,
         "shape": {"model": "cuboid"},
+        "class_probabilities": {"chair": 0.9, "table": 0.1},
     }
     assert second["class"] == "table" and second["covariance"] is None and "shape" not in second
+    assert "class_probabilities" not in second
 
 
 @pytest.mark.parametrize(
@@ -86,6 +96,10 @@ def test_landmarks_written_by_the_run_folder_read_back(tmp_path: Path):
             r"landmarks.json: landmark 0: 'covariance' must be a 3×3 list",
         ),
         ('[{"class": "chair", "position": [1, 2, 3], "shape": 5}]', r"landmark 0: 'shape' must be an object"),
+        (
+            '[{"class": "chair", "position": [1, 2, 3], "class_probabilities": {"chair": 1.5}}]',
+            r"landmark 0: 'class_probabilities' must map class names to numbers in \[0, 1\]",
+        ),
     ],
 )
 def test_a_bad_landmarks_file_is_one_error_naming_it(tmp_path: Path, text: str, expected: str):

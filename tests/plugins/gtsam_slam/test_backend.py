@@ -299,3 +299,70 @@ def test_vio_odometry_is_trusted_more_in_height_than_across():
     assert sigmas[5] == pytest.approx(0.012 * 2)
     tight = NoiseModels(GraphParams(odometry_sigma_vertical=0.003)).odometry(4.0, 0.0).sigmas()
     assert tight[5] == pytest.approx(0.006)
+
+
+def test_class_posterior_is_the_bayesian_update_of_the_detections_scores() -> None:
+    """Paper 2's per-object class probability: the detector's label and score read as a
+    symmetric confusion model, multiplied over the detections (checked against the product of
+    the likelihoods written out), over the classes the map knows."""
+    from amslam.plugins.gtsam_slam.graph import LandmarkRec, class_posterior
+
+    classes = ["chair", "sofa", "table"]
+    lm = LandmarkRec(0, "chair", 0, 0.0, np.zeros(3))
+    lm.add_class_evidence("chair", 0.7)
+    post = class_posterior(lm.class_evidence, classes)
+    assert post == pytest.approx({"chair": 0.7, "sofa": 0.15, "table": 0.15})  # one look: its score
+    detections = [("chair", 0.7), ("chair", 0.6), ("table", 0.9), ("chair", 0.45)]
+    for c, p in detections[1:]:
+        lm.add_class_evidence(c, p)
+    brute = {
+        k: np.prod([p if c == k else (1 - p) / (len(classes) - 1) for c, p in detections]) for k in classes
+    }
+    total = sum(brute.values())
+    assert class_posterior(lm.class_evidence, classes) == pytest.approx(
+        {k: v / total for k, v in brute.items()}
+    )
+    # a class the map learns later is one more alternative for every landmark
+    wider = class_posterior(lm.class_evidence, [*classes, "shelf"])
+    assert wider["chair"] > post["chair"] and sum(wider.values()) == pytest.approx(1.0)
+
+
+def _hover_and_detect(slam: GtsamSlam, frames: list[tuple[str, float, list[float]]]) -> None:
+    """One detection per frame, from a robot hovering at the origin (camera-frame points)."""
+    odom = Odometry(0.0, pose_from(np.array([0.0, 0.0, 1.0]), 0.0))
+    slam.add_odometry(odom)
+    for i, (cls, score, where) in enumerate(frames):
+        at = Odometry(0.1 * (i + 1), odom.T_odom_body)
+        slam.add_detections(at, camera_mount(), [Detection(cls, score, np.array(where, float))])
+
+
+@pytest.mark.parametrize("gate", [None, 0.2])
+def test_association_and_the_reported_class_posterior(gate: float | None) -> None:
+    """Each landmark reports its class posterior. With ``association.class_gate`` a detection may
+    join a landmark of another label whose posterior still allows its class (one weak 'chair'
+    look), never one whose posterior clearly disagrees (five confident 'chair' looks); without
+    it, only landmarks of its own label."""
+    slam = configured(association={"class_gate": gate, "min_observations": 1})
+    weak, sure = [1.5, 0.0, 4.0], [-1.5, 0.0, 4.0]  # camera frame: 4 m ahead, 3 m apart
+    _hover_and_detect(
+        slam,
+        [("sofa", 0.8, [0.0, 0.0, 7.0]), ("chair", 0.35, weak)]
+        + [("chair", 0.9, sure)] * 5
+        + [("table", 0.8, weak), ("table", 0.8, sure)],
+    )
+    lms = slam.landmarks()
+    for lm in lms:
+        assert set(lm.class_probabilities) == {"chair", "sofa", "table"}
+        assert sum(lm.class_probabilities.values()) == pytest.approx(1.0)
+    at_sure = [lm for lm in lms if abs(lm.position[1] - 1.5) < 0.5]
+    at_weak = [lm for lm in lms if abs(lm.position[1] + 1.5) < 0.5]
+    # the confident chair never takes the table detection
+    assert sorted(lm.class_name for lm in at_sure) == ["chair", "table"]
+    chair = next(lm for lm in at_sure if lm.class_name == "chair")
+    assert chair.class_probabilities["chair"] > 0.999
+    if gate is None:
+        assert sorted(lm.class_name for lm in at_weak) == ["chair", "table"]
+    else:  # one object: its posterior now says table, though it was first labelled chair
+        assert len(at_weak) == 1 and at_weak[0].observations == 2
+        probs = at_weak[0].class_probabilities
+        assert probs["table"] > 0.6 > probs["chair"]
