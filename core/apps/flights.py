@@ -108,9 +108,11 @@ class FlightRunner:
             executor = "ray"
         address = getattr(args, "address", None)
         if executor is None:
-            executor = "ray" if address or (chooses and ray_installed()) else "serial"
+            executor = "ray" if chooses and (address or ray_installed()) else "serial"
         if address and executor != "ray":
-            raise AmslamError("--address names a Ray cluster: it needs --executor ray")
+            raise AmslamError(
+                "--address names a Ray cluster: it needs the Ray executor (--executor ray, or --ray)"
+            )
         if executor == "ray" and not ray_installed():
             raise AmslamError(RAY_HINT)
         return cls(executor == "ray", address)

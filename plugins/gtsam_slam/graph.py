@@ -24,6 +24,7 @@ merge (:mod:`.merge`) is N robots on one graph. Both use the same :class:`NoiseM
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 

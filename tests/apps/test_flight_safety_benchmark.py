@@ -99,5 +99,8 @@ def test_bad_arguments_are_one_error_line(tmp_path, capsys):
 def test_a_flight_option_error_is_one_line_and_flies_nothing(tmp_path, capsys):
     b = _benchmark()
     assert b.main(["--buildings", "house", "--seeds", "1", "--address", "auto", "--out", str(tmp_path)]) == 2
-    assert capsys.readouterr().err.strip() == "error: --address names a Ray cluster: give --ray too"
+    assert (
+        capsys.readouterr().err.strip()
+        == "error: --address names a Ray cluster: it needs the Ray executor (--executor ray, or --ray)"
+    )
     assert not list(tmp_path.rglob("metrics.json"))

@@ -63,7 +63,7 @@ def test_resume_needs_an_experiment_folder_and_address_needs_ray(tmp_path: Path)
         experiment_folder(tmp_path, "test", "demo", resume=str(tmp_path))
     import argparse
 
-    with pytest.raises(AmslamError, match="needs --executor ray"):
+    with pytest.raises(AmslamError, match="needs the Ray executor"):
         FlightRunner.from_args(argparse.Namespace(executor="serial", ray=False, address="auto"))
     with pytest.raises(AmslamError, match="disagree"):
         FlightRunner.from_args(argparse.Namespace(executor="serial", ray=True, address=None))
