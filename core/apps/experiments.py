@@ -78,34 +78,33 @@ def slc_ablation(
 
 
 def plot_trajectories(rows: list[dict], path: Path) -> None:
-    """Paper 1 Fig. 5 / Fig. 8 style: per world, the first seed with both flights' folders, the
-    true trajectory against VIO and SLAM with SLC on, and SLAM with SLC off, from above (X-Y) and
-    from the side (X-Z). Nothing is drawn when no pair of flights left its trajectories."""
+    """Paper 1 Fig. 5 / Fig. 8 style: per world, the first seed with both flights' folders, each
+    flight's true trajectory against its VIO and SLAM estimates, from above (X-Y) and from the
+    side (X-Z): the SLC-on flight on the left, the SLC-off flight on the right (a flight of its
+    own: it goes elsewhere once the first loop closure is not flown). Nothing is drawn when no
+    pair of flights left its trajectories."""
     from amslam.errors import RunFileError
     from amslam.rundir import read_tum
 
-    def tracks(row: dict) -> dict[str, np.ndarray] | None:
-        out = {}
-        for label, key, name in (
-            ("truth", "on", "ground_truth"),
-            ("VIO", "on", "vio"),
-            ("SLAM, SLC on", "on", "slam"),
-            ("SLAM, SLC off", "off", "slam"),
-        ):
-            folder = row[key].get("run_dir")
-            if not folder:
-                return None
-            try:
-                out[label] = read_tum(Path(folder) / f"{name}.tum").poses[:, :3]
-            except RunFileError:
-                return None
-        return out
+    def tracks(folder: str | None) -> dict[str, np.ndarray] | None:
+        if not folder:
+            return None
+        try:
+            return {
+                label: read_tum(Path(folder) / f"{name}.tum").poses[:, :3]
+                for label, name in (("truth", "ground_truth"), ("VIO", "vio"), ("SLAM", "slam"))
+            }
+        except RunFileError:
+            return None
 
-    chosen: dict[str, tuple[int, dict[str, np.ndarray]]] = {}
+    chosen: dict[str, tuple[int, dict, dict]] = {}
     for row in rows:
         world = row.get("world", "")
-        if world not in chosen and (t := tracks(row)) is not None:
-            chosen[world] = (row["seed"], t)
+        if world in chosen:
+            continue
+        on, off = tracks(row["on"].get("run_dir")), tracks(row["off"].get("run_dir"))
+        if on is not None and off is not None:
+            chosen[world] = (row["seed"], on, off)
     if not chosen:
         return
     import matplotlib
@@ -113,25 +112,25 @@ def plot_trajectories(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    styles = {"truth": ("k", "-"), "VIO": ("tab:red", "--"), "SLAM, SLC on": ("tab:blue", "-")}
-    styles["SLAM, SLC off"] = ("tab:orange", ":")
-    fig, axes = plt.subplots(len(chosen), 2, figsize=(12, 4.2 * len(chosen)), squeeze=False)
-    for (world, (seed, t)), (top, side) in zip(chosen.items(), axes, strict=True):
-        for label, xyz in t.items():
-            colour, line = styles[label]
-            top.plot(xyz[:, 0], xyz[:, 1], line, color=colour, lw=1, label=label)
-            side.plot(xyz[:, 0], xyz[:, 2], line, color=colour, lw=1, label=label)
-        top.set_title(f"{world}, seed {seed}: from above")
-        side.set_title(f"{world}, seed {seed}: from the side")
-        top.set_aspect("equal", adjustable="datalim")
-        top.set_xlabel("x (m)")
-        top.set_ylabel("y (m)")
-        side.set_xlabel("x (m)")
-        side.set_ylabel("z (m)")
-        top.legend(fontsize=7)
-    fig.suptitle("Trajectories: truth, VIO and SLAM with and without semantic loop closure")
+    styles = {"truth": ("k", "-"), "VIO": ("tab:red", "--"), "SLAM": ("tab:blue", "-")}
+    fig, axes = plt.subplots(len(chosen), 4, figsize=(22, 4.2 * len(chosen)), squeeze=False)
+    for (world, (seed, on, off)), panels in zip(chosen.items(), axes, strict=True):
+        for (top, side), t, slc in ((panels[:2], on, "on"), (panels[2:], off, "off")):
+            for label, xyz in t.items():
+                colour, line = styles[label]
+                top.plot(xyz[:, 0], xyz[:, 1], line, color=colour, lw=1, label=label)
+                side.plot(xyz[:, 0], xyz[:, 2], line, color=colour, lw=1, label=label)
+            top.set_title(f"{world}, seed {seed}, SLC {slc}: from above")
+            side.set_title(f"{world}, seed {seed}, SLC {slc}: from the side")
+            top.set_aspect("equal", adjustable="datalim")
+            top.set_xlabel("x (m)")
+            top.set_ylabel("y (m)")
+            side.set_xlabel("x (m)")
+            side.set_ylabel("z (m)")
+            top.legend(fontsize=7)
+    fig.suptitle("Trajectories: truth, VIO and SLAM, with semantic loop closure (left) and without (right)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
@@ -290,7 +289,8 @@ def slc_tables(rows: list[dict]) -> str:
 
 
 def plot_fig7(rows: list[dict], path: Path) -> None:
-    """Mean pose and landmark covariance trace against distance, SLC on and off (paper 1 Fig. 7)."""
+    """Mean pose and landmark covariance trace against distance, SLC on and off (paper 1 Fig. 7),
+    one row of two panels per world; a seed keeps its colour, SLC on solid, off dashed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -304,21 +304,27 @@ def plot_fig7(rows: list[dict], path: Path) -> None:
     ]
     if not drawn:  # no run measured its uncertainty (every run failed, say): no empty plot
         return
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    worlds = list(dict.fromkeys(row.get("world", "") for row, *_ in drawn))
+    fig, axes = plt.subplots(len(worlds), 2, figsize=(11, 3.6 * len(worlds)), squeeze=False)
+    seeds = list(dict.fromkeys(row["seed"] for row, *_ in drawn))
     for row, key, style, series in drawn:
         s = np.array(series, dtype=float)
+        pose_ax, landmark_ax = axes[worlds.index(row.get("world", ""))]
+        colour = f"C{seeds.index(row['seed']) % 10}"
         label = f"seed {row['seed']}, SLC {key}"
-        axes[0].plot(s[:, 1], s[:, 2], style, label=label)
-        axes[1].plot(s[:, 1], s[:, 3], style, label=label)
+        pose_ax.plot(s[:, 1], s[:, 2], style, color=colour, label=label)
+        landmark_ax.plot(s[:, 1], s[:, 3], style, color=colour, label=label)
         for ev in row[key]["metrics"].get("slc", {}).get("events", []):
             if ev["accepted"]:
-                axes[0].axvline(ev["distance"], color="0.7", lw=0.8)
-    axes[0].set_title("mean pose uncertainty")
-    axes[1].set_title("mean landmark uncertainty")
-    for ax in axes:
-        ax.set_xlabel("distance travelled (m)")
-        ax.set_ylabel("tr(Σ)")
-        ax.legend(fontsize=7)
+                pose_ax.axvline(ev["distance"], color="0.8", lw=0.6, zorder=0)
+    for world, (pose_ax, landmark_ax) in zip(worlds, axes, strict=True):
+        name = f"{world}: " if world else ""
+        pose_ax.set_title(f"{name}mean pose uncertainty")
+        landmark_ax.set_title(f"{name}mean landmark uncertainty")
+        for ax in (pose_ax, landmark_ax):
+            ax.set_xlabel("distance travelled (m)")
+            ax.set_ylabel("tr(Σ)")
+        landmark_ax.legend(fontsize=6, ncol=2)
     fig.suptitle("Uncertainty with and without semantic loop closure (grey: accepted SLC)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
