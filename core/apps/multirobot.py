@@ -132,14 +132,22 @@ def score(landmarks: Sequence[Any], world: WorldSummary, gate: float = 1.0) -> d
         from amslam.lib.shapes import shape_errors
 
         by_id = {lm.id: lm for lm in landmarks}
-        dims = []
+        dims, length_width = [], []
         for lm_id, oid in pairs:
             est, true = by_id[lm_id].shape, world.object_shapes.get(oid)
             if est and true and est.get("model") == true.get("model"):
-                dims.append(shape_errors(est, true)["dims"])
+                err = shape_errors(est, true)
+                dims.append(err["dims"])
+                if true["model"] == "cuboid":
+                    length_width += [err["length"], err["width"]]
         out["dimension_error_mean"] = float(np.mean(dims)) if dims else None
         out["dimension_error_std"] = float(np.std(dims)) if dims else None
         out["shapes_compared"] = len(dims)
+        # paper 2's error of Figs. 10-11 (§VI-B): the vehicles' length and width estimates, each
+        # an absolute error, pooled
+        out["length_width_error_mean"] = float(np.mean(length_width)) if length_width else None
+        out["length_width_error_std"] = float(np.std(length_width)) if length_width else None
+        out["vehicles_compared"] = len(length_width) // 2
     return out
 
 
@@ -405,8 +413,14 @@ def tables(results: list[dict]) -> str:
     for n in sorted({r["n"] for r in results}):
         team = [r for r in results if r["n"] == n]
         names = [row["name"] for row in team[0]["rows"]]
-        measures = [
-            ("Num. of obj. / min", "objects_per_minute"),
+        measures = [("Num. of obj. / min", "objects_per_minute")]
+        if shapes:  # the paper's Err. Mean / Err. Std. Dev.: vehicles' length and width
+            measures += [
+                ("Err. mean: vehicle length, width (m)", "length_width_error_mean"),
+                ("Err. std: vehicle length, width (m)", "length_width_error_std"),
+                ("Vehicles compared", "vehicles_compared"),
+            ]
+        measures += [
             ("Objects mapped", "mapped"),
             ("Landmarks", "landmarks"),
             ("Spurious landmarks", "spurious"),
@@ -439,8 +453,8 @@ def tables(results: list[dict]) -> str:
         "### Merged map against the team size",
         "",
         "| robots | obj. / min | mapped | spurious | pos. err. mean (m) | pos. err. std (m) |"
-        + (" dim. err. mean (m) |" if shapes else ""),
-        "|---|---|---|---|---|---|" + ("---|" if shapes else ""),
+        + (" dim. err. mean (m) | length, width err. (m) |" if shapes else ""),
+        "|---|---|---|---|---|---|" + ("---|---|" if shapes else ""),
     ]
     for n in sorted({r["n"] for r in results}):
         comb = [r["rows"][-1] for r in results if r["n"] == n]
@@ -450,7 +464,8 @@ def tables(results: list[dict]) -> str:
             f"{_fmt(_mean(comb, 'position_error_std'))} |"
         )
         if shapes:
-            line += f" {_fmt(_mean(comb, 'dimension_error_mean'))} |"
+            lw_mean, lw_std = _mean(comb, "length_width_error_mean"), _mean(comb, "length_width_error_std")
+            line += f" {_fmt(_mean(comb, 'dimension_error_mean'))} | {_fmt(lw_mean)} ± {_fmt(lw_std)} |"
         lines.append(line)
     return "\n".join(lines) + "\n"
 

@@ -657,9 +657,11 @@ def shape_errors(est: dict, true: dict) -> dict[str, float]:
     """Errors of an estimated shape against the truth (same model).
 
     Returns:
-        ``dims`` — mean absolute dimension error (paper 2 Fig. 9: |d_est − d_true| averaged over
-        the dimensions: l, w, h for a cuboid; the diameter for a cylinder, whose height is
-        reported apart as ``height``, since the paper's cylinder has none); ``position``
+        ``dims`` — mean absolute dimension error (|d_est − d_true| averaged over the dimensions:
+        l, w, h for a cuboid; the diameter for a cylinder, whose height is reported apart as
+        ``height``, since the paper's cylinder has none); for a cuboid also ``length`` and
+        ``width`` — the absolute errors of its longer and shorter horizontal side (paper 2 §VI-B:
+        "the accuracy of width and length estimates", the error of Figs. 9–11); ``position``
         — distance between the reference points (:func:`shape_center`); ``yaw`` — heading error
         of a cuboid modulo π (a box is symmetric under a half turn), ``axis`` — angle between
         cylinder axes (rad).
@@ -676,6 +678,10 @@ def shape_errors(est: dict, true: dict) -> dict[str, float]:
         err, dims = min(cands, key=lambda c: c[0] + np.mean(np.abs(c[1] - dt)))
         out["yaw"] = float(err)
         out["dims"] = float(np.mean(np.abs(dims - dt)))
+        # paper 2 §VI-B, Figs. 9-11: the length and width of a vehicle (its longer and shorter
+        # horizontal side, whatever the box's heading)
+        (we, le), (wt, lt) = np.sort(de[:2]), np.sort(dt[:2])
+        out["length"], out["width"] = float(abs(le - lt)), float(abs(we - wt))
     else:
         # the paper's cylinder state has no height (the top of a pole is rarely in view)
         out["dims"] = float(abs(2 * est["radius"] - 2 * true["radius"]))

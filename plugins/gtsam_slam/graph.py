@@ -427,6 +427,7 @@ class SlamGraph:
         est = sh.estimate(lm.id, self.new_values) or sh.estimate(lm.id, self.estimate)
         for k, s in rec.pending:
             self.add_factor(sh.factor(k, k, lm.id, s, self.pose(k), est, self.noise.robust))
+        rec.measured += [(lm.id, k, s) for k, s in rec.pending]
         rec.pending = []
 
     # ---------------------------------------------------------------- fusion
@@ -467,6 +468,7 @@ class SlamGraph:
             est = sh.estimate(target.id, self.new_values) or sh.estimate(target.id, self.estimate)
             for k, s in sh.take_measurements(target.id, dup.id, skip):
                 self.add_factor(sh.factor(k, k, target.id, s, self.pose(k), est, self.noise.robust))
+                sh.recs[target.id].measured.append((target.id, k, s))
         else:
             for o in dup.observations:
                 if o.pose_key not in skip:

@@ -31,15 +31,23 @@ onboard front end — into one :class:`.graph.SlamGraph`, robot after robot:
    root) is the landmark's position, with the onboard noise: each window fit weighed by the range and viewing
    angle of the cameras that saw it (``shapes.view_noise``, the characterised models of paper 2
    §IV-C). A log keeps 128 points per detection, so a window holds as many points as onboard.
-4. **Fusion and joint optimisation** (``refine_rounds``) — Levenberg–Marquardt on the whole graph
-   (the replay's iSAM2 estimate is its starting point); then landmarks that are one
-   object are fused with a stiff tie (:meth:`.graph.SlamGraph.fuse`), and the graph optimised
-   again, until nothing changes. Centroid classes: the onboard rule after a loop closure
+4. **One set of variables per object, fusion and joint optimisation** (``refine_rounds``) —
+   Levenberg–Marquardt on the *shared graph* (:meth:`_Merger.shared_graph`): the replay's
+   odometry, attitude, prior and centroid-class factors, and for every shape object one pose +
+   dims (cuboid) or root + axis + radius (cylinder) variable carrying one eq. 1 / eq. 2 factor
+   per shape measurement of any robot (a twin fused into it brings its measurements, each with
+   the noise of the landmark that made it) and no other factor: a detection is measured once, as
+   onboard (with ``shapes.factors`` off, once by a range-bearing factor on the reference
+   variable); no point landmark ``L(j)``, no ties between two variables of one object. Then
+   landmarks that are one object are fused and the graph optimised again, until nothing changes.
+   Centroid classes: the onboard rule after a loop closure
    (:meth:`.graph.SlamGraph.fuse_duplicates`: closer than ``fuse_gate`` and within the
-   association's χ² gate, never seen from one key pose). Shape classes: landmarks never seen from
-   one key pose whose points overlap, or together still fit one object of the class (a cuboid
-   within ``shape_max_dims``, a cylinder within ``shapes.max_radius``): a car seen from its two
-   ends by two robots; two parked neighbours make a box far wider or longer, and stay apart.
+   association's χ² gate, never seen from one key pose; a stiff tie). Shape classes: landmarks
+   never seen from one key pose that overlap (the shape front end's point overlap, or each shape
+   holding the other's reference point) and whose positions differ by less than the
+   association's χ² gate under their joint marginal covariance (the factors' noise through the
+   graph, both robots' chains included): two parked neighbours do not overlap and stay apart; no
+   class size is set by hand.
 
 The merged landmark map comes out as :class:`amslam.types.Landmark` with marginal covariances and
 is written with :func:`write_landmarks` in the run folder's ``landmarks.json`` format. A shape
@@ -55,7 +63,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Literal
 
 import gtsam
 import numpy as np
@@ -65,6 +73,7 @@ from scipy.spatial import cKDTree
 
 from amslam.geometry import invert, transform_points
 from amslam.lib import shapes
+from amslam.lib.shape_factors import cuboid_keys, cylinder_keys
 from amslam.measurements import RobotMeasurements, read_measurements
 from amslam.plugins.gtsam_slam.frontend import FrontEnd
 from amslam.plugins.gtsam_slam.graph import LandmarkRec, PoseKeys, SlamGraph
@@ -100,10 +109,6 @@ def robot_key(robot: int, keypose: int) -> int:
     return gtsam.symbol(ROBOT_CHARS[robot], keypose)
 
 
-#: a size, m: above zero and at most 100 m (no object is larger)
-_Size = Annotated[float, Field(gt=0, le=100)]
-
-
 class MergeParams(BaseModel):
     """The merged graph: the onboard parts' parameters, and the base's fusion and optimisation."""
 
@@ -137,11 +142,6 @@ class MergeParams(BaseModel):
         ge=0,
         le=100,
         description="fuse same-class centroid landmarks closer than this (and within χ²), m; 0: off",
-    )
-    shape_max_dims: dict[str, tuple[_Size, _Size, _Size]] = Field(
-        default_factory=lambda: {"car": (6.0, 2.6, 2.8)},
-        description="largest single object of a cuboid class (length, width, height), m: two landmarks "
-        "whose points fit in one such box are fused (cars and vans are <= 5.5 x 2.05 x 2.3 m)",
     )
     refine_rounds: int = Field(
         8, ge=0, le=1000, description="rounds of duplicate fusion + joint optimisation"
@@ -255,17 +255,6 @@ class _Merger:
         ]
         return np.vstack(pts) if pts else np.zeros((0, 3))
 
-    def fit(self, class_name: str, cloud: np.ndarray) -> dict | None:
-        """The class's shape fitted to world points with the shape front end's settings."""
-        sp = self.p.shapes
-        if len(cloud) < 20:
-            return None
-        if self.graph.shapes.model(class_name) == "cuboid":
-            s = shapes.fit_cuboid(cloud, percentile=sp.percentile, extrapolate=sp.extrapolate)
-            return s if s is not None and max(s["dims"]) <= sp.max_dim else None
-        s = shapes.fit_cylinder(cloud, axis=sp.cylinder_axis)
-        return s if s is not None and 0.01 <= s["radius"] <= sp.max_radius else None
-
     def fit_all(self, class_name: str, cloud: np.ndarray) -> dict | None:
         """The class's shape fitted to all of a landmark's points: the library's fits for whole
         clouds (extents extrapolated from the 1st percentiles), as the experiment's fitter; a
@@ -297,50 +286,80 @@ class _Merger:
         )
         return shapes.complete_cuboid(shape, cameras, prior[0], tolerance=sh.p.completion_tolerance).shape
 
-    def one_object(self, class_name: str, a: np.ndarray, b: np.ndarray) -> bool:
-        """Whether two point clouds of a shape class are parts of one object.
-
-        Either one's points overlap the other's (as the shape front end associates), or together
-        they still fit one object of the class: a cuboid within ``shape_max_dims`` (length ≥
-        width), a cylinder within ``shapes.max_radius``.
-        """
-        small, large = (a, b) if len(a) <= len(b) else (b, a)
-        d, _ = cKDTree(large).query(small, distance_upper_bound=self.p.shapes.association_margin)
-        if np.mean(np.isfinite(d)) >= self.p.shapes.association_overlap:
-            return True
-        union = self.fit(class_name, np.vstack([a, b]))
-        if union is None:
+    def overlap(
+        self, a: LandmarkRec, b: LandmarkRec, clouds: dict[int, np.ndarray], values: gtsam.Values
+    ) -> bool:
+        """Whether two landmarks of a shape class overlap, as the shape front end associates: the
+        points of one lie within ``association_margin`` of the other's (a share of at least
+        ``association_overlap`` of the smaller cloud), or each one's optimised shape holds the
+        other's reference point (the onboard twins' rule, :meth:`.ShapeLandmarks.twins`)."""
+        sh = self.graph.shapes
+        A, B = clouds[a.id], clouds[b.id]
+        if len(A) and len(B):
+            small, large = (A, B) if len(A) <= len(B) else (B, A)
+            d, _ = cKDTree(large).query(small, distance_upper_bound=sh.p.association_margin)
+            if np.mean(np.isfinite(d)) >= sh.p.association_overlap:
+                return True
+        sa, sb = sh.estimate(a.id, values), sh.estimate(b.id, values)
+        if sa is None or sb is None:
             return False
-        if union["model"] == "cylinder":
-            return True  # fit already bounded the radius
-        limit = self.p.shape_max_dims.get(class_name)
-        if limit is None:
-            return False
-        dims = union["dims"]
-        return max(dims[0], dims[1]) <= limit[0] and min(dims[0], dims[1]) <= limit[1] and dims[2] <= limit[2]
+        if sa["model"] == "cylinder":
+            gap = np.linalg.norm(np.asarray(sa["root"])[:2] - np.asarray(sb["root"])[:2])
+            return bool(gap - max(sa["radius"], sb["radius"]) <= sh.p.association_margin)
+        return bool(
+            shapes.points_inside(sa, shapes.shape_center(sb)[None], 0.0)[0]
+            and shapes.points_inside(sb, shapes.shape_center(sa)[None], 0.0)[0]
+        )
 
-    def fuse_shapes(self, values: gtsam.Values) -> int:
-        """Fuse landmarks of a shape class that are parts of one object (:meth:`one_object`),
-        closest first; the survivor is :meth:`.SlamGraph.fusion_order`'s."""
+    def shape_chi2(
+        self, a: LandmarkRec, b: LandmarkRec, values: gtsam.Values, marginals: gtsam.Marginals
+    ) -> float:
+        """χ² of the difference of two shape landmarks' positions (box centre, cylinder root, read
+        off their own variables as onboard: :meth:`.SlamGraph.point`) under their joint marginal
+        covariance: the eq. 1 / eq. 2 factors' noise carried through the graph, the robots' chains
+        included (a landmark of another robot is as uncertain relative to this one as the travel
+        between them makes it)."""
+        g = self.graph
+        model = g.shape_model(a.id)
+        keys = gtsam.KeyVector()
+        keys.append(g.position_key(a.id))
+        keys.append(g.position_key(b.id))
+        joint = marginals.jointMarginalCovariance(keys).fullMatrix()
+        J = np.hstack(
+            [
+                g.shapes.reference_jacobian(model, a.id, values),
+                -g.shapes.reference_jacobian(model, b.id, values),
+            ]
+        )
+        diff = g.point(a.id, values) - g.point(b.id, values)
+        return float(diff @ np.linalg.solve(J @ joint @ J.T, diff))
+
+    def fuse_shapes(self, values: gtsam.Values, marginals: gtsam.Marginals) -> int:
+        """Fuse landmarks of a shape class that are one object: they overlap (:meth:`overlap`) and
+        their positions agree within the association's χ² gate (:meth:`shape_chi2`); most likely
+        pairs first, the survivor :meth:`.SlamGraph.fusion_order`'s (never two landmarks one key
+        pose saw). The survivor takes the twin's measurements (:meth:`.ShapeLandmarks.absorb`):
+        :meth:`shared_graph` puts them on its variables, so an object has one set of variables."""
         g = self.graph
         fused = 0
         for cls in sorted({lm.class_name for lm in g.graph_landmarks() if self.is_shape(lm.class_name)}):
-            lms = [lm for lm in g.graph_landmarks() if lm.class_name == cls]
+            lms = [
+                lm
+                for lm in g.graph_landmarks()
+                if lm.class_name == cls and g.shapes.estimate(lm.id, values) is not None
+            ]
             clouds = {lm.id: self.world_points(lm, values) for lm in lms}
-            lms = [lm for lm in lms if len(clouds[lm.id])]
-            if len(lms) < 2:
-                continue
-            centre = np.array([clouds[lm.id].mean(axis=0) for lm in lms])
-            reach = self._reach(cls)
-            d = np.linalg.norm(centre[:, None, :2] - centre[None, :, :2], axis=2)
-            pairs = sorted(
-                (d[a, b], a, b) for a in range(len(lms)) for b in range(a + 1, len(lms)) if d[a, b] <= reach
-            )
-            for _, a, b in pairs:
-                A, B = lms[a], lms[b]
+            pairs = []
+            for i, a in enumerate(lms):
+                for b in lms[i + 1 :]:
+                    if not self.overlap(a, b, clouds, values):
+                        continue
+                    chi2 = self.shape_chi2(a, b, values, marginals)
+                    if chi2 <= self.p.association.chi2:
+                        pairs.append((chi2, a.id, b.id))
+            for _, a_id, b_id in sorted(pairs):
+                A, B = g.landmarks[a_id], g.landmarks[b_id]
                 if A.alias_of is not None or B.alias_of is not None:
-                    continue
-                if not self.one_object(cls, clouds[A.id], clouds[B.id]):
                     continue
                 order = g.fusion_order(A, B)
                 if order is None:
@@ -348,19 +367,62 @@ class _Merger:
                 keep, gone = order
                 g.shapes.absorb(keep.id, gone.id)
                 g.fuse(keep, gone)
-                clouds[keep.id] = np.vstack([clouds[keep.id], clouds.pop(gone.id)])
                 fused += 1
         return fused
 
-    def _reach(self, class_name: str) -> float:
-        """How far apart (horizontally) the centres of two parts of one object can be, m."""
-        if self.graph.shapes.model(class_name) == "cylinder":
-            return 2.0 * self.p.shapes.max_radius + self.p.shapes.association_margin
-        dims = self.p.shape_max_dims.get(class_name)
-        return float(dims[0]) if dims else self.p.shapes.max_dim
+    # ---------------------------------------------------------------- the shared graph
+
+    def shape_keys(self, lm_id: int) -> list[int]:
+        """Every variable a shape landmark may have: its eq. 1 / eq. 2 variables (no ``L(j)``: its
+        position is its reference point, :meth:`.SlamGraph.position_key`)."""
+        return [*cuboid_keys(lm_id), *cylinder_keys(lm_id)]
+
+    def shared_graph(self, values: gtsam.Values) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """The merged graph with one set of variables per shape object, and its starting values.
+
+        The replay's graph (``SlamGraph.history``) keeps a fused twin's variables, tied to the
+        survivor's reference point. Here every factor on a shape landmark's variables is left out
+        and each live shape landmark gets its measurements afresh, each counted once as onboard
+        (:meth:`.SlamGraph.measured_as_point`): one eq. 1 / eq. 2 factor per shape measurement
+        (its own and its fused twins', each with the noise of the landmark that made it: slack,
+        loose extents, view scale) on its own variables, and nothing else. With
+        ``shapes.factors`` off, the onboard alternative: one range-bearing factor per detection on
+        its reference variable, the other variables held by priors at the replay's shape (its
+        first fit, where the replay's own priors held it: :meth:`.ShapeLandmarks.anchor`).
+        Odometry, attitude, priors and the centroid classes' factors are the replay's.
+        """
+        g, sh = self.graph, self.graph.shapes
+        shape_lms = [lm for lm in g.landmarks.values() if self.is_shape(lm.class_name)]
+        dropped = {k for lm in shape_lms for k in self.shape_keys(lm.id)}
+        out = gtsam.NonlinearFactorGraph()
+        for i in range(g.history.size()):
+            f = g.history.at(i)
+            if f is not None and not any(k in dropped for k in f.keys()):  # noqa: SIM118 — a KeyVector
+                out.add(f)
+        live = [lm for lm in shape_lms if lm.alias_of is None and lm.in_graph]
+        start = gtsam.Values(values)
+        for k in dropped - {k for lm in live for k in self.shape_keys(lm.id)}:
+            if start.exists(k):
+                start.erase(k)
+        for lm in live:
+            if g.measured_as_point(lm):  # shapes reported, not optimised (shapes.factors off)
+                shape = sh.estimate(lm.id, start)
+                if shape is not None:
+                    for f in sh.anchor(lm.id, shape):
+                        out.add(f)
+                for o in lm.observations:
+                    out.add(g.bearing_range(o.pose_key, lm.id, o.p_body))
+                continue
+            for owner, k, shape_body in sh.recs[lm.id].measured:
+                T_world_body = start.atPose3(k).matrix()
+                if sh.estimate(lm.id, start) is None:
+                    sh.initial_values(lm.id, shapes.transform_shape(shape_body, T_world_body), start)
+                est = sh.estimate(lm.id, start)
+                out.add(sh.factor(k, k, owner, shape_body, T_world_body, est, g.noise.robust, on=lm.id))
+        return out, start
 
     def landmark_estimates(
-        self, values: gtsam.Values, with_tentative: bool = True
+        self, values: gtsam.Values, marginals: gtsam.Marginals | None, with_tentative: bool = True
     ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
         """Position and marginal covariance of every live landmark at ``values``.
 
@@ -371,9 +433,7 @@ class _Merger:
         """
         g = self.graph
         live = [lm for lm in g.live_landmarks() if lm.count and (lm.in_graph or with_tentative)]
-        try:
-            marginals = gtsam.Marginals(g.history, values)
-        except RuntimeError:  # an indeterminate system (should not happen with priors on every chain)
+        if marginals is None:
             return {}, {}
         pos: dict[int, np.ndarray] = {}
         cov: dict[int, np.ndarray] = {}
@@ -399,16 +459,33 @@ class _Merger:
             )
         return pos, cov
 
+    def optimised(self, values: gtsam.Values) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """Levenberg–Marquardt on :meth:`shared_graph` from ``values``: the graph and its optimum."""
+        graph, start = self.shared_graph(values)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(100)
+        return graph, gtsam.LevenbergMarquardtOptimizer(graph, start, params).optimize()
+
+    @staticmethod
+    def marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Marginals | None:
+        try:
+            return gtsam.Marginals(graph, values)
+        except RuntimeError:  # an indeterminate system (should not happen with priors on every chain)
+            return None
+
     def run(self, shape_fitter: ShapeFitter | None) -> MergeResult:
         g = self.graph
         for r in range(len(self.logs)):
             self.add_robot(r)
-        values = g.optimise()
+        graph, values = self.optimised(g.estimate)
         fused = 0
         for _ in range(self.p.refine_rounds):
+            marginals = self.marginals(graph, values)
+            if marginals is None:
+                break
             n = 0
             if self.p.fuse_gate > 0:
-                pos, cov = self.landmark_estimates(values)
+                pos, cov = self.landmark_estimates(values, marginals)
                 n += g.fuse_duplicates(
                     self.p.fuse_gate,
                     self.p.association.chi2,
@@ -419,20 +496,25 @@ class _Merger:
                     covariances=cov,
                     class_gate=self.p.association.class_gate,
                 )
-            n += self.fuse_shapes(values)
+            n += self.fuse_shapes(values, marginals)
             if n == 0:
                 break
             fused += n
-            g.flush()
-            values = g.optimise()
-        return self.result(values, fused, shape_fitter)
+            graph, values = self.optimised(values)
+        return self.result(graph, values, fused, shape_fitter)
 
     # ---------------------------------------------------------------- result
 
-    def result(self, values: gtsam.Values, fused: int, shape_fitter: ShapeFitter | None) -> MergeResult:
+    def result(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        fused: int,
+        shape_fitter: ShapeFitter | None,
+    ) -> MergeResult:
         g = self.graph
         lms = sorted(g.graph_landmarks(), key=lambda m: m.id)
-        _, cov = self.landmark_estimates(values, with_tentative=False)
+        _, cov = self.landmark_estimates(values, self.marginals(graph, values), with_tentative=False)
         trajectories = [
             np.array([values.atPose3(robot_key(r, i)).matrix() for i in range(len(log.stamps))]).reshape(
                 -1, 4, 4
@@ -467,7 +549,7 @@ class _Merger:
             )
             contributors[new_id] = tuple(sorted({o.robot for o in lm.observations}))
         return MergeResult(
-            out, trajectories, [log.robot for log in self.logs], contributors, fused, g.history, values
+            out, trajectories, [log.robot for log in self.logs], contributors, fused, graph, values
         )
 
 

@@ -65,6 +65,10 @@ class _ShapeRec:
     fits: list[float] = field(default_factory=list)  # stamps of the measurements within the window
     scale: dict[int, float] = field(default_factory=dict)  # key pose → noise scale (decorrelate)
     view_scale: float = 1.0  # the latest measurement's noise scale from its views (view_noise)
+    # every measurement of the object that became an eq. 1 / eq. 2 factor, its own and its fused
+    # twins' (a tentative twin's held-back ones included): (landmark whose noise it has, key pose,
+    # body-frame shape), for the base merge
+    measured: list[tuple[int, int, dict]] = field(default_factory=list)
 
 
 class ShapeLandmarks:
@@ -394,11 +398,13 @@ class ShapeLandmarks:
         return out
 
     def absorb(self, keep_id: int, gone_id: int) -> None:
-        """Landmark ``keep_id`` takes the points, cameras and per-key-pose noise (slack, loose
-        extents, scale) of its twin ``gone_id``."""
+        """Landmark ``keep_id`` takes the points, cameras, measurements that became factors
+        (``measured``, which the base merge re-expresses on ``keep_id``'s variables) and per-key-pose
+        noise (slack, loose extents, scale) of its twin ``gone_id``."""
         keep, gone = self.recs[keep_id], self.recs[gone_id]
         keep.points = sorted(keep.points + gone.points, key=lambda tq: tq[0])
         keep.cameras = sorted(keep.cameras + gone.cameras, key=lambda tq: tq[0])
+        keep.measured, gone.measured = keep.measured + gone.measured, []
         self._take_noise(keep, gone)
 
     @staticmethod
@@ -435,17 +441,24 @@ class ShapeLandmarks:
         return np.asarray(values.atPoint3(key), float)
 
     @staticmethod
+    def reference_jacobian(model: str, lm_id: int, values: gtsam.Values) -> np.ndarray:
+        """How the reference point (world frame) moves with its variable's tangent at ``values``.
+
+        A ``Pose3``'s tangent is ``[ω; v]`` with ``v`` in the box frame (the translation moves by
+        ``R v``), so a box centre's Jacobian is ``[0, R]`` (3 × 6); a cylinder root's is ``I``."""
+        if model != "cuboid":
+            return np.eye(3)
+        R = values.atPose3(ShapeLandmarks.reference_key(model, lm_id)).rotation().matrix()
+        return np.hstack([np.zeros((3, 3)), R])
+
+    @staticmethod
     def reference_covariance(
         model: str, lm_id: int, marginal: np.ndarray, values: gtsam.Values
     ) -> np.ndarray:
-        """The 3 × 3 world-frame covariance of the reference point from its variable's marginal.
-
-        A ``Pose3``'s marginal is over its tangent ``[ω; v]`` with ``v`` in the box frame (the
-        translation moves by ``R v``), so the centre's covariance is ``R Σ_vv Rᵀ``."""
-        if model != "cuboid":
-            return np.asarray(marginal, float)
-        R = values.atPose3(ShapeLandmarks.reference_key(model, lm_id)).rotation().matrix()
-        return R @ np.asarray(marginal, float)[3:, 3:] @ R.T
+        """The 3 × 3 world-frame covariance of the reference point from its variable's marginal:
+        ``J Σ Jᵀ`` with :meth:`reference_jacobian` (``R Σ_vv Rᵀ`` for a box)."""
+        J = ShapeLandmarks.reference_jacobian(model, lm_id, values)
+        return J @ np.asarray(marginal, float) @ J.T
 
     def tie(self, keep_id: int, gone_id: int, noise: gtsam.noiseModel.Base) -> gtsam.NonlinearFactor:
         """The zero-offset tie of two shape landmarks of one object (their reference points)."""
@@ -512,6 +525,7 @@ class ShapeLandmarks:
         T_world_body: np.ndarray,
         estimate: dict | None,
         robust,  # noqa: ANN001 — the backend's M-estimator wrapper
+        on: int | None = None,
     ) -> gtsam.NonlinearFactor:
         """The eq. 1 / eq. 2 factor of one measurement (body frame) of landmark ``lm_id``.
 
@@ -521,10 +535,13 @@ class ShapeLandmarks:
         even when a view of one face swapped length and width or the facing cue flipped. The
         translation and dimension noise is widened by the measurement's slack along each axis
         (half of what its dims lack against the estimate's and the class's typical box).
+        ``on``: the landmark whose variables the factor constrains, when it is not ``lm_id`` (the
+        base merge puts a fused twin's measurements, with their own noise, on the survivor's).
         """
         rec = self.recs[lm_id]
+        on = lm_id if on is None else on
         if shape_body["model"] == "cuboid":
-            o, d = cuboid_keys(lm_id)
+            o, d = cuboid_keys(on)
             Z = shapes.cuboid_pose(shape_body)
             dims = np.asarray(shape_body["dims"], float)
             slack = rec.slack.get(kp_id)
@@ -546,7 +563,7 @@ class ShapeLandmarks:
             noise = self.noise("cuboid", slack, loose_d, rec.scale.get(kp_id, 1.0))
             return cuboid_factor(pose_key, o, d, Z, dims, robust(noise))
         noise = robust(self.noise(shape_body["model"], scale=rec.scale.get(kp_id, 1.0)))
-        b, n, r = cylinder_keys(lm_id)
+        b, n, r = cylinder_keys(on)
         return cylinder_factor(
             pose_key, b, n, r, shape_body["root"], shape_body["axis"], shape_body["radius"], noise
         )

@@ -179,6 +179,9 @@ def test_score_matches_by_class_within_the_gate() -> None:
     assert s["objects"] == 3 and s["mapped"] == 2 and s["spurious"] == 2
     assert s["position_error_mean"] == pytest.approx(0.2)
     assert s["dimension_error_mean"] == pytest.approx(0.1) and s["shapes_compared"] == 1
+    # paper 2's error (Figs. 10-11): the vehicles' length (0.3 m off) and width (exact), pooled
+    assert s["length_width_error_mean"] == pytest.approx(0.15) and s["vehicles_compared"] == 1
+    assert s["length_width_error_std"] == pytest.approx(0.15)
     assert s["errors"] == {
         "a": pytest.approx(0.1),
         "b": pytest.approx(0.3),
@@ -239,3 +242,14 @@ def test_two_robot_team_end_to_end(registry, tmp_path: Path) -> None:  # noqa: A
     assert combined["mapped"] >= max(r["mapped"] for r in robots)
     assert combined["minutes"] == pytest.approx(max(r["minutes"] for r in robots))
     assert (Path(team["merged_dir"]) / "landmarks.json").exists()
+
+
+def test_lot_team_flies_the_papers_altitudes(registry, tmp_path: Path) -> None:  # noqa: ANN001
+    # paper 2 Fig. 10: a robot at 2.5 m and a robot at 5 m (the overhead robot's altitude is twice
+    # the mission's, under the lot's 7 m flight volume)
+    spec = "lot_team"  # the packaged mission
+    low, high = (
+        load_mission(spec, registry, flags)
+        for flags in team_overrides(spec, registry, 2, "heterogeneous", 1, scratch=tmp_path)
+    )
+    assert low.model.robot.altitude == 2.5 and high.model.robot.altitude == 5.0

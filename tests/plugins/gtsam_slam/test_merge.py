@@ -13,6 +13,7 @@ from amslam.geometry import pose_from
 from amslam.measurements import MeasurementLog, read_measurements
 from amslam.plugins.gtsam_slam.merge import (
     MergeParams,
+    MergeResult,
     chain_from_base,
     merge_measurements,
     merge_runs,
@@ -182,10 +183,17 @@ def car_points(lo: np.ndarray, viewer: np.ndarray, rng: np.random.Generator, n: 
 
 
 def fly_past_cars(
-    cars: np.ndarray, y: float, direction: int, seed: int, path: Path, seen_length: float = CAR[1]
+    cars: np.ndarray,
+    y: float,
+    direction: int,
+    seed: int,
+    path: Path,
+    seen_length: float = CAR[1],
+    seen_from: float = 0.0,
 ) -> Path:
     """A robot flying along x at height 3.5 m, ``y`` m off the row, detecting cars within 6 m
-    (only the first ``seen_length`` m of each car from its y = lo end: the rest hidden)."""
+    (only the part of each car from ``seen_from`` to ``seen_length`` m of its y = lo end: the rest
+    hidden)."""
     rng = np.random.default_rng(seed)
     log = MeasurementLog(path, f"robot-{seed}", camera_mount())
     xs = np.arange(-6.0, cars[:, 0].max() + 8.0, 0.25)[::direction]
@@ -201,7 +209,7 @@ def fly_past_cars(
             if np.linalg.norm(lo + CAR / 2 - T[:3, 3]) > 6.0:
                 continue
             pw = car_points(lo, T[:3, 3], rng)
-            pw = pw[pw[:, 1] <= lo[1] + seen_length]
+            pw = pw[(pw[:, 1] <= lo[1] + seen_length) & (pw[:, 1] >= lo[1] + seen_from)]
             pc = (pw - T_wc[:3, 3]) @ T_wc[:3, :3]
             dets.append(Detection("car", 0.9, np.median(pc, axis=0), rng.permutation(pc)))
         log.detections(odom, dets, T)
@@ -229,11 +237,86 @@ def test_shape_classes_merge_by_shape_one_landmark_per_car(tmp_path: Path) -> No
     for lm in by_shape.landmarks:
         assert lm.shape is not None and lm.shape["model"] == "cuboid"
         np.testing.assert_allclose(sorted(lm.shape["dims"][:2]), sorted(CAR[:2]), atol=0.35)
-    # the size gate is what keeps neighbours apart: with a limit of two cars' size they fuse
-    loose = merge_measurements(
-        logs, MergeParams(landmark_models={"car": "cuboid"}, shape_max_dims={"car": (12.0, 6.0, 3.0)})
-    )
-    assert len(loose.landmarks) < len(cars)
+
+
+def cuboid_centres(result: MergeResult) -> list[np.ndarray]:
+    """The optimised centres of the merged graph's cuboid pose variables (eq. 1's ``o_j``)."""
+    import gtsam
+
+    keys = [k for k in result.values.keys() if chr(gtsam.Symbol(k).chr()) == "o"]  # noqa: SIM118
+    return [np.asarray(result.values.atPose3(k).translation()) for k in keys]
+
+
+def shape_factor_counts(result: MergeResult) -> tuple[int, int, int]:
+    """Of the merged graph's factors on the cars' variables: eq. 1 factors (on a pose ``o`` and
+    dims ``d``), range-bearing factors (to a box centre, any point landmark ``L(j)`` included) and
+    landmark ties (a centre tie of two boxes, a Point3 between-factor of two points)."""
+    import gtsam
+
+    eq1 = range_bearing = ties = 0
+    for i in range(result.graph.size()):
+        f = result.graph.at(i)
+        chars = [chr(gtsam.Symbol(k).chr()) for k in f.keys()]  # noqa: SIM118
+        eq1 += {"o", "d"} <= set(chars)
+        range_bearing += type(f).__name__.startswith("BearingRange")
+        ties += chars.count("o") == 2 or (type(f).__name__ == "BetweenFactorPoint3" and chars.count("l") == 2)
+    return eq1, range_bearing, ties
+
+
+def point_landmarks(result: MergeResult) -> int:
+    """How many point landmark variables ``L(j)`` the merged graph has."""
+    import gtsam
+
+    return sum(chr(gtsam.Symbol(k).chr()) == "l" for k in result.values.keys())  # noqa: SIM118
+
+
+def test_one_car_seen_from_two_sides_is_one_cuboid_better_than_either_robots(tmp_path: Path) -> None:
+    # robot a sees the first 3.2 m of the car from its y = lo side, robot b the last 3.2 m from its
+    # y = hi side: each alone measures a box 3.2 m long, its centre 0.65 m towards its viewer; the
+    # merged graph holds both robots' eq. 1 factors on one pose + dims variable, which sits between
+    car = np.array([[0.0, 0.0, 0.0]])
+    truth = car[0] + CAR / 2
+    a = read_measurements(fly_past_cars(car, -3.0, 1, 1, tmp_path / "a.jsonl", seen_length=3.2))
+    b = read_measurements(fly_past_cars(car, CAR[1] + 3.0, -1, 2, tmp_path / "b.jsonl", seen_from=1.3))
+    params = MergeParams(landmark_models={"car": "cuboid"})
+    alone = [merge_measurements([log], params) for log in (a, b)]
+    merged = merge_measurements([a, b], params)
+    errors_alone = []
+    for result in alone:
+        (centre,) = cuboid_centres(result)
+        errors_alone.append(np.linalg.norm(centre - truth))
+    (centre,) = cuboid_centres(merged)  # one cuboid variable for the car
+    assert len(merged.landmarks) == 1 and merged.shared() == 1
+    assert min(errors_alone) > 0.5
+    assert np.linalg.norm(centre - truth) < 0.6 * min(errors_alone)
+
+
+def test_adjacent_cars_half_a_metre_apart_stay_two(tmp_path: Path) -> None:
+    cars = np.array([[0.0, 0.0, 0.0], [CAR[0] + 0.5, 0.0, 0.0]])
+    truth = {str(i): lo + CAR / 2 for i, lo in enumerate(cars)}
+    a = read_measurements(fly_past_cars(cars, -3.0, 1, 3, tmp_path / "a.jsonl"))
+    b = read_measurements(fly_past_cars(cars, CAR[1] + 3.0, -1, 4, tmp_path / "b.jsonl"))
+    merged = merge_measurements([a, b], MergeParams(landmark_models={"car": "cuboid"}))
+    assert len(merged.landmarks) == 2 and len(cuboid_centres(merged)) == 2
+    err, pairs = position_errors(merged.landmarks, truth, dict.fromkeys(truth, "car"), gate=0.5)
+    assert len(pairs) == 2 and err.max() < 0.3
+
+
+def test_the_merged_graph_has_one_shape_factor_per_measurement(tmp_path: Path) -> None:
+    # robot b's first view of the car starts a landmark of its own, found a twin of robot a's and
+    # fused into it before it entered the graph: its measurement is on the survivor's variables
+    # too, and no tie joins two variables of one car. Each detection is measured once: its eq. 1
+    # factor alone, no range-bearing factor to a point landmark of the same fit (issue #21)
+    car = np.array([[0.0, 0.0, 0.0]])
+    a = read_measurements(fly_past_cars(car, -3.0, 1, 1, tmp_path / "a.jsonl", seen_length=3.2))
+    b = read_measurements(fly_past_cars(car, CAR[1] + 3.0, -1, 2, tmp_path / "b.jsonl", seen_from=1.3))
+    detections = sum(1 for log in (a, b) for d in log.detections if d.class_name == "car")
+    merged = merge_measurements([a, b], MergeParams(landmark_models={"car": "cuboid"}))
+    eq1, range_bearing, ties = shape_factor_counts(merged)
+    observations = sum(lm.observations for lm in merged.landmarks)
+    assert observations == detections  # every detection is a shape measurement here
+    assert eq1 == observations and range_bearing == ties == 0
+    assert len(cuboid_centres(merged)) == len(merged.landmarks) == 1 and point_landmarks(merged) == 0
 
 
 def test_slam_odometry_replaces_the_vio_chain(
@@ -341,3 +424,48 @@ def test_frames_logged_at_one_key_pose_are_associated_frame_by_frame(tmp_path: P
     truth, classes = truth_of(world)
     _, pairs = position_errors(merged.landmarks, truth, classes)
     assert len(merged.landmarks) == len(pairs) == in_view  # one landmark per object in view
+
+
+def test_overlapping_shape_landmarks_fuse_within_the_chi2_gate_of_their_factors_noise(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # robot b's known base is 2.5 m off along the car's length: its box of the car lies beyond
+    # half a car from robot a's, so the replay keeps two landmarks. Taken as overlapping, they are
+    # fused or not on the χ² of their centres under the joint marginal covariance, i.e. on the
+    # eq. 1 factors' noise: the onboard noise (a window fit's translation std 0.3 m, times the
+    # views' and the window's scales: a centre σ of about 1 m here) accepts 2.5 m; a 0.05 m std
+    # does not
+    from amslam.plugins.gtsam_slam import merge
+
+    car = np.array([[0.0, 0.0, 0.0]])
+    logs = []
+    for k, (y, direction) in enumerate(((-3.0, 1), (CAR[1] + 3.0, -1))):
+        log = read_measurements(fly_past_cars(car, y, direction, k + 1, tmp_path / f"{k}.jsonl"))
+        log.T_world_odom = pose_from(np.array([0.0, 2.5 * k, 0.0]), 0.0)
+        logs.append(log)
+    monkeypatch.setattr(merge._Merger, "overlap", lambda *_: True)
+
+    def merged(sigma_translation: float) -> MergeResult:
+        shapes = MergeParams().shapes.model_copy(update={"sigma_translation": sigma_translation})
+        return merge_measurements(logs, MergeParams(landmark_models={"car": "cuboid"}, shapes=shapes))
+
+    onboard, stiff = merged(0.3), merged(0.05)
+    assert len(onboard.landmarks) == 1 and onboard.fused == 1
+    assert len(stiff.landmarks) == 2 and stiff.fused == 0
+    eq1, range_bearing, ties = shape_factor_counts(onboard)
+    assert eq1 == sum(lm.observations for lm in onboard.landmarks) and range_bearing == ties == 0
+
+
+def test_shapes_reported_not_optimised_are_measured_once_by_range_bearing_factors(tmp_path: Path) -> None:
+    # shapes.factors off, as onboard: each detection is one range-bearing factor on its box's
+    # centre (the pose variable's translation), the box's rotation and dims held by priors at
+    # their fit; no eq. 1 factor, no point landmark, and the map still has its boxes
+    cars = np.array([[2.6 * i, 0.0, 0.0] for i in range(2)])
+    logs = [read_measurements(fly_past_cars(cars, -3.0, 1, 1, tmp_path / "a.jsonl"))]
+    shapes = MergeParams().shapes.model_copy(update={"factors": False})
+    merged = merge_measurements(logs, MergeParams(landmark_models={"car": "cuboid"}, shapes=shapes))
+    eq1, range_bearing, ties = shape_factor_counts(merged)
+    assert eq1 == ties == point_landmarks(merged) == 0
+    assert range_bearing == sum(lm.observations for lm in merged.landmarks) > 0
+    assert len(cuboid_centres(merged)) == len(merged.landmarks) == 2
+    assert all(lm.shape["model"] == "cuboid" for lm in merged.landmarks)

@@ -302,3 +302,11 @@ def test_no_clear_length_axis_extends_nothing() -> None:
     square = S.cuboid_shape(R, [0.0, 0.0, 0.75], [2.0, 1.9, 1.5])  # neither is the reference
     done = S.complete_cuboid(fit, cam[None], [4.6, 1.85, 1.5], reference=square)
     assert not done.extended.any()
+
+
+def test_shape_errors_give_a_vehicles_length_and_width_errors_whatever_its_heading() -> None:
+    truth = S.cuboid_shape(rz(0.2), np.array([0.0, 0.0, 0.75]), np.array([4.5, 1.8, 1.5]))
+    # a quarter turn with length and width swapped is the same box; 0.3 m short, 0.1 m too wide
+    est = S.cuboid_shape(rz(0.2 + np.pi / 2), np.array([0.0, 0.0, 0.75]), np.array([1.9, 4.2, 1.5]))
+    err = S.shape_errors(est, truth)
+    assert err["length"] == pytest.approx(0.3) and err["width"] == pytest.approx(0.1)
