@@ -204,27 +204,21 @@ def refine_with_slc(
     own_ig = np.array([c.info_gain for c in candidates], dtype=float)
     usable = (own_ig > params.slc_min_gain) & np.isfinite(own_ig)
     chained = gain_model is not None and all(c.keypose_id in gain_model.keypose_ids for c in candidates)
+    chain = _ClosureChain(gain_model) if chained else None
     refined: list[tuple[str, int]] = []
     gains: list[float] = []
     in_path = np.zeros(graph.size, dtype=bool)
     used = 0.0
-    legs: list[Leg] = []  # the virtual factors of the loop closures planned so far
-    anchor = gain_model.keypose_ids[0] if chained else -1  # where the robot's pose is last tied
-    since_anchor = 0.0  # metres flown along the refined tour since then
-    chain_ig = 0.0
 
     def cost_from(stop: tuple[str, int], node: int) -> float:
         kind, i = stop
         return float(graph.slc_costs[i, node] if kind == "slc" else graph.costs[i, node])
 
-    def ig_given_tour(fits: np.ndarray, to_slc: np.ndarray) -> np.ndarray:
-        if not chained:
-            return own_ig
-        ig = np.full(len(candidates), -np.inf)
-        for j in np.flatnonzero(fits):
-            leg = (anchor, candidates[j].keypose_id, since_anchor + float(to_slc[j]))
-            ig[j] = chain_gain(gain_model, [*legs, leg]) - chain_ig
-        return ig
+    def fly(metres: float) -> None:
+        nonlocal used
+        used += metres
+        if chain is not None:
+            chain.since_anchor += metres
 
     prev: tuple[str, int] = ("vp", 0)  # the robot
     for node in tour:
@@ -237,7 +231,8 @@ def refine_with_slc(
             to_slc = graph.slc_costs[:, prev[1]]
             fits = usable & (used + to_slc <= budget + _EPS)
             if fits.any():
-                ig = ig_given_tour(fits, to_slc)
+                if chain is not None:
+                    ig = chain.gains([c.keypose_id for c in candidates], fits, to_slc)
                 best = int(np.flatnonzero(fits)[np.argmax(ig[fits])])
                 if ig[best] <= params.slc_min_gain:
                     best = -1
@@ -245,29 +240,52 @@ def refine_with_slc(
             refined.append(("slc", best))
             gains.append(float(ig[best]))
             usable[best] = False
-            to_best = float(graph.slc_costs[best, prev[1]])
-            used += to_best
-            if chained:
-                legs.append((anchor, candidates[best].keypose_id, since_anchor + to_best))
-                chain_ig += gains[-1]
-                anchor, since_anchor = candidates[best].keypose_id, 0.0
+            fly(float(graph.slc_costs[best, prev[1]]))
+            if chain is not None:
+                chain.close_at(candidates[best].keypose_id, gains[-1])
             prev = ("slc", best)
             on = float(graph.slc_costs[best, node])
             if used + on <= budget + _EPS:
                 refined.append(("vp", node))
                 in_path[v] = True
-                used += on
-                since_anchor += on
+                fly(on)
                 prev = ("vp", node)
         elif used + vp_cost <= budget + _EPS:
             refined.append(("vp", node))
             in_path[v] = True
-            used += vp_cost
-            since_anchor += vp_cost
+            fly(vp_cost)
             prev = ("vp", node)
         else:
             break
     return refined, gains
+
+
+class _ClosureChain:
+    """The loop closures of a refined tour so far, as the chain of virtual odometry factors whose
+    eq. (10) scores the next candidate (Algorithm 1, line 6)."""
+
+    def __init__(self, model: SlcGainModel) -> None:
+        self.model = model
+        self.legs: list[Leg] = []
+        self.anchor = model.keypose_ids[0]  # the key pose the robot's pose was last tied to
+        self.since_anchor = 0.0  # metres flown along the refined tour since then
+        self.gain = 0.0  # eq. (10) of the legs so far
+
+    def gains(self, keypose_ids: list[int], fits: np.ndarray, to_slc: np.ndarray) -> np.ndarray:
+        """Each fitting candidate's IG given the chain (−inf for the others): the chain's eq. (10)
+        with a leg from the anchor to it over the metres flown since plus its travel, minus the
+        chain's own."""
+        ig = np.full(len(keypose_ids), -np.inf)
+        for j in np.flatnonzero(fits):
+            leg = (self.anchor, keypose_ids[j], self.since_anchor + float(to_slc[j]))
+            ig[j] = chain_gain(self.model, [*self.legs, leg]) - self.gain
+        return ig
+
+    def close_at(self, keypose_id: int, gain: float) -> None:
+        """A loop closure at ``keypose_id`` joins the tour (the travel to it already flown)."""
+        self.legs.append((self.anchor, keypose_id, self.since_anchor))
+        self.gain += gain
+        self.anchor, self.since_anchor = keypose_id, 0.0
 
 
 class CopPlanner(Planner):
