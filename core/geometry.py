@@ -20,6 +20,12 @@ def yaw_matrix(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """The 3×3 cross-product matrix ``[v]×`` (``[v]× u = v × u``)."""
+    x, y, z = np.asarray(v, float).reshape(3)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
 def yaw_of(T: np.ndarray) -> float:
     """Heading of a pose: the angle of its x axis projected on the horizontal plane."""
     return float(np.arctan2(T[1, 0], T[0, 0]))

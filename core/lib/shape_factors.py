@@ -43,6 +43,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from amslam.geometry import skew
+
 __all__ = [
     "cuboid_centre_tie",
     "cuboid_error",
@@ -51,14 +53,7 @@ __all__ = [
     "cylinder_error",
     "cylinder_factor",
     "cylinder_keys",
-    "skew",
 ]
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """The 3×3 cross-product matrix ``[v]×`` (``[v]× u = v × u``)."""
-    x, y, z = np.asarray(v, float).reshape(3)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def cuboid_keys(j: int) -> tuple[int, int]:

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from amslam.geometry import wrap_angle, yaw_of
+from amslam.geometry import skew, wrap_angle, yaw_of
 from amslam.types import SlcGainModel
 
 __all__ = ["Leg", "between_jacobians", "chain_gain", "trace_reduction"]
@@ -48,11 +48,10 @@ def trace_reduction(covariance: np.ndarray, gram: np.ndarray, J: np.ndarray) -> 
 def _adjoint(T: np.ndarray) -> np.ndarray:
     """gtsam's ``Pose3.AdjointMap`` in its (rotation, translation) tangent order."""
     R, t = T[:3, :3], T[:3, 3]
-    skew = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
     out = np.zeros((6, 6))
     out[:3, :3] = R
     out[3:, 3:] = R
-    out[3:, :3] = skew @ R
+    out[3:, :3] = skew(t) @ R
     return out
 
 
