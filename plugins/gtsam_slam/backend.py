@@ -102,7 +102,8 @@ class GtsamSlam(Slam):
         active: ActiveParams = Field(default_factory=ActiveParams, description="SLC candidates and eq. (10)")
         landmark_models: dict[str, Literal["centroid", "cuboid", "cylinder", "plane"]] = Field(
             default_factory=dict,
-            description="landmark model per class (default centroid); cuboid / cylinder: paper 2's shape"
+            description="landmark model per class ('*': every class not named; default centroid); cuboid /"
+            " cylinder: paper 2's shape"
             " landmarks (eqs. 1-2); plane: ground points for the local ground planes, no landmarks",
         )
         shapes: ShapeParams = Field(default_factory=ShapeParams, description="shape landmark parameters")

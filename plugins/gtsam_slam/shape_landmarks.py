@@ -45,6 +45,8 @@ from amslam.plugins.gtsam_slam.params import ShapeParams, SizePrior
 __all__ = ["ShapeLandmarks", "ShapeParams", "SizePrior"]
 
 MODELS = ("centroid", "cuboid", "cylinder", "plane")
+#: The ``landmark_models`` key that stands for every class not named (a mesh world has dozens).
+ANY_CLASS = "*"
 
 
 @dataclass
@@ -78,6 +80,9 @@ class ShapeLandmarks:
         bad = {c: m for c, m in models.items() if m not in MODELS}
         if bad:
             raise ValueError(f"landmark_models: unknown model(s) {bad}; expected one of {MODELS}")
+        if models.get(ANY_CLASS) == "plane":
+            # every class not named would feed the ground buffer and map nothing
+            raise ValueError(f"landmark_models: {ANY_CLASS!r} (every other class) cannot be 'plane'")
         self.models = dict(models)
         self.p = params
         self.rng = rng
@@ -87,8 +92,8 @@ class ShapeLandmarks:
         self._best_variance: dict[str, float] = {}
 
     def model(self, class_name: str) -> str:
-        """The landmark model of a class (``centroid`` unless declared)."""
-        return self.models.get(class_name, "centroid")
+        """The landmark model of a class: its own entry, else the ``"*"`` entry, else ``centroid``."""
+        return self.models.get(class_name, self.models.get(ANY_CLASS, "centroid"))
 
     # ------------------------------------------------------------------ ground
     def add_ground(self, stamp: float, points_odom: np.ndarray) -> None:

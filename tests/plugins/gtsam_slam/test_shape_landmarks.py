@@ -166,6 +166,28 @@ def test_unknown_model_is_rejected() -> None:
         GtsamSlam.Params(landmark_models={"car": "sphere"})
 
 
+def test_star_gives_every_class_not_named_its_model() -> None:
+    """``"*"`` covers the classes a mission does not list (a mesh world has dozens)."""
+    slam = GtsamSlam()
+    params = GtsamSlam.Params(
+        landmark_models={"*": "cuboid", "pole": "cylinder", "ground": "plane"},
+        association={"max_range": 12.0},
+    )
+    slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
+    _fly(slam, np.random.default_rng(2))
+    by_class = {lm.class_name: lm for lm in slam.landmarks()}
+    assert sorted(by_class) == ["car", "pole"]  # the named plane still makes no landmark
+    assert by_class["car"].shape is not None and by_class["car"].shape["model"] == "cuboid"
+    assert by_class["pole"].shape is not None and by_class["pole"].shape["model"] == "cylinder"
+
+
+def test_star_cannot_be_the_ground() -> None:
+    slam = GtsamSlam()
+    params = GtsamSlam.Params(landmark_models={"*": "plane"})
+    with pytest.raises(ValueError, match="every other class"):
+        slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
+
+
 def _two_end_passes(params: GtsamSlam.Params) -> GtsamSlam:
     """A car seen at its front end, then, after its points left the window, at its rear end.
 
