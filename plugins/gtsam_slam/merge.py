@@ -127,7 +127,8 @@ class MergeParams(BaseModel):
         default_factory=AssociationParams, description="data association and the tentative buffer (onboard's)"
     )
     landmark_models: dict[str, Literal["centroid", "cuboid", "cylinder", "plane"]] = Field(
-        default_factory=dict, description="landmark model per class ('*': every class not named; default centroid), as onboard"
+        default_factory=dict,
+        description="landmark model per class ('*': every class not named; default centroid), as onboard",
     )
     shapes: ShapeParams = Field(
         default_factory=lambda: ShapeParams(min_points=20, percentile=1.0, extrapolate=True),
