@@ -363,6 +363,8 @@ class FrontEnd:
         if self._shape_version != g.version:
             sh.refresh_estimates(g.estimate)
             self._shape_version = g.version
+            # moved estimates can bring two landmarks of one object together: fuse them now
+            self._shape_twins += sh.all_twins(live)
         out_d: list[Detection] = []
         out_p: list[np.ndarray] = []
         for d, pb in zip(dets, p_body, strict=True):

@@ -402,6 +402,38 @@ class ShapeLandmarks:
                     out.append(j)
         return out
 
+    def all_twins(self, candidates: dict[int, str]) -> list[tuple[int, int]]:
+        """Every pair of ``candidates`` (id → class) that :meth:`twins` finds to be one object.
+
+        :meth:`twins` runs when a landmark is measured, against the shapes as they are then; a
+        loop closure or a later measurement moves the estimates, and two landmarks of one chair
+        that drift had kept apart may come to hold each other's centres while neither is measured
+        again (three of the demo's four box duplicates, seed 7). Run when the estimates change.
+        """
+        rows = [  # (landmark, centre, reach) of each shape a landmark has: the cheap bound first
+            (j, shapes.shape_center(s), self._reach(s))
+            for j in sorted(candidates)
+            if (rec := self.recs.get(j)) is not None
+            for s in (rec.last_world, rec.est_world)
+            if s is not None
+        ]
+        if len(rows) < 2:
+            return []
+        ids = np.array([r[0] for r in rows])
+        C = np.array([r[1] for r in rows])
+        reach = np.array([r[2] for r in rows])
+        close = np.linalg.norm(C[:, None] - C[None], axis=2) <= np.maximum(reach[:, None], reach[None])
+        near = {(int(ids[i]), int(ids[k])) for i, k in np.argwhere(close) if ids[i] < ids[k]}
+        same_class = sorted((a, b) for a, b in near if candidates[a] == candidates[b])
+        return [(a, b) for a, b in same_class if self.twins(a, {b: candidates[b]})]
+
+    def _reach(self, shape: dict) -> float:
+        """How far from its reference point a shape can hold another's: a box's half-diagonal, a
+        cylinder's radius plus ``association_margin`` (the bound :meth:`twins` tests within)."""
+        if shape["model"] == "cuboid":
+            return 0.5 * float(np.linalg.norm(shape["dims"]))
+        return float(shape["radius"]) + self.p.association_margin
+
     def absorb(self, keep_id: int, gone_id: int) -> None:
         """Landmark ``keep_id`` takes the points, cameras, measurements that became factors
         (``measured``, which the base merge re-expresses on ``keep_id``'s variables) and per-key-pose

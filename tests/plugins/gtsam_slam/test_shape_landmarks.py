@@ -264,6 +264,27 @@ def test_twins_are_boxes_holding_each_others_centre_not_neighbours() -> None:
     assert 3 not in sh.twins(0, live)  # its centre is in the big box, not the other way round
 
 
+def test_all_twins_finds_one_chair_mapped_twice_but_not_its_neighbours_in_a_row() -> None:
+    """After the estimates moved (a loop closure), every pair is checked, not only the measured."""
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    sh = ShapeLandmarks({"chair": "cuboid"}, ShapeParams(), np.random.default_rng(0))
+    chair = [0.55, 0.5, 0.9]
+    boxes = {  # a row of chairs 0.75 m apart; 3 is chair 1 mapped again 0.2 m off; 4 another class
+        0: S.cuboid_shape(rz(0.0), [0.0, 0.0, 0.45], chair),
+        1: S.cuboid_shape(rz(0.0), [0.75, 0.0, 0.45], chair),
+        2: S.cuboid_shape(rz(0.0), [1.5, 0.0, 0.45], chair),
+        3: S.cuboid_shape(rz(0.1), [0.9, 0.12, 0.45], chair),
+        4: S.cuboid_shape(rz(0.0), [0.75, 0.0, 0.45], chair),
+    }
+    for i, b in boxes.items():
+        sh.measure(i, "chair", 0.0, np.zeros((1, 3)), np.eye(4))  # creates the record (too few points)
+        sh.set_world(i, b)
+    live = {0: "chair", 1: "chair", 2: "chair", 3: "chair", 4: "table"}
+    assert sh.all_twins(live) == [(1, 3)]
+    assert sh.all_twins({0: "chair", 2: "chair"}) == []
+
+
 def test_a_stale_window_fit_that_left_its_estimate_does_not_take_the_next_car() -> None:
     # A window that saw one end of car 0 was completed the wrong way, 3.7 m into the next stall
     # (lot_team seed 1: car_1 took van_2's detections): once its window is empty, a detection
