@@ -51,3 +51,22 @@ def test_unknown_building_is_one_error_line(capsys):
     assert (
         capsys.readouterr().err.strip() == "error: unknown castle; choose from floors1, demo, floors3, house"
     )
+
+
+def test_runs_scores_flights_flown_already_by_mission_and_slc(tmp_path, capsys):
+    import json
+
+    for name, slc, seed, metrics in (
+        ("one_floor", True, 1, _metrics(8, 10, 1, 1, 0.2, 0.5, 0.1)),
+        ("one_floor", False, 1, _metrics(6, 10, 4, 0, 0.4, 0.5, 0.6)),
+    ):
+        run = tmp_path / "runs" / f"{name}-{slc}"
+        run.mkdir(parents=True)
+        (run / "metrics.json").write_text(json.dumps({**metrics, "mission": name, "seed": seed}))
+        (run / "mission.yaml").write_text(f"name: {name}\nexploration: {{slc: {str(slc).lower()}}}\n")
+    assert _benchmark().main(["--runs", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "| one_floor | ? | 1 of 1 | 80.00 | 10.00 |" in out
+    assert "| one_floor (SLC off) | ? | 1 of 1 | 60.00 | 40.00 |" in out
+    assert _benchmark().main(["--runs", str(tmp_path / "empty")]) == 2
+    assert "no run folder" in capsys.readouterr().err
