@@ -59,16 +59,42 @@ def main() -> None:
     print(f"load average {os.getloadavg()[0]:.1f}\n")
     print("| points | orientations in blocks (ms) | one at a time, reference (ms) | ratio | same axes |")
     print("|---|---|---|---|---|")
-    for n in (24, 200, 1000, 6000):
-        clouds = [car_view(n, rng) for _ in range(args.repeats)]
+    sizes = (24, 200, 1000, 6000)
+    clouds = {n: [car_view(n, rng) for _ in range(args.repeats)] for n in sizes}
+    for n in sizes:
         t = time.perf_counter()
-        new = [shapes._lshape_axes(c[:, :2], 2.5) for c in clouds]
-        fast = (time.perf_counter() - t) / len(clouds)
+        new = [shapes._lshape_axes(c[:, :2], 2.5) for c in clouds[n]]
+        fast = (time.perf_counter() - t) / args.repeats
         t = time.perf_counter()
-        old = [one_angle_at_a_time(c[:, :2], 2.5) for c in clouds]
-        slow = (time.perf_counter() - t) / len(clouds)
+        old = [one_angle_at_a_time(c[:, :2], 2.5) for c in clouds[n]]
+        slow = (time.perf_counter() - t) / args.repeats
         same = sum(np.allclose(a, b, atol=1e-9) for a, b in zip(new, old, strict=True))
-        print(f"| {n} | {fast * 1e3:.2f} | {slow * 1e3:.2f} | {slow / fast:.1f}× | {same} of {len(clouds)} |")
+        print(
+            f"| {n} | {fast * 1e3:.2f} | {slow * 1e3:.2f} | {slow / fast:.1f}× | {same} of {args.repeats} |"
+        )
+    # fit_cuboid scores orientations on at most ORIENTATION_POINTS of the cloud (every k-th point)
+    k_max = shapes.ORIENTATION_POINTS
+    print(
+        f"\n| points | search on every k-th point, <= {k_max} (ms) | search on all, reference (ms) | ratio |"
+        " max orientation difference (deg) |"
+    )
+    print("|---|---|---|---|---|")
+    for n in sizes:
+        stride = -(-n // k_max)
+        t = time.perf_counter()
+        sub = [shapes._lshape_axes(c[::stride, :2], 2.5) for c in clouds[n]]
+        fast = (time.perf_counter() - t) / args.repeats
+        t = time.perf_counter()
+        full = [shapes._lshape_axes(c[:, :2], 2.5) for c in clouds[n]]
+        slow = (time.perf_counter() - t) / args.repeats
+        diff = max(_angle_deg(a, b) for a, b in zip(sub, full, strict=True))
+        print(f"| {n} | {fast * 1e3:.2f} | {slow * 1e3:.2f} | {slow / fast:.1f}× | {diff:.2f} |")
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between two rectangles' first axes, modulo 90° (a rectangle's axes are)."""
+    d = np.degrees(np.arctan2(a[0, 1], a[0, 0]) - np.arctan2(b[0, 1], b[0, 0])) % 90.0
+    return float(min(d, 90.0 - d))
 
 
 if __name__ == "__main__":

@@ -257,6 +257,14 @@ def _closeness(xy: np.ndarray, angles: np.ndarray, percentile: float, d0: float)
     return out
 
 
+#: Points the L-shape search scores orientations with (every k-th of a larger cloud). Its cost is
+#: points × 201 orientations; 6000-point windows took a fifth of a house flight's CPU with every
+#: furniture class a box. On 20 car views of 6000 points, every 6th point gives the orientation
+#: within 0.14° (max 0.35°) of all of them, 5× faster (benchmarks/shapes.py): the search's own
+#: error against the truth is 0.15° (max 0.5°).
+ORIENTATION_POINTS = 1000
+
+
 def _lshape_axes(xy: np.ndarray, percentile: float, d0: float = 0.05) -> np.ndarray:
     """Axes (rows) of the rectangle that best follows the visible faces (mod 90°).
 
@@ -324,7 +332,7 @@ def fit_cuboid(
         a1 = pca[0]
     elif axis == "lshape":
         # orientation (mod 90°) by L-shape fitting; longitudinal = the larger robust span
-        rect = _lshape_axes(xy, percentile)
+        rect = _lshape_axes(xy[:: -(-len(xy) // ORIENTATION_POINTS)], percentile)
         u = xy @ rect.T
         spans = [np.subtract(*_extent(u[:, k], percentile, extrapolate)[::-1]) for k in range(2)]
         a1 = rect[int(np.argmax(spans))]
