@@ -48,16 +48,18 @@ def _fly(slam: GtsamSlam, rng: np.random.Generator, noise: float = 0.02) -> None
         slam.add_detections(odom, T_body_cam, dets)
 
 
-@pytest.fixture(scope="module")
-def mapped() -> GtsamSlam:
+def _circled(landmark_models: dict[str, str]) -> GtsamSlam:
+    """A backend that circled the car and the pole (:func:`_fly`) with these landmark models."""
     slam = GtsamSlam()
-    params = GtsamSlam.Params(
-        landmark_models={"car": "cuboid", "pole": "cylinder", "ground": "plane"},
-        association={"max_range": 12.0},
-    )
+    params = GtsamSlam.Params(landmark_models=landmark_models, association={"max_range": 12.0})
     slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
     _fly(slam, np.random.default_rng(2))
     return slam
+
+
+@pytest.fixture(scope="module")
+def mapped() -> GtsamSlam:
+    return _circled({"car": "cuboid", "pole": "cylinder", "ground": "plane"})
 
 
 def test_one_landmark_per_object_with_its_shape(mapped: GtsamSlam) -> None:
@@ -168,13 +170,7 @@ def test_unknown_model_is_rejected() -> None:
 
 def test_star_gives_every_class_not_named_its_model() -> None:
     """``"*"`` covers the classes a mission does not list (a mesh world has dozens)."""
-    slam = GtsamSlam()
-    params = GtsamSlam.Params(
-        landmark_models={"*": "cuboid", "pole": "cylinder", "ground": "plane"},
-        association={"max_range": 12.0},
-    )
-    slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
-    _fly(slam, np.random.default_rng(2))
+    slam = _circled({"*": "cuboid", "pole": "cylinder", "ground": "plane"})
     by_class = {lm.class_name: lm for lm in slam.landmarks()}
     assert sorted(by_class) == ["car", "pole"]  # the named plane still makes no landmark
     assert by_class["car"].shape is not None and by_class["car"].shape["model"] == "cuboid"
