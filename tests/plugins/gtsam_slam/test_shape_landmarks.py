@@ -281,6 +281,23 @@ def test_all_twins_finds_one_chair_mapped_twice_but_not_its_neighbours_in_a_row(
     assert sh.all_twins({0: "chair", 2: "chair"}) == []
 
 
+def test_a_chair_whose_near_half_overlaps_its_neighbour_is_not_the_neighbour() -> None:
+    """Chairs in a row, 0.75 m apart: the smeared points of one reach into the other's margin."""
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    rng = np.random.default_rng(3)
+    sh = ShapeLandmarks({"chair": "cuboid"}, ShapeParams(association_margin=0.2), rng)
+    a_points = rng.uniform([-0.45, -0.25, 0.0], [0.45, 0.25, 0.9], (400, 3))  # chair A, smeared
+    sh.measure(0, "chair", 0.0, a_points, np.eye(4))
+    sh.set_world(0, S.cuboid_shape(rz(0.0), [0.0, 0.0, 0.45], [0.9, 0.5, 0.9]))
+    near = rng.uniform([0.45, -0.25, 0.0], [0.6, 0.25, 0.9], (45, 3))  # chair B: its near side ...
+    far = rng.uniform([0.85, -0.25, 0.0], [1.05, 0.25, 0.9], (55, 3))  # ... and the rest of it
+    b_points = np.vstack([near, far])
+    assert sh.associate("chair", b_points, b_points, {0: "chair"}, 1.0) == -1
+    a_again = rng.uniform([-0.3, -0.2, 0.0], [0.3, 0.2, 0.9], (100, 3))
+    assert sh.associate("chair", a_again, a_again, {0: "chair"}, 1.0) == 0
+
+
 def test_a_stale_window_fit_that_left_its_estimate_does_not_take_the_next_car() -> None:
     # A window that saw one end of car 0 was completed the wrong way, 3.7 m into the next stall
     # (lot_team seed 1: car_1 took van_2's detections): once its window is empty, a detection
