@@ -64,7 +64,11 @@ class OnnxDetector(Detector):
             2.0, gt=0.0, le=1000.0, description="how often the runner calls detect() (paper 1: 2 Hz)"
         )
         confidence: float = Field(
-            0.25, gt=0.0, lt=1.0, description="minimum class score of a detection (ultralytics: 0.25)"
+            0.45,
+            gt=0.0,
+            lt=1.0,
+            description="minimum class score of a detection; 0.45: the shipped model's best F1 on "
+            "validation renders (docs/detector.md; ultralytics: 0.25)",
         )
         iou: float = Field(
             0.5,

@@ -81,6 +81,54 @@ class RenderedFrame:
 #: direction towards the main (ceiling) light in the world frame
 _SUN = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
 
+#: surface patterns of :class:`Look` (per triangle): plain, blocky value noise, stripes, checker
+PLAIN, NOISE, STRIPES, CHECKER = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class Look:
+    """How a frame is coloured and lit: the simulator's own look, or a randomised one.
+
+    The detector's training data varies all of it per frame (domain randomisation, so that the
+    network learns shapes rather than one palette under one light); the simulator renders with
+    the defaults, which are the constants it always used (``Look()`` renders exactly what no look
+    renders). Per-triangle arrays are indexed like ``World.tri_albedo``.
+
+    Attributes:
+        albedo: RGB in [0, 1] per triangle, instead of the world's own colours.
+        pattern: per triangle, which pattern mixes ``albedo`` with ``albedo2``
+            (:data:`PLAIN`, :data:`NOISE`, :data:`STRIPES`, :data:`CHECKER`); needs ``albedo``.
+        albedo2: the pattern's second colour per triangle.
+        pattern_scale: the pattern's period per triangle, metres.
+        stripe_direction: unit vector across the stripes (world frame).
+        sun: unit vector towards the main light (world frame).
+        ambient, sun_gain, head_gain: the light that reaches every surface, the main light's
+            Lambertian share, the head light's (along the rays).
+        falloff: the head light's falloff, ``1 / sqrt(1 + falloff · distance²)``.
+        floor_tiles: darken every other 0.6 m tile of up-facing structure.
+        tint: colour cast, a gain per RGB channel.
+        exposure: gain of the whole image.
+        noise_gain: gain of the camera's ``rgb_noise``.
+    """
+
+    albedo: np.ndarray | None = None
+    pattern: np.ndarray | None = None
+    albedo2: np.ndarray | None = None
+    pattern_scale: np.ndarray | None = None
+    stripe_direction: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    sun: tuple[float, float, float] = tuple(_SUN.tolist())
+    ambient: float = 0.30
+    sun_gain: float = 0.40
+    head_gain: float = 0.35
+    falloff: float = 0.02
+    floor_tiles: bool = True
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    exposure: float = 1.0
+    noise_gain: float = 1.0
+
+
+_DEFAULT_LOOK = Look()
+
 
 class Renderer:
     """Renders frames of one world through one camera.
@@ -117,8 +165,13 @@ class Renderer:
             out[:, 3 + i] += R[i, 2]
         return out
 
-    def render(self, world: World, T_world_cam: np.ndarray, rng: np.random.Generator) -> RenderedFrame:
-        """Ray-cast one frame and apply the sensor model."""
+    def render(
+        self, world: World, T_world_cam: np.ndarray, rng: np.random.Generator, look: Look | None = None
+    ) -> RenderedFrame:
+        """Ray-cast one frame and apply the sensor model.
+
+        ``look``: the colours and the light (:class:`Look`; default: the simulator's own).
+        """
         p, cam = self.params, self.camera
         H, W = cam.height, cam.width
         N = H * W
@@ -144,17 +197,18 @@ class Renderer:
 
         rgb = None
         if p.rgb:
-            rgb = self._shade(world, rays, t, tri0, hit, n, cos_inc, inst, rng).reshape(H, W, 3)
+            rgb = self._shade(world, rays, t, tri0, hit, n, cos_inc, inst, rng, look or _DEFAULT_LOOK)
+            rgb = rgb.reshape(H, W, 3)
         return RenderedFrame(depth, inst.reshape(H, W), cls.astype(np.int32).reshape(H, W), rgb)
 
-    def _shade(self, world, rays, t, tri0, hit, n, cos_inc, inst, rng) -> np.ndarray:
+    def _shade(self, world, rays, t, tri0, hit, n, cos_inc, inst, rng, look: Look) -> np.ndarray:
         """Lambertian shading: a ceiling light plus a head light, tiled floors, light falloff."""
         p = self.params
-        sun = _SUN.astype(np.float32)
+        sun = np.asarray(look.sun, dtype=np.float32)
         lam_sun = np.abs(n[:, 0] * sun[0] + n[:, 1] * sun[1] + n[:, 2] * sun[2])
-        shade = 0.30 + 0.40 * lam_sun + 0.35 * cos_inc
+        shade = look.ambient + look.sun_gain * lam_sun + look.head_gain * cos_inc
         # floor tiles: a checker of 0.6 m tiles on up-facing structure surfaces
-        floorish = np.flatnonzero(hit & (n[:, 2] > 0.9) & (inst == 0))
+        floorish = np.flatnonzero(hit & (n[:, 2] > 0.9) & (inst == 0)) if look.floor_tiles else []
         if len(floorish):
             tf = t[floorish]
             px = rays[floorish, 0] + rays[floorish, 3] * tf
@@ -163,19 +217,56 @@ class Renderer:
             shade[floorish] *= 0.88 + 0.12 * checker
         # distance falloff of the head light
         dist = np.where(hit, t, np.float32(10.0))
-        shade /= np.sqrt(1.0 + 0.02 * dist * dist)
-        albedo = world.tri_albedo[tri0]
+        shade /= np.sqrt(1.0 + look.falloff * dist * dist)
+        if look.albedo is None:
+            albedo = world.tri_albedo[tri0]
+        else:
+            albedo = look.albedo[tri0].astype(np.float32)
+            if look.pattern is not None:
+                self._apply_patterns(albedo, look, rays, t, tri0, hit)
         albedo[~hit] = 0.08
-        img = albedo * (shade * 255.0)[:, None]
-        if p.rgb_noise > 0:
+        if look.tint != _DEFAULT_LOOK.tint:
+            albedo *= np.asarray(look.tint, dtype=np.float32)
+        gain = 255.0 if look.exposure == 1.0 else 255.0 * look.exposure
+        img = albedo * (shade * gain)[:, None]
+        if p.rgb_noise > 0 and look.noise_gain > 0:
             # Sensor noise from a cached buffer twice the image size at a random offset per frame:
             # drawing 3·H·W normals every frame cost as much as the shading itself.
             m = img.size
             if self._rgb_noise is None:
                 self._rgb_noise = rng.standard_normal(2 * m, dtype=np.float32) * np.float32(p.rgb_noise)
             off = int(rng.integers(0, m))
-            img += self._rgb_noise[off : off + m].reshape(img.shape)
+            noise = self._rgb_noise[off : off + m].reshape(img.shape)
+            img += noise if look.noise_gain == 1.0 else noise * np.float32(look.noise_gain)
         return np.clip(img, 0, 255).astype(np.uint8)
+
+    @staticmethod
+    def _apply_patterns(albedo, look: Look, rays, t, tri0, hit) -> None:
+        """Mix ``albedo`` (per pixel, in place) with the second colour by each triangle's pattern.
+
+        Patterns are functions of the hit point in the world frame, so a surface keeps its
+        pattern from every viewpoint, like a texture.
+        """
+        assert look.pattern is not None and look.albedo2 is not None and look.pattern_scale is not None
+        kind = np.where(hit, look.pattern[tri0], PLAIN)
+        sel = np.flatnonzero(kind != PLAIN)
+        if not len(sel):
+            return
+        ts = t[sel]
+        x = rays[sel, 0] + rays[sel, 3] * ts
+        y = rays[sel, 1] + rays[sel, 4] * ts
+        z = rays[sel, 2] + rays[sel, 5] * ts
+        s = look.pattern_scale[tri0[sel]].astype(np.float32)
+        ix, iy, iz = (np.floor(c / s).astype(np.int64) for c in (x, y, z))
+        k = kind[sel]
+        # value noise: a hash of the cell, in [0, 1]
+        h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
+        noise = ((h * 2654435761) >> 16 & 0xFFFF).astype(np.float32) / 65535.0
+        sd = look.stripe_direction
+        stripes = (np.floor((x * sd[0] + y * sd[1] + z * sd[2]) / s) % 2).astype(np.float32)
+        checker = ((ix + iy + iz) % 2).astype(np.float32)
+        mix = np.where(k == NOISE, noise, np.where(k == STRIPES, stripes, checker))[:, None]
+        albedo[sel] = albedo[sel] * (1.0 - mix) + look.albedo2[tri0[sel]] * mix
 
 
 def viewing_pose(

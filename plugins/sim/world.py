@@ -536,6 +536,21 @@ def boxes_mesh(boxes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
     return merge_meshes([box_mesh(np.asarray(lo, float), np.asarray(hi, float)) for lo, hi in boxes])
 
 
+def room_shell(size: tuple[float, float, float], wall: float = 0.2) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (lo, hi) boxes of the floor, ceiling and four walls of a room ``[0, sx] × [0, sy] ×
+    [0, sz]``, each ``wall`` thick outside it."""
+    sx, sy, sz = size
+    w = wall
+    return [
+        (np.array([-w, -w, -w]), np.array([sx + w, sy + w, 0.0])),  # floor
+        (np.array([-w, -w, sz]), np.array([sx + w, sy + w, sz + w])),  # ceiling
+        (np.array([-w, -w, 0.0]), np.array([0.0, sy + w, sz])),
+        (np.array([sx, -w, 0.0]), np.array([sx + w, sy + w, sz])),
+        (np.array([-w, -w, 0.0]), np.array([sx + w, 0.0, sz])),
+        (np.array([-w, sy, 0.0]), np.array([sx + w, sy + w, sz])),
+    ]
+
+
 def box_room(
     size: tuple[float, float, float],
     objects: list[tuple[str, str, np.ndarray, np.ndarray]] = (),
@@ -550,16 +565,7 @@ def box_room(
     """
     sx, sy, sz = size
     w = wall
-    shell = boxes_mesh(
-        [
-            (np.array([-w, -w, -w]), np.array([sx + w, sy + w, 0.0])),  # floor
-            (np.array([-w, -w, sz]), np.array([sx + w, sy + w, sz + w])),  # ceiling
-            (np.array([-w, -w, 0.0]), np.array([0.0, sy + w, sz])),
-            (np.array([sx, -w, 0.0]), np.array([sx + w, sy + w, sz])),
-            (np.array([-w, -w, 0.0]), np.array([sx + w, 0.0, sz])),
-            (np.array([-w, sy, 0.0]), np.array([sx + w, sy + w, sz])),
-        ]
-    )
+    shell = boxes_mesh(room_shell(size, wall))
     parts = [MeshPart.uniform("walls", *shell, 0, class_colour("wall"))]
     objs = []
     for i, (name, cls, lo, hi) in enumerate(objects, start=1):

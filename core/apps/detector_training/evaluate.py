@@ -10,7 +10,14 @@ box of an instance is its visible mask's). The mask IoU column averages the true
 IoU either way. Instances smaller than the detector's ``min_pixels`` (60 at 640×480, scaled with
 the image area) are "don't care": a prediction on one counts neither way, missing one is no miss.
 
-    python -m amslam.apps.detector_training.evaluate [--model FILE] [--frames 40]
+    python -m amslam.apps.detector_training.evaluate [--model FILE] [--frames 40] [--seeds 900,901]
+        [--world MESH_WORLD_DIR ...] [--choose-threshold]
+
+``--world`` renders frames of a mesh world (a folder written by ``amslam world import``, such as
+the shared house) with its instance labels; its objects of classes the model has not (cabinet,
+tv, bed, …) are background, so a detection on one is a false positive. ``--choose-threshold``
+picks the confidence of the best F1 on the frames given: run it on a validation set (other
+seeds, another mesh world), never on the buildings the model is judged on.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ from amslam.apps.detector_training.dataset import Dataset, render_dataset
 from amslam.plugins.onnx_detector.decoder import SegmentationModel
 
 HELDOUT_SEEDS = (900, 901, 902, 903)
+#: confidence thresholds ``--choose-threshold`` tries
+THRESHOLDS: tuple[float, ...] = (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7)
 
 
 @dataclass
@@ -97,13 +106,37 @@ def evaluate(
 
     ``match`` is ``"mask"`` or ``"box"``: which overlap pairs predictions with instances.
     """
+    return score(
+        predict(model, data, conf=conf, iou=iou), data, conf=conf, min_pixels=min_pixels, match=match
+    )
+
+
+def predict(model: SegmentationModel, data: Dataset, *, conf: float = 0.25, iou: float = 0.5) -> list[list]:
+    """The model's instances on every frame of ``data`` (best first), at confidence ``conf``.
+
+    Scoring them at a higher threshold (:func:`score`) gives what the model run at that
+    threshold gives: NMS keeps a box only for boxes scored above it, so dropping the weaker
+    ones afterwards changes no survivor.
+    """
+    return [model(data.images[i], conf=conf, iou=iou) for i in range(len(data))]
+
+
+def score(
+    predictions: list[list],
+    data: Dataset,
+    *,
+    conf: float = 0.25,
+    min_pixels: int = 60,
+    match: str = "mask",
+) -> dict[str, Counts]:
+    """Counts per class name (and ``"all"``) of ``predictions`` (:func:`predict`) scoring ``conf`` or more."""
     if match not in ("mask", "box"):
         raise ValueError(f"match must be 'mask' or 'box', got {match!r}")
     H, W = data.images.shape[1:3]
     min_px = max(1, int(round(min_pixels * H * W / (640 * 480))))
     per = {n: Counts() for n in data.names}
     for i in range(len(data)):
-        preds = model(data.images[i], conf=conf, iou=iou)
+        preds = [q for q in predictions[i] if q.score >= conf]
         gts = data.objects(i)
         big = [np.count_nonzero(m) >= min_px for _, m in gts]
         boxes = [_box(m) for _, m in gts]
@@ -135,6 +168,29 @@ def evaluate(
         total.add(c)
     per["all"] = total
     return per
+
+
+def f1(c: Counts) -> float:
+    """The harmonic mean of precision and recall."""
+    return 2 * c.precision * c.recall / max(c.precision + c.recall, 1e-9)
+
+
+def choose_threshold(
+    predictions: list[list[list]], sets: list[Dataset], thresholds: tuple[float, ...], match: str = "box"
+) -> tuple[float, list[tuple[float, Counts]]]:
+    """The confidence threshold of the best F1 (all classes, all sets pooled) and every threshold's counts.
+
+    ``predictions[k]`` are :func:`predict`'s of ``sets[k]`` at the lowest threshold. The sets
+    are validation sets: never the buildings the model is judged on.
+    """
+    rows = []
+    for t in thresholds:
+        total = Counts()
+        for preds, data in zip(predictions, sets, strict=True):
+            total.add(score(preds, data, conf=t, match=match)["all"])
+        rows.append((t, total))
+    best = max(rows, key=lambda r: f1(r[1]))[0]
+    return best, rows
 
 
 def centroid_errors(
@@ -212,8 +268,27 @@ def table(results: dict[tuple[str, str], dict[str, Counts]]) -> str:
     return "\n".join(lines)
 
 
+def _size_table(results: dict[tuple[str, str], dict[str, Counts]]) -> str:
+    edges = (0, 400, 1600, 6400)
+    heads = [f"recall, {lo}–{hi} px" for lo, hi in zip(edges, edges[1:], strict=False)] + [
+        f"recall, {edges[-1]}+ px"
+    ]
+    lines = ["| frames | match | " + " | ".join(heads) + " |", "|---|---|" + "---:|" * len(edges)]
+    for (res, match), per in results.items():
+        cells = [f"{r:.2f} ({n})" for _, n, r in per["all"].recall_by_size(edges)]
+        lines.append(f"| {res} | {match} IoU ≥ 0.5 | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seeds: comma-separated integers, got {text!r}") from None
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Command line: render the held-out frames, run the model, print the table."""
+    """Command line: render the held-out frames, run the model, print the tables."""
     from amslam.plugins.onnx_detector.detector import shipped_model
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -221,31 +296,76 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frames", type=int, default=40, help="frames per held-out building")
     ap.add_argument("--conf", type=float, default=0.25)
     ap.add_argument("--sizes", default="320x240,640x480", help="image sizes to render, WxH,...")
+    ap.add_argument(
+        "--seeds",
+        type=_seeds,
+        default=HELDOUT_SEEDS,
+        help="procedural buildings, comma-separated (default: the held-out "
+        f"{','.join(map(str, HELDOUT_SEEDS))}; none: '')",
+    )
+    ap.add_argument(
+        "--world",
+        type=Path,
+        action="append",
+        default=[],
+        help="also a mesh world (a folder written by `amslam world import`, e.g. "
+        "/work/shared/worlds/small_house); its objects of other classes are background. Repeatable",
+    )
+    ap.add_argument(
+        "--choose-threshold",
+        action="store_true",
+        help="on these frames (a validation set, not the test buildings!): precision, recall and F1 "
+        "(320×240, box IoU ≥ 0.5, all classes) per confidence threshold, and the best",
+    )
     ap.add_argument("--centroids", action="store_true", help="also: centroid errors (masks, centres)")
     args = ap.parse_args(argv)
+    for folder in args.world:
+        if not (folder / "world.ply").is_file():
+            ap.error(f"--world {folder}: no world.ply there (a folder written by `amslam world import`)")
     model = SegmentationModel(args.model or shipped_model())
+    sets: dict[str, Dataset] = {}
     results = {}
     for spec in args.sizes.split(","):
         w, h = (int(v) for v in spec.split("x"))
-        data = render_dataset(list(HELDOUT_SEEDS), args.frames, width=w, height=h)
+        if args.seeds:
+            sets[f"{w}×{h}, seeds"] = render_dataset(list(args.seeds), args.frames, width=w, height=h)
+        for folder in args.world:
+            sets[f"{w}×{h}, {folder.name}"] = render_dataset(
+                [], 0, width=w, height=h, mesh_worlds=(folder,), mesh_frames=args.frames
+            )
+    # one run of the network per frame; a threshold search scores the same predictions at each threshold
+    lowest = min(args.conf, THRESHOLDS[0]) if args.choose_threshold else args.conf
+    predictions = {key: predict(model, data, conf=lowest) for key, data in sets.items()}
+    for key, data in sets.items():
         for match in ("mask", "box"):
-            results[(f"{w}×{h}, {len(data)}", match)] = evaluate(model, data, conf=args.conf, match=match)
-    print(f"model {args.model or shipped_model()}, held-out seeds {list(HELDOUT_SEEDS)}, conf {args.conf}")
+            results[(f"{key}, {len(data)}", match)] = score(
+                predictions[key], data, conf=args.conf, match=match
+            )
+    where = [f"seeds {list(args.seeds)}"] if args.seeds else []
+    where += [str(f) for f in args.world]
+    print(f"model {args.model or shipped_model()}, {', '.join(where)}, conf {args.conf}")
     print(table(results))
     print()
-    edges = (0, 400, 1600, 6400)
-    heads = [f"recall, {lo}–{hi} px" for lo, hi in zip(edges, edges[1:], strict=False)] + [
-        f"recall, {edges[-1]}+ px"
-    ]
     print("Recall by object size (visible pixels, scaled to a 320×240 image; instances in brackets):")
     print()
-    print("| frames | match | " + " | ".join(heads) + " |")
-    print("|---|---|" + "---:|" * len(edges))
-    for (res, match), per in results.items():
-        cells = [f"{r:.2f} ({n})" for _, n, r in per["all"].recall_by_size(edges)]
-        print(f"| {res} | {match} IoU ≥ 0.5 | " + " | ".join(cells) + " |")
+    print(_size_table(results))
+    if args.choose_threshold:
+        keys = [k for k in sets if k.startswith("320×240")]
+        best, rows = choose_threshold(
+            [predictions[k] for k in keys],
+            [sets[k] for k in keys],
+            tuple(np.round(np.arange(0.1, 0.75, 0.05), 2)),
+        )
+        print()
+        print(f"Confidence threshold on {', '.join(keys)} (box IoU ≥ 0.5, all classes):")
+        print()
+        print("| threshold | detections | precision | recall | F1 |")
+        print("|---:|---:|---:|---:|---:|")
+        for t, c in rows:
+            mark = " **best**" if t == best else ""
+            print(f"| {t:.2f}{mark} | {c.tp + c.fp} | {c.precision:.3f} | {c.recall:.3f} | {f1(c):.3f} |")
     if args.centroids:
-        errors = centroid_errors(args.model or shipped_model(), HELDOUT_SEEDS, args.frames)
+        errors = centroid_errors(args.model or shipped_model(), tuple(args.seeds), args.frames)
         print()
         print("Centroid of each detection (320×240, m) against the exact mask's centroid, against the")
         print("object's true centre, and the exact mask's centroid against the true centre:")

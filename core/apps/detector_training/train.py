@@ -26,7 +26,11 @@ Re-train (about 20 minutes on one core, plus 2.5 minutes to render the frames; t
 for training only)::
 
     pip install 'amslam[train]'        # torch 2.13.0 and onnx
-    python -m amslam.apps.detector_training.train --out plugins/onnx_detector/models/sim_yolov8seg.onnx
+    python -m amslam.apps.detector_training.train --no-randomise \
+        --out plugins/onnx_detector/models/sim_yolov8seg.onnx
+
+(the shipped model's data; without ``--no-randomise`` the buildings and their look are
+randomised, and ``--mesh-worlds`` adds imported worlds: see ``dataset.py`` and docs/detector.md)
 
 then measure it on held-out buildings with ``python -m amslam.apps.detector_training.evaluate``.
 """
@@ -470,13 +474,19 @@ def train(
     seed: int = 0,
     log_every: int = 20,
     levels: tuple[int, ...] = STRIDES,
+    init: Path | None = None,
 ) -> Path:
-    """Train on ``data`` and export the network to ``out`` (ONNX); ``levels``: detection strides."""
+    """Train on ``data`` and export the network to ``out`` (ONNX); ``levels``: detection strides.
+
+    ``init``: start from these weights (the ``.pt`` an earlier run saved next to its ONNX file).
+    """
     torch = _torch()
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = build_model(len(data.names), strides=levels)
+    if init is not None:
+        model.load_state_dict(torch.load(init))
     n_params = sum(p.numel() for p in model.parameters())
     anchor_xy, strides = anchors(size, levels)
     steps_per_epoch = max(1, len(data) // batch)
@@ -517,6 +527,8 @@ def train(
                     flush=True,
                 )
     model.eval()
+    # the weights before the export folds the batch norms: what a later run could start from
+    torch.save(model.state_dict(), out.with_suffix(".pt"))
     export_onnx(
         model,
         out,
@@ -525,7 +537,8 @@ def train(
         extra={
             "train_frames": str(len(data)),
             "epochs": str(epochs),
-            "train_seeds": str(sorted(set(data.seeds.tolist()))),
+            "train_seeds": str(sorted(set(data.seeds[data.seeds >= 0].tolist()))),
+            "train_worlds": str(sorted(set(data.sources[data.seeds < 0].tolist()))),
             "levels": str(list(levels)),
         },
         levels=levels,
@@ -554,15 +567,56 @@ def main(argv: list[str] | None = None) -> None:
         "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
     )
     ap.add_argument("--p2", action="store_true", help="add the stride-4 detection level (small, far objects)")
+    ap.add_argument(
+        "--no-randomise",
+        dest="randomise",
+        action="store_false",
+        help="render the procedural buildings with the simulator's own geometry rules and look, as the "
+        "models before issue #23 were trained (default: domain randomisation, see dataset.py)",
+    )
+    ap.add_argument(
+        "--mesh-worlds",
+        default="",
+        help="also train on these mesh worlds, comma-separated folders written by `amslam world import` "
+        "(never the worlds a model is judged on)",
+    )
+    ap.add_argument("--mesh-frames", type=int, default=160, help="frames per mesh world")
+    ap.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (AdamW, cosine schedule)")
+    ap.add_argument(
+        "--init", type=Path, default=None, help="start from these weights (a .pt written by an earlier run)"
+    )
+    ap.add_argument(
+        "--with-plain",
+        action="store_true",
+        help="with randomisation: the same buildings rendered without it too (the pre-#23 training set)",
+    )
     args = ap.parse_args(argv)
+    if args.init is not None and not args.init.is_file():
+        ap.error(f"--init {args.init}: no such file (the .pt an earlier run wrote next to its .onnx)")
+    if args.with_plain and not args.randomise:
+        ap.error("--with-plain adds unrandomised buildings to randomised ones: not with --no-randomise")
+    mesh_worlds = tuple(Path(f) for f in args.mesh_worlds.split(",") if f.strip())
+    for folder in mesh_worlds:
+        if not (folder / "world.ply").is_file():
+            ap.error(
+                f"--mesh-worlds: {folder} holds no world.ply (a folder written by `amslam world import`)"
+            )
     seeds = list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + args.seeds))
     if args.data is None:
-        args.data = Path(f"runs/onnx_detector/train-{args.seeds}x{args.frames}.npz")
+        kind = ("dr-" if args.randomise else "") + ("plain-" if args.with_plain else "")
+        name = f"train-{kind}{args.seeds}x{args.frames}"
+        if mesh_worlds:
+            name += f"+{'+'.join(f.name for f in mesh_worlds)}x{args.mesh_frames}"
+        args.data = Path(f"runs/onnx_detector/{name}.npz")
     data = Dataset.load(args.data) if args.data.exists() else None
+    with_plain = args.with_plain and args.randomise
+    expected = len(seeds) * args.frames * (2 if with_plain else 1) + len(mesh_worlds) * args.mesh_frames
     if data is not None and (
-        sorted(set(data.seeds.tolist())) != seeds or len(data) != len(seeds) * args.frames
+        sorted(set(data.seeds[data.seeds >= 0].tolist())) != seeds or len(data) != expected
     ):
-        raise SystemExit(f"{args.data} holds other buildings or frames than --seeds/--frames ask for")
+        raise SystemExit(
+            f"{args.data} holds other buildings or frames than --seeds/--frames/--mesh-worlds ask for"
+        )
     # before minutes of rendering, not at the first use
     missing = [name for name in ("torch", "onnx") if importlib.util.find_spec(name) is None]
     if missing:
@@ -575,7 +629,19 @@ def main(argv: list[str] | None = None) -> None:
         print(f"loaded {args.data}: {len(data)} frames", flush=True)
     else:
         t = time.time()
-        data = render_dataset(seeds, args.frames, progress=True, classes=CLASSES)
+        data = render_dataset(
+            seeds,
+            args.frames,
+            progress=True,
+            classes=CLASSES,
+            randomise=args.randomise,
+            mesh_worlds=mesh_worlds,
+            mesh_frames=args.mesh_frames,
+        )
+        if with_plain:
+            data = Dataset.concatenate(
+                [render_dataset(seeds, args.frames, progress=True, classes=CLASSES), data]
+            )
         data.save(args.data)
         print(f"rendered {len(data)} frames in {time.time() - t:.0f}s → {args.data}", flush=True)
     train(
@@ -586,6 +652,8 @@ def main(argv: list[str] | None = None) -> None:
         batch=args.batch,
         threads=args.threads,
         levels=P2_STRIDES if args.p2 else STRIDES,
+        lr=args.lr,
+        init=args.init,
     )
 
 

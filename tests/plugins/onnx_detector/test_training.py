@@ -2,17 +2,31 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from amslam.apps.detector_training.dataset import CLASSES, Dataset, render_dataset
-from amslam.apps.detector_training.evaluate import evaluate
+from amslam.apps.detector_training.dataset import (
+    CLASSES,
+    CLUTTER,
+    Dataset,
+    building,
+    label_frame,
+    random_look,
+    render_dataset,
+    sample_poses,
+)
+from amslam.apps.detector_training.evaluate import choose_threshold, evaluate, predict
+from amslam.apps.detector_training.evaluate import main as evaluate_main
 from amslam.apps.detector_training.train import P2_STRIDES, STRIDES, anchors, assign, make_batch
 from amslam.apps.detector_training.train import main as train_main
 from amslam.plugins.onnx_detector.decoder import SegmentationModel
+from amslam.plugins.sim.camera import CameraParams, Renderer, viewing_pose
+from amslam.plugins.sim.world import boxes_mesh, room_shell
 from tests.plugins.onnx_detector.graphs import candidates, constant_model
+from tests.plugins.sim.test_meshworld import _write_mesh
 
 
 @pytest.fixture(scope="module")
@@ -113,6 +127,9 @@ def test_evaluation_counts_on_a_known_model(tmp_path: Path) -> None:
         assert res["chair"].mask_iou == pytest.approx(1.0)
         assert (res["table"].tp, res["table"].fp) == (0, 1)
         assert res["all"].precision == pytest.approx(0.5) and res["all"].recall == pytest.approx(1.0)
+    # the false table scores 0.8: a threshold above it keeps only the chair (F1 1 instead of 2/3)
+    best, rows = choose_threshold([predict(model, data, conf=0.25)], [data], (0.5, 0.85))
+    assert best == 0.85 and [c.fp for _, c in rows] == [1, 0]
 
 
 def test_a_cached_training_set_of_other_buildings_is_refused(tiny_set: Dataset, tmp_path: Path) -> None:
@@ -124,3 +141,96 @@ def test_a_cached_training_set_of_other_buildings_is_refused(tiny_set: Dataset, 
     with pytest.raises(SystemExit, match="other buildings or frames"):
         train_main(["--data", str(cache), "--seeds", "1", "--frames", "4", "--out", str(out)])
     assert not out.exists()
+
+
+def test_randomised_looks_change_the_images_not_the_labels() -> None:
+    world = building(100)
+    cp = CameraParams(width=160, height=120)
+    renderer = Renderer(cp.model(), cp)
+    T = sample_poses(world, 1, np.random.default_rng(1))[0]
+    plain = renderer.render(world, T, np.random.default_rng(2))
+    for k in range(3):
+        look = random_look(world, np.random.default_rng(k))
+        looked = renderer.render(world, T, np.random.default_rng(2), look)
+        np.testing.assert_array_equal(looked.instance, plain.instance)
+        assert np.abs(looked.rgb.astype(int) - plain.rgb.astype(int)).mean() > 10
+
+
+def test_randomised_buildings_vary_and_their_clutter_is_background() -> None:
+    plain, varied = building(101), building(101, randomise=True)
+    assert building(101, randomise=True).n_triangles == varied.n_triangles  # a seed is one building
+    clutter = [o for o in varied.objects if o.class_name == CLUTTER]
+    assert len(clutter) >= 3 and not any(o.class_name == CLUTTER for o in plain.objects)
+    heights = {round(float(o.hi[2] - o.lo[2]), 3) for o in varied.objects if o.class_name == "chair"}
+    assert len(heights) > 3, "each chair is stretched on its own"
+    cp = CameraParams(width=160, height=120)
+    renderer = Renderer(cp.model(), cp)
+    seen = 0
+    for o in clutter:
+        T = viewing_pose(varied, o.centroid, cp.model().T_body_cam, distance=2.0, height=o.centroid[2])
+        r = renderer.render(varied, T, np.random.default_rng(0))
+        instance, labels = label_frame(varied, r.instance, CLASSES, 12)
+        shown = r.instance == o.instance_id
+        if shown.sum() >= 12:
+            seen += 1
+            assert np.all(instance[shown] == 0)
+        for new_id in np.unique(instance[instance > 0]).tolist():  # what stays labelled keeps its class
+            (old_id,) = np.unique(r.instance[instance == new_id])
+            assert CLASSES[labels[new_id]] == varied.class_names[varied.instance_class[old_id]]
+    assert seen > 0
+
+
+@pytest.fixture
+def little_mesh_world(tmp_path: Path) -> Path:
+    """A 6×4×3 m room in one PLY, a chair and a table box in it, the objects file in Gazebo's classes."""
+    room = [
+        *room_shell((6.0, 4.0, 3.0)),
+        ([4.0, 1.0, 0.0], [4.5, 1.5, 0.9]),
+        ([1.0, 2.5, 0.0], [2.2, 3.3, 0.75]),
+        ([5.4, 3.4, 0.0], [5.9, 3.9, 1.2]),
+    ]
+    folder = tmp_path / "little"
+    folder.mkdir()
+    _write_mesh(folder / "world.ply", *boxes_mesh([(np.array(a), np.array(b)) for a, b in room]))
+    objs = [
+        {"name": "c1", "class": "ChairB", "bounds": [[3.99, 0.99, -0.01], [4.51, 1.51, 0.91]]},
+        {"name": "t1", "class": "KitchenTable", "bounds": [[0.99, 2.49, -0.01], [2.21, 3.31, 0.76]]},
+        {"name": "n1", "class": "NightStand", "bounds": [[5.39, 3.39, -0.01], [5.91, 3.91, 1.21]]},
+    ]
+    (folder / "objects.json").write_text(json.dumps({"objects": objs}))
+    return folder
+
+
+def test_a_mesh_world_renders_frames_labelled_through_the_class_map(little_mesh_world: Path) -> None:
+    data = render_dataset([], 0, width=160, height=120, mesh_worlds=(little_mesh_world,), mesh_frames=12)
+    assert len(data) == 12 and set(data.seeds.tolist()) == {-1} and set(data.sources.tolist()) == {"little"}
+    classes = {data.names[c] for i in range(len(data)) for c, _ in data.objects(i)}
+    # KitchenTable is a table by the packaged class map; the night stand (a cabinet) is background
+    assert classes == {"chair", "table"}
+    both = Dataset.concatenate([render_dataset([100], 2, width=160, height=120), data])
+    assert len(both) == 14 and both.sources[0] == "seed 100" and both.sources[-1] == "little"
+
+
+def test_evaluating_on_a_missing_mesh_world_names_it(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        evaluate_main(["--world", str(tmp_path / "nowhere"), "--seeds", ""])
+    assert f"--world {tmp_path / 'nowhere'}: no world.ply" in capsys.readouterr().err
+
+
+def test_plain_buildings_on_top_need_randomised_ones(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        train_main(["--with-plain", "--no-randomise", "--out", str(tmp_path / "m.onnx")])
+    assert "--with-plain adds unrandomised buildings to randomised ones" in capsys.readouterr().err
+
+
+def test_a_cache_written_before_sources_were_kept_still_loads(tiny_set: Dataset, tmp_path: Path) -> None:
+    np.savez_compressed(
+        tmp_path / "old.npz",
+        images=tiny_set.images,
+        instance=tiny_set.instance,
+        inst_class=tiny_set.inst_class,
+        seeds=tiny_set.seeds,
+        names=np.array(tiny_set.names),
+    )
+    old = Dataset.load(tmp_path / "old.npz")
+    assert old.sources.tolist() == ["seed 100"] * len(tiny_set)

@@ -11,7 +11,7 @@ import pytest
 
 from amslam.errors import PlatformError
 from amslam.plugins.sim.meshworld import MeshWorldParams, load_mesh_world, normalize_class
-from amslam.plugins.sim.world import World, box_mesh, boxes_mesh
+from amslam.plugins.sim.world import World, box_mesh, boxes_mesh, room_shell
 from amslam.plugins.sim.worldpath import unpacked_world
 
 from .conftest import make_platform
@@ -28,14 +28,7 @@ def _write_mesh(path: Path, v: np.ndarray, t: np.ndarray) -> None:
 @pytest.fixture
 def tiny_world(tmp_path) -> Path:
     """A 6×4×3 room (walls 0.2 m) with a chair-box and a table-box merged in one PLY file."""
-    room = [
-        ([-0.2, -0.2, -0.2], [6.2, 4.2, 0.0]),
-        ([-0.2, -0.2, 3.0], [6.2, 4.2, 3.2]),
-        ([-0.2, -0.2, 0.0], [0.0, 4.2, 3.0]),
-        ([6.0, -0.2, 0.0], [6.2, 4.2, 3.0]),
-        ([-0.2, -0.2, 0.0], [6.2, 0.0, 3.0]),
-        ([-0.2, 4.0, 0.0], [6.2, 4.2, 3.0]),
-    ]
+    room = room_shell((6.0, 4.0, 3.0))
     chair = box_mesh(np.array([4.0, 1.0, 0.0]), np.array([4.5, 1.5, 0.9]))
     table = box_mesh(np.array([1.0, 2.5, 0.0]), np.array([2.2, 3.3, 0.75]))
     v, t = boxes_mesh([(np.array(a), np.array(b)) for a, b in room])

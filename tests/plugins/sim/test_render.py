@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from amslam.plugins.sim.camera import CameraParams, Renderer
+from amslam.plugins.sim.camera import CHECKER, CameraParams, Look, Renderer
 from amslam.plugins.sim.world import World, box_room
 from amslam.types import R_BODY_CAM
 
@@ -88,3 +88,38 @@ def test_rgb_is_shaded_per_class(room_with_chair):
     wall = f.rgb[f.instance == 0].mean(axis=0)
     assert chair[0] > chair[1] + 30  # the chair class is red
     assert abs(wall[0] - wall[1]) < 20  # walls are grey
+
+
+def test_the_default_look_is_the_simulators_own_rendering(room_with_chair):
+    """Flights render without a look; ``Look()`` must give the very same pixels (own-look frames)."""
+    world = World(room_with_chair)
+    T = camera_pose([2.0, 4.0, 0.5])
+    plain = Renderer(EXACT.model(), EXACT).render(world, T, np.random.default_rng(3))
+    default = Renderer(EXACT.model(), EXACT).render(world, T, np.random.default_rng(3), Look())
+    np.testing.assert_array_equal(plain.rgb, default.rgb)
+    np.testing.assert_array_equal(plain.depth, default.depth)
+
+
+def test_a_look_recolours_and_relights_but_moves_no_pixel(room_with_chair):
+    world = World(room_with_chair)
+    T = camera_pose([2.0, 4.0, 0.5])
+    n = world.n_triangles
+    blue = np.tile(np.float32([0.1, 0.2, 0.9]), (n, 1))
+    look = Look(
+        albedo=blue,
+        pattern=np.full(n, CHECKER, np.uint8),
+        albedo2=blue * np.float32(0.3),
+        pattern_scale=np.full(n, 0.25, np.float32),
+        sun=(0.0, 0.0, 1.0),
+        exposure=1.3,
+        tint=(0.9, 1.0, 1.1),
+    )
+    plain = Renderer(EXACT.model(), EXACT).render(world, T, np.random.default_rng(3))
+    looked = Renderer(EXACT.model(), EXACT).render(world, T, np.random.default_rng(3), look)
+    np.testing.assert_array_equal(plain.instance, looked.instance)
+    np.testing.assert_array_equal(plain.depth, looked.depth)
+    chair = looked.instance == 1
+    assert looked.rgb[chair].mean(axis=0)[2] > looked.rgb[chair].mean(axis=0)[0] + 30  # the red chair is blue
+    # the checker's dark squares: a two-level image where the plain one is a smooth shading
+    wall = looked.rgb[~chair & (looked.depth > 0)][:, 2].astype(float)
+    assert np.percentile(wall, 90) > 2.0 * np.percentile(wall, 10)
