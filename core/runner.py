@@ -116,6 +116,7 @@ class Runner:
         self.context: RunContext | None = None  # once the backends are configured
         self.runtime: Runtime | None = None  # once the services are built
         self._write_errors: list[str] = []  # outputs that could not be written (a full disk)
+        self._exploration_end: str | None = None  # how the exploration ended (once the tree has)
         self._closed_outputs: deque[str] = deque()  # stdout/stderr lost their reader (any thread)
         # each backend's outputs are checked where they enter the runtime, and named in verdicts
         self.boundary = Boundary(
@@ -414,6 +415,7 @@ class Runner:
         if root.status == Status.SUCCESS:
             outcome = root.children[-1].feedback_message
             exploration = py_trees.blackboard.Blackboard.storage.get("/exploration", "")
+            self._exploration_end = exploration or None
             self.rundir.event(t, "mission_end", exploration=exploration, landing=outcome)
             planning = self.runtime.planning
             if planning.failures >= self.mission.model.exploration.max_replan_failures:
@@ -493,6 +495,10 @@ class Runner:
             "mission": self.mission.name,
             "seed": self.mission.model.seed,
             "plugins": {kind: choice.plugin for kind, choice in self.mission.backends.items()},
+            # "completed" says the vehicle came home; this says whether the building was done
+            # ("complete: no reachable frontier left") or given up ("stopped: 8 goals in a row
+            # unreachable"), which a flight compared by its verdict alone would hide
+            **({"exploration_end": self._exploration_end} if self._exploration_end else {}),
         }
 
     def _measured(self, metrics: dict[str, Any], summary: RunSummary) -> dict[str, Any]:

@@ -640,6 +640,7 @@ def _figure_rows(m: dict[str, Any]) -> list[str]:
             lines.append(f"| {label} | {value} |")
 
     row("seed", m.get("seed"))
+    row("exploration ended", m.get("exploration_end"))
     row("backends", ", ".join(f"{k}={v}" for k, v in m.get("plugins", {}).items()))
     row("duration (s)", m.get("sim_duration_s"))
     row("distance travelled (m)", m.get("distance_m"))

@@ -36,6 +36,11 @@ def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
     assert MAX_TIME <= limit["t"] < MAX_TIME + 1.0
     (end,) = [e for e in events if e["event"] == "mission_end"]
     assert end["exploration"] == f"stopped: time limit {MAX_TIME:.0f} s" and end["landing"] == "landed"
+    # "completed" (it came home) does not hide that the mission was cut short: metrics and report say so
+    assert result.metrics["exploration_end"] == end["exploration"]
+    metrics = json.loads((result.run_dir / "metrics.json").read_text())
+    assert metrics["exploration_end"] == end["exploration"]
+    assert f"| exploration ended | {end['exploration']} |" in (result.run_dir / "report.md").read_text()
     # it came back over the take-off point before landing (the return home, as exploration does)
     truth = np.loadtxt(result.run_dir / "ground_truth.tum", ndmin=2)
     assert np.linalg.norm(truth[-1, 1:3] - truth[0, 1:3]) < 0.5
