@@ -134,8 +134,9 @@ class ShapeLandmarks:
         from scipy.spatial import cKDTree
 
         best, best_share = -1, self.p.association_overlap
-        mid_odom = np.median(points_odom, axis=0)[None]
-        mid_world = np.median(points_world, axis=0)[None]
+        # rows: the detection's points, then its middle
+        pts_world = np.vstack([points_world, np.median(points_world, axis=0)])
+        pts_odom = np.vstack([points_odom, np.median(points_odom, axis=0)])
         for lm_id, cls in candidates.items():
             rec = self.recs.get(lm_id)
             if cls != class_name or rec is None or rec.last_world is None:
@@ -143,8 +144,6 @@ class ShapeLandmarks:
             # the latest window fit stands for the landmark only while it agrees with the estimate
             # (its centre inside it): a window that saw one end of a car and completed it the
             # wrong way reaches into the next stall
-            # rows: the detection's points, then its middle
-            pts_world, pts_odom = np.vstack([points_world, mid_world]), np.vstack([points_odom, mid_odom])
             if (
                 rec.est_world is None
                 or self._inside(rec.est_world, shapes.shape_center(rec.last_world)[None])[0]
