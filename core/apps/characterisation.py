@@ -49,6 +49,7 @@ from amslam.plugins.sim.world import (
     WorldObject,
     WorldSpec,
     box_mesh,
+    prism_mesh,
 )
 from amslam.types import CameraModel, Frame, WorldSummary
 
@@ -197,7 +198,7 @@ def specimen_world(target: TargetSpec, extent: float) -> tuple[World, WorldSumma
             "yaw": target.yaw,
         }
     else:
-        v, t = cylinder_mesh(target.size[0], target.size[2])
+        v, t = prism_mesh(target.size[0], 0.0, target.size[2], sides=24)
         height = target.size[2]
         shape = {
             "model": "cylinder",
@@ -235,23 +236,6 @@ def specimen_world(target: TargetSpec, extent: float) -> tuple[World, WorldSumma
         object_shapes={name: shape},
     )
     return world, summary, shape
-
-
-def cylinder_mesh(radius: float, height: float, sides: int = 24) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and outward triangles of a closed vertical cylinder standing on z = 0."""
-    a = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
-    ring = np.stack([radius * np.cos(a), radius * np.sin(a)], axis=1)
-    bottom = np.column_stack([ring, np.zeros(sides)])
-    top = np.column_stack([ring, np.full(sides, height)])
-    v = np.vstack([bottom, top, [[0.0, 0.0, 0.0], [0.0, 0.0, height]]])
-    i = np.arange(sides)
-    j = (i + 1) % sides
-    side = np.concatenate([np.stack([i, j, j + sides], 1), np.stack([i, j + sides, i + sides], 1)])
-    cb, ct = 2 * sides, 2 * sides + 1
-    caps = np.concatenate(
-        [np.stack([np.full(sides, cb), j, i], 1), np.stack([np.full(sides, ct), i + sides, j + sides], 1)]
-    )
-    return v, np.concatenate([side, caps]).astype(np.int64)
 
 
 def spiral_poses(

@@ -40,7 +40,7 @@ from pydantic import Field, model_validator
 
 from amslam.geometry import yaw_matrix
 from amslam.interfaces import BackendParams, FieldError
-from amslam.plugins.sim.world import MeshPart, WorldObject, WorldSpec, box_mesh, merge_meshes
+from amslam.plugins.sim.world import MeshPart, WorldObject, WorldSpec, box_mesh, merge_meshes, prism_mesh
 
 __all__ = ["OutdoorWorldParams", "generate_outdoor"]
 
@@ -141,20 +141,6 @@ class _Ground:
         return R, np.array([x, y, float(self.z(np.array([x, y])))])
 
 
-def _prism(radius: float, z0: float, z1: float, sides: int = 20) -> tuple[np.ndarray, np.ndarray]:
-    """A closed regular prism around the z axis (vertices at ``radius``)."""
-    a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
-    v = np.vstack([np.column_stack([ring, np.full(sides, z0)]), np.column_stack([ring, np.full(sides, z1)])])
-    v = np.vstack([v, [[0, 0, z0], [0, 0, z1]]])
-    tris = []
-    for i in range(sides):
-        j = (i + 1) % sides
-        tris += [[i, j, sides + j], [i, sides + j, sides + i]]
-        tris += [[2 * sides, j, i], [2 * sides + 1, sides + i, sides + j]]
-    return v, np.array(tris, dtype=np.int64)
-
-
 def _car_boxes(
     rng: np.random.Generator, van: bool
 ) -> tuple[list[tuple[list[float], list[float]]], np.ndarray]:
@@ -229,7 +215,7 @@ class _Builder:
     def cylinder(self, cls: str, x: float, y: float, radius: float, height: float) -> None:
         # upright (gravity-aligned) on sloped ground: sunk into the ground on the uphill side
         gz = float(self.ground.z(np.array([x, y])))
-        v, t = _prism(radius, gz - 0.3, gz + height)
+        v, t = prism_mesh(radius, gz - 0.3, gz + height)
         v[:, :2] += [x, y]
         shape = {
             "model": "cylinder",

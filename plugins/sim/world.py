@@ -508,6 +508,21 @@ _BOX_TRIANGLES = np.array(
 )  # fmt: skip
 
 
+def prism_mesh(radius: float, z0: float, z1: float, sides: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and outward triangles of a closed regular prism around the z axis from ``z0`` to
+    ``z1`` (vertices at ``radius``): a cylinder, coarsely (poles, trunks, bins, lamps)."""
+    a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
+    v = np.vstack([np.column_stack([ring, np.full(sides, z0)]), np.column_stack([ring, np.full(sides, z1)])])
+    v = np.vstack([v, [[0, 0, z0], [0, 0, z1]]])
+    tris = []
+    for i in range(sides):
+        j = (i + 1) % sides
+        tris += [[i, j, sides + j], [i, sides + j, sides + i]]
+        tris += [[2 * sides, j, i], [2 * sides + 1, sides + i, sides + j]]
+    return v, np.array(tris, dtype=np.int64)
+
+
 def box_mesh(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and outward-facing triangles of an axis-aligned box."""
     (x0, y0, z0), (x1, y1, z1) = lo, hi

@@ -36,7 +36,15 @@ import numpy as np
 
 from amslam.plugins.sim.camera import CHECKER, NOISE, PLAIN, STRIPES, CameraParams, Look, Renderer
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
-from amslam.plugins.sim.world import MeshPart, World, WorldObject, WorldSpec, boxes_mesh, merge_meshes
+from amslam.plugins.sim.world import (
+    MeshPart,
+    World,
+    WorldObject,
+    WorldSpec,
+    boxes_mesh,
+    merge_meshes,
+    prism_mesh,
+)
 
 #: The classes the procedural buildings furnish, in the order of the shipped model's class ids.
 CLASSES: tuple[str, ...] = ("chair", "table", "shelf", "sofa")
@@ -183,29 +191,6 @@ def _stretch_furniture(spec: WorldSpec, rng: np.random.Generator) -> None:
 CLUTTER = "clutter"
 
 
-def _prism(radius: float, z0: float, z1: float, sides: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """A closed vertical prism of ``sides`` sides round the z axis (a cylinder, coarsely)."""
-    a = np.linspace(0.0, 2 * np.pi, sides, endpoint=False)
-    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
-    v = np.vstack(
-        [
-            np.column_stack([ring, np.full(sides, z0)]),
-            np.column_stack([ring, np.full(sides, z1)]),
-            [[0, 0, z0], [0, 0, z1]],
-        ]
-    )
-    t = []
-    for i in range(sides):
-        j = (i + 1) % sides
-        t += [
-            [i, j, sides + j],
-            [i, sides + j, sides + i],
-            [2 * sides, j, i],
-            [2 * sides + 1, sides + i, sides + j],
-        ]
-    return v, np.asarray(t, dtype=np.int64)
-
-
 def _add_clutter(spec: WorldSpec, world: World, rng: np.random.Generator) -> None:
     """Stand 6–24 pieces of clutter (cabinets, boxes, bins, lamps, screens) on free floor spots.
 
@@ -233,9 +218,14 @@ def _add_clutter(spec: WorldSpec, world: World, rng: np.random.Generator) -> Non
             w, d, h = rng.uniform(0.3, 1.2), rng.uniform(0.3, 0.6), rng.uniform(0.3, 1.9)
             v, t = boxes_mesh([(np.array([-w / 2, -d / 2, 0.0]), np.array([w / 2, d / 2, h]))])
         elif kind == 1:  # a bin, a pot or a column
-            v, t = _prism(rng.uniform(0.1, 0.35), 0.0, rng.uniform(0.3, 1.6))
+            v, t = prism_mesh(rng.uniform(0.1, 0.35), 0.0, rng.uniform(0.3, 1.6), sides=10)
         elif kind == 2:  # a standing lamp
-            v, t = merge_meshes([_prism(0.03, 0.0, 1.5), _prism(rng.uniform(0.12, 0.25), 1.35, 1.7)])
+            v, t = merge_meshes(
+                [
+                    prism_mesh(0.03, 0.0, 1.5, sides=10),
+                    prism_mesh(rng.uniform(0.12, 0.25), 1.35, 1.7, sides=10),
+                ]
+            )
         else:  # a screen or a picture on a low stand
             w, h = rng.uniform(0.5, 1.3), rng.uniform(0.35, 0.8)
             v, t = boxes_mesh(
