@@ -225,9 +225,10 @@ class Renderer:
             if look.pattern is not None:
                 self._apply_patterns(albedo, look, rays, t, tri0, hit)
         albedo[~hit] = 0.08
-        if look.tint != _DEFAULT_LOOK.tint:
-            albedo *= np.asarray(look.tint, dtype=np.float32)
-        gain = 255.0 if look.exposure == 1.0 else 255.0 * look.exposure
+        # a default look's gains of exactly 1 leave every value as it was (IEEE): the simulator's
+        # frames are those it always rendered
+        albedo *= np.asarray(look.tint, dtype=np.float32)
+        gain = 255.0 * look.exposure
         img = albedo * (shade * gain)[:, None]
         if p.rgb_noise > 0 and look.noise_gain > 0:
             # Sensor noise from a cached buffer twice the image size at a random offset per frame:
@@ -237,7 +238,7 @@ class Renderer:
                 self._rgb_noise = rng.standard_normal(2 * m, dtype=np.float32) * np.float32(p.rgb_noise)
             off = int(rng.integers(0, m))
             noise = self._rgb_noise[off : off + m].reshape(img.shape)
-            img += noise if look.noise_gain == 1.0 else noise * np.float32(look.noise_gain)
+            img += noise * np.float32(look.noise_gain)
         return np.clip(img, 0, 255).astype(np.uint8)
 
     @staticmethod
