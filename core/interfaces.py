@@ -43,6 +43,7 @@ from amslam.types import (
     TourItem,
     VehicleStatus,
     Viewpoint,
+    VoxelState,
     WorldSummary,
 )
 
@@ -306,6 +307,13 @@ class Mapping(Backend):
     @abc.abstractmethod
     def segment_free(self, a: np.ndarray, b: np.ndarray, *, local: bool = False) -> bool:
         """Whether the straight segment, inflated by the robot radius, avoids occupied voxels."""
+
+    def blocked(self, points: np.ndarray, *, local: bool = False, climbing: bool = False) -> np.ndarray:
+        """Whether each point (N×3) lies in an obstacle: the setpoint filter's guards keep the
+        vehicle off these. A backend may count unseen space it takes for part of a seen surface,
+        and more of it for a climb (``climbing``: the camera looks level and never shows the
+        ceiling overhead); the default: occupied voxels."""
+        return self.states(points, local=local) == VoxelState.OCCUPIED
 
     @abc.abstractmethod
     def explored_volume(self) -> float:

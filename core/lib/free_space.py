@@ -145,6 +145,36 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     return grown & unknown
 
 
+def unseen_ceiling(states: np.ndarray, voxel: float, reach: float) -> np.ndarray:
+    """Unknown voxels taken for the unseen rest of a ceiling seen from below, in its own layer.
+
+    The camera looks level: a vehicle sees a ceiling only ahead of it, from a metre or more below,
+    and never the part over its head. When it is off where the map of the building puts it (its
+    pose error), it may climb a "shaft" under a ceiling whose underside it saw a metre away (a
+    three-floor flight did, 1.2 m off, and hit the slab). Unknown voxels in the layer of a
+    horizontal surface with free space under it, connected to it within ``reach`` metres through
+    unknown voxels of that layer (8-connected steps), are taken for more of it; seen air in that
+    layer (a shaft seen from below) stays air. Only in the layer: the unseen air under it is not
+    lowered.
+    """
+    from scipy import ndimage
+
+    if reach <= 0:
+        return np.zeros(states.shape, dtype=bool)
+    ceiling = horizontal_surfaces(states) & _shift(states == FREE, 2, 1)
+    if not ceiling.any():
+        return np.zeros(states.shape, dtype=bool)
+    unknown = states == UNKNOWN
+    steps = max(1, int(round(reach / voxel)))
+    out = np.zeros(states.shape, dtype=bool)
+    eight = np.ones((3, 3), dtype=bool)
+    for z in np.flatnonzero(ceiling.any(axis=(0, 1))):  # layer by layer: few hold a ceiling
+        layer, free_to_grow = ceiling[:, :, z], unknown[:, :, z]
+        grown = ndimage.binary_dilation(layer, structure=eight, iterations=steps, mask=layer | free_to_grow)
+        out[:, :, z] = grown & free_to_grow
+    return out
+
+
 def obstacles(
     states: np.ndarray,
     voxel: float,
@@ -152,10 +182,12 @@ def obstacles(
     slab_opening: float = 0.0,
     *,
     slab: np.ndarray | None = None,
+    ceiling_reach: float = 0.0,
 ) -> np.ndarray:
     """Voxels the robot must keep its radius from: occupied ones, :func:`unseen_surface` and (with
     ``slab_opening``, on a block holding whole free regions, e.g. the path graph's) the
-    :func:`narrow_slab_gaps`.
+    :func:`narrow_slab_gaps`; with ``ceiling_reach`` (the fine local map's rule) also
+    :func:`unseen_ceiling`.
 
     ``slab``: the :func:`slabs` of the block, when the caller has them. They are the one rule that
     is not local (a surface is a slab by the size of its whole component): a caller working on a
@@ -164,6 +196,8 @@ def obstacles(
     occ = states == OCCUPIED
     if unseen_reach > 0:
         occ |= unseen_surface(states, voxel, unseen_reach)
+    if ceiling_reach > 0:
+        occ |= unseen_ceiling(states, voxel, ceiling_reach)
     if slab_opening > 0:
         occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach, slab=slab)
     return occ

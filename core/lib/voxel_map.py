@@ -259,6 +259,16 @@ class VoxelMapParams(BackendParams):
         description="Near a slab, floor or ceiling, paths move vertically only where every voxel within"
         " the robot radius was observed: a floor change never passes through unknown space.",
     )
+    local_ceiling_reach: float = Field(
+        1.5,
+        ge=0,
+        le=100,
+        description="For a climb, the height guard counts unknown voxels of the fine local map in"
+        " the layer of a ceiling seen from below, within this distance (m) of it"
+        " through unknown voxels of that layer, as more of that ceiling: the level camera"
+        " never sees the part over the vehicle's head, and a vehicle off where it thinks climbed"
+        " under one (a three-floor flight hit the slab); 0: only unseen_surface_reach.",
+    )
     floor_change_opening: float = Field(
         0.75,
         ge=0,
@@ -822,9 +832,11 @@ class VoxelMapBase(Mapping):
             samples, radius, store.voxel, store.states_at_index, self.params.unseen_surface_reach
         )
 
-    def blocked(self, points: np.ndarray, *, local: bool = False) -> np.ndarray:
+    def blocked(self, points: np.ndarray, *, local: bool = False, climbing: bool = False) -> np.ndarray:
         """Whether each point lies in an obstacle voxel: occupied, or unknown continuing a seen slab,
-        floor or ceiling (``unseen_surface_reach``), the rule paths and ``segment_free`` use.
+        floor or ceiling (``unseen_surface_reach``), the rule paths and ``segment_free`` use; with
+        ``climbing`` on the local map also the unseen rest of a ceiling's layer
+        (``local_ceiling_reach``), what a climb keeps off.
 
         For clearance checks outside the planner (a setpoint filter): ``states(...) == OCCUPIED``
         misses the unseen top or edge of a slab seen from one side.
@@ -835,10 +847,14 @@ class VoxelMapBase(Mapping):
         if len(idx) == 0:
             return np.zeros(0, dtype=bool)
         reach = self.params.unseen_surface_reach
-        pad = max(1, int(round(reach / store.voxel))) + 2  # the surface an unknown voxel continues
+        ceiling = self.params.local_ceiling_reach if local and climbing else 0.0
+        # the surface an unknown voxel continues (a ceiling's rest only within its layer)
+        pad = np.array([max(reach, ceiling)] * 2 + [reach]) / store.voxel
+        pad = np.maximum(np.round(pad).astype(np.int64), 1) + 2
         lo = idx.min(axis=0) - pad
         shape = tuple(int(s) for s in idx.max(axis=0) + pad + 1 - lo)
-        return obstacles(store.dense_states(lo, shape), store.voxel, reach)[tuple((idx - lo).T)]
+        block = store.dense_states(lo, shape)
+        return obstacles(block, store.voxel, reach, ceiling_reach=ceiling)[tuple((idx - lo).T)]
 
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""

@@ -32,6 +32,10 @@ class BoxMap:
             out[inside] = VoxelState.OCCUPIED
         return out
 
+    def blocked(self, points, *, local=False, climbing=False):
+        """Every voxel of this map is seen (free or solid): the solid ones are the obstacles."""
+        return self.states(points, local=local) == VoxelState.OCCUPIED
+
     def clearance(self, p):
         """True distance from p to the nearest box surface."""
         return min(

@@ -11,13 +11,33 @@ from amslam.types import BoundingBox
 FREE_L, OCC_L = logit(0.2), logit(0.95)
 
 
-def load_states(mapping_cls, tmp_path, states: np.ndarray, area: BoundingBox, voxel: float = 0.25, **params):
+def _known(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    idx = np.argwhere(states != UNKNOWN)
+    return idx, np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
+
+
+def load_states(
+    mapping_cls,
+    tmp_path,
+    states: np.ndarray,
+    area: BoundingBox,
+    voxel: float = 0.25,
+    *,
+    local: np.ndarray | None = None,
+    local_origin: tuple[int, int, int] = (0, 0, 0),
+    **params,
+):
     """A ``mapping_cls`` configured over ``area`` whose global map holds ``states`` (int8 grid of
-    FREE / OCCUPIED / UNKNOWN, index 0 at the origin) with an empty local map."""
+    FREE / OCCUPIED / UNKNOWN, index 0 at the origin) and whose local map holds ``local`` (the same,
+    at the local voxel size, its index 0 at lattice index ``local_origin``: the local window starts
+    centred on the origin; None: empty)."""
     m = mapping_cls()
     m.configure(mapping_cls.Params(**params), make_context(tmp_path, area=area))
-    idx = np.argwhere(states != UNKNOWN)
-    logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
+    idx, logodds = _known(states)
+    local_idx, local_logodds = (
+        _known(local) if local is not None else (np.zeros((0, 3), np.int64), np.zeros(0))
+    )
+    local_idx = local_idx + np.asarray(local_origin, dtype=np.int64)
     path = tmp_path / "map.npz"
     np.savez_compressed(
         path,
@@ -25,8 +45,8 @@ def load_states(mapping_cls, tmp_path, states: np.ndarray, area: BoundingBox, vo
         global_index=idx,
         global_logodds=logodds,
         global_voxel=np.array(voxel),
-        local_index=np.zeros((0, 3), np.int64),
-        local_logodds=np.zeros(0, np.float32),
+        local_index=local_idx,
+        local_logodds=local_logodds.astype(np.float32),
         local_voxel=np.array(m.params.local_voxel),
     )
     m.load(path)

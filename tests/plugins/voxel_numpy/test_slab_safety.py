@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.lib.free_space import samples_clear
+from amslam.lib.free_space import obstacles, samples_clear, unseen_ceiling
 from amslam.lib.voxel_grid import OCCUPIED, UNKNOWN, to_index
 from amslam.plugins.voxel_numpy.backend import NumpyVoxelMap
 from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
@@ -192,3 +192,67 @@ def test_local_path_on_the_fine_map(cls, tmp_path) -> None:
     assert end[0] <= 3.1 - m.local_radius + 1e-9 and np.linalg.norm(end - [2.95, 0.0, 0.0]) <= 0.3 + 1e-9
     for s, e in zip(path[:-1], path[1:], strict=True):
         assert m.segment_free(s, e, local=True)
+
+
+def _ceiling_seen_on_one_side() -> np.ndarray:
+    """0.1 m voxels, 6 × 2 × 4 m: air known free under z 2.8; a ceiling (z 2.8–2.9) seen from below
+    for x < 1 m; above z 2.8 for x ≥ 1 m only what a level camera saw: nothing, except a shaft at
+    x ≥ 4 m seen free all the way up."""
+    s = np.full((60, 20, 40), UNKNOWN, dtype=np.int8)
+    s[:, :, :28] = 0  # FREE
+    s[:10, :, 28] = OCCUPIED
+    s[40:, :, 28:] = 0
+    return s
+
+
+def test_the_unseen_rest_of_a_ceiling_is_an_obstacle_in_its_layer() -> None:
+    # Three-floor seed 2 climbed "the shaft" 1.2 m off where it thought, 0.9 m from a ceiling it
+    # had seen, into the unseen part of the same slab. The unknown voxels of the ceiling's layer
+    # within the reach count as ceiling; the seen shaft, the layers above and below, and unknown
+    # beyond the reach do not.
+    s, v = _ceiling_seen_on_one_side(), 0.1
+    rest = unseen_ceiling(s, v, 1.5)
+    assert rest[10:25, :, 28].all()  # 0–1.5 m from the seen edge
+    assert not rest[26:40, :, 28].any()  # beyond the reach
+    assert not rest[40:].any()  # the shaft, seen free
+    assert not rest[:, :, 29:].any() and not rest[:, :, :28].any()  # only the ceiling's own layer
+    np.testing.assert_array_equal(obstacles(s, v, ceiling_reach=1.5), (s == OCCUPIED) | rest)
+    # a floor seen from above is no ceiling: unknown beside it stays unknown
+    floor = np.full((60, 20, 40), UNKNOWN, dtype=np.int8)
+    floor[:, :, 10:] = 0
+    floor[:10, :, 9] = OCCUPIED
+    assert not unseen_ceiling(floor, v, 1.5).any()
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_setpoints_stop_a_climb_under_the_unseen_rest_of_a_ceiling(cls, tmp_path) -> None:
+    # The same scene in a backend's local map (moved 3, 1, 2 m down so that the window, centred on
+    # the origin, holds it): the guards keep the vehicle below the unseen ceiling 0.9 m from the
+    # seen edge, and let it climb the seen shaft (both backends: the rule lives in the shared map
+    # code).
+    from amslam.setpoints import SetpointFilter
+
+    shift = np.array([3.0, 1.0, 2.0])
+    scene, origin = _ceiling_seen_on_one_side(), (-30, -10, -20)
+    m = load(cls, tmp_path, np.full(N, UNKNOWN, np.int8), local=scene, local_origin=origin)
+    assert m.states(np.array([0.55, 1.05, 2.85]) - shift, local=True)[0] == OCCUPIED
+    here, up = np.array([1.95, 1.05, 1.85]) - shift, np.array([0.0, 0.0, 1.65])
+    top = _fly(SetpointFilter(m, 0.25, 0.0, 0.6), here, here + up)[:, 2].max()
+    assert here[2] + 0.1 < top <= 2.8 - 0.25 - 0.1 - shift[2] + 1e-9  # radius and margin below it
+    shaft = np.array([5.05, 1.05, 1.85]) - shift
+    np.testing.assert_allclose(_fly(SetpointFilter(m, 0.25, 0.0, 0.6), shaft, shaft + up)[-1], shaft + up)
+    # with the rule off only the seen part is a ceiling: the climb goes on into the unseen one
+    old = load(
+        cls, tmp_path, np.full(N, UNKNOWN, np.int8), local=scene, local_origin=origin, local_ceiling_reach=0
+    )
+    np.testing.assert_allclose(_fly(SetpointFilter(old, 0.25, 0.0, 0.6), here, here + up)[-1], here + up)
+
+
+def _fly(guard, start: np.ndarray, goal: np.ndarray, ticks: int = 40) -> np.ndarray:
+    """Positions of a point vehicle flying 0.1 m a tick towards what the guards send."""
+    p, track = start.copy(), []
+    for _ in range(ticks):
+        step = guard.apply(goal, p) - p
+        p = p + step * min(1.0, 0.1 / max(float(np.linalg.norm(step)), 1e-9))
+        track.append(p)
+    return np.array(track)
