@@ -117,6 +117,7 @@ class Runner:
         self.runtime: Runtime | None = None  # once the services are built
         self._write_errors: list[str] = []  # outputs that could not be written (a full disk)
         self._exploration_end: str | None = None  # how the exploration ended (once the tree has)
+        self._way_home: str | None = None  # whether the vehicle came home (trees that fly there)
         self._closed_outputs: deque[str] = deque()  # stdout/stderr lost their reader (any thread)
         # each backend's outputs are checked where they enter the runtime, and named in verdicts
         self.boundary = Boundary(
@@ -416,6 +417,7 @@ class Runner:
             outcome = root.children[-1].feedback_message
             exploration = py_trees.blackboard.Blackboard.storage.get("/exploration", "")
             self._exploration_end = exploration or None
+            self._way_home = self._home_outcome(root)
             self.rundir.event(t, "mission_end", exploration=exploration, landing=outcome)
             planning = self.runtime.planning
             if planning.failures >= self.mission.model.exploration.max_replan_failures:
@@ -488,6 +490,15 @@ class Runner:
             errors.append(self.runtime.measurements.error)
         self._write_errors += [e for e in errors if e not in self._write_errors]
 
+    @staticmethod
+    def _home_outcome(root: py_trees.behaviour.Behaviour) -> str | None:
+        """How the stock trees' way home (their ``GoHome`` leaf) ended: "came home", or why it was
+        given up (the vehicle then landed where it was); None for a tree without one."""
+        home = next((node for node in root.iterate() if node.name == "GoHome"), None)
+        if home is None or home.status not in (Status.SUCCESS, Status.FAILURE):
+            return None
+        return "came home" if home.status == Status.SUCCESS else f"gave up: {home.feedback_message}"
+
     def _identity(self, verdict: str) -> dict[str, Any]:
         """What the runner itself knows of every run, flown or not: the rest is measured by observers."""
         return {
@@ -495,10 +506,12 @@ class Runner:
             "mission": self.mission.name,
             "seed": self.mission.model.seed,
             "plugins": {kind: choice.plugin for kind, choice in self.mission.backends.items()},
-            # "completed" says the vehicle came home; this says whether the building was done
+            # "completed" says the mission's tree ran to its end; this says whether the building was done
             # ("complete: no reachable frontier left") or given up ("stopped: 8 goals in a row
             # unreachable"), which a flight compared by its verdict alone would hide
             **({"exploration_end": self._exploration_end} if self._exploration_end else {}),
+            # nor does it say the vehicle came home: a way home given up lands it where it is
+            **({"way_home": self._way_home} if self._way_home else {}),
         }
 
     def _measured(self, metrics: dict[str, Any], summary: RunSummary) -> dict[str, Any]:

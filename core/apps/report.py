@@ -641,6 +641,7 @@ def _figure_rows(m: dict[str, Any]) -> list[str]:
 
     row("seed", m.get("seed"))
     row("exploration ended", m.get("exploration_end"))
+    row("way home", m.get("way_home"))
     row("backends", ", ".join(f"{k}={v}" for k, v in m.get("plugins", {}).items()))
     row("duration (s)", m.get("sim_duration_s"))
     row("distance travelled (m)", m.get("distance_m"))

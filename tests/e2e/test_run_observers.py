@@ -34,7 +34,7 @@ def test_without_the_report_a_run_leaves_the_verdict_and_the_streams(tmp_path):
     result = _fly(tmp_path, disabled=["report"])
     assert result.verdict == "completed"
     metrics = json.loads((result.run_dir / "metrics.json").read_text())
-    assert sorted(metrics) == ["exploration_end", "mission", "plugins", "seed", "verdict"]
+    assert sorted(metrics) == ["exploration_end", "mission", "plugins", "seed", "verdict", "way_home"]
     assert metrics == result.metrics and metrics["verdict"] == "completed"
     for name in STREAMS:
         assert (result.run_dir / name).exists(), name

@@ -41,6 +41,10 @@ def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
     metrics = json.loads((result.run_dir / "metrics.json").read_text())
     assert metrics["exploration_end"] == end["exploration"]
     assert f"| exploration ended | {end['exploration']} |" in (result.run_dir / "report.md").read_text()
+    assert (
+        metrics["way_home"] == "came home"
+        and "| way home | came home |" in (result.run_dir / "report.md").read_text()
+    )
     # it came back over the take-off point before landing (the return home, as exploration does)
     truth = np.loadtxt(result.run_dir / "ground_truth.tum", ndmin=2)
     assert np.linalg.norm(truth[-1, 1:3] - truth[0, 1:3]) < 0.5
