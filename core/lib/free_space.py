@@ -145,6 +145,11 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     return grown & unknown
 
 
+#: a ceiling seen from below over less than this (m², one z layer) is not continued into unknown
+#: space: door lintels (a 0.2 m wall over a 1.2–2 m door) and beams are not ceilings
+CEILING_MIN_AREA = 1.0
+
+
 def unseen_ceiling(states: np.ndarray, voxel: float, reach: float) -> np.ndarray:
     """Unknown voxels taken for the unseen rest of a ceiling seen from below, in its own layer.
 
@@ -155,7 +160,7 @@ def unseen_ceiling(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     horizontal surface with free space under it, connected to it within ``reach`` metres through
     unknown voxels of that layer (8-connected steps), are taken for more of it; seen air in that
     layer (a shaft seen from below) stays air. Only in the layer: the unseen air under it is not
-    lowered.
+    lowered. Only ceilings seen over ``CEILING_MIN_AREA`` of the block are continued.
     """
     from scipy import ndimage
 
@@ -164,6 +169,13 @@ def unseen_ceiling(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     ceiling = horizontal_surfaces(states) & _shift(states == FREE, 2, 1)
     if not ceiling.any():
         return np.zeros(states.shape, dtype=bool)
+    # a ceiling spreads: the underside of a door's lintel (0.2 m deep) is no ceiling to continue
+    eight = np.zeros((3, 3, 3), dtype=bool)
+    eight[:, :, 1] = True
+    labels, n = ndimage.label(ceiling, structure=eight)
+    big = np.bincount(labels.reshape(-1), minlength=n + 1) * voxel**2 >= CEILING_MIN_AREA
+    big[0] = False
+    ceiling = big[labels]
     unknown = states == UNKNOWN
     steps = max(1, int(round(reach / voxel)))
     out = np.zeros(states.shape, dtype=bool)

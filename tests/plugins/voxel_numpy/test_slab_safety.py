@@ -217,6 +217,11 @@ def test_the_unseen_rest_of_a_ceiling_is_an_obstacle_in_its_layer() -> None:
     assert not rest[40:].any()  # the shaft, seen free
     assert not rest[:, :, 29:].any() and not rest[:, :, :28].any()  # only the ceiling's own layer
     np.testing.assert_array_equal(obstacles(s, v, ceiling_reach=1.5), (s == OCCUPIED) | rest)
+    # a door's lintel (a 0.2 m deep underside over a 1.2 m door) is no ceiling to continue
+    lintel = np.full((60, 20, 40), UNKNOWN, dtype=np.int8)
+    lintel[:, :, :21] = 0
+    lintel[20:32, 9:11, 21] = OCCUPIED
+    assert not unseen_ceiling(lintel, v, 1.5).any()
     # a floor seen from above is no ceiling: unknown beside it stays unknown
     floor = np.full((60, 20, 40), UNKNOWN, dtype=np.int8)
     floor[:, :, 10:] = 0
