@@ -315,15 +315,6 @@ class Mapping(Backend):
         ceiling overhead); the default: occupied voxels."""
         return self.states(points, local=local) == VoxelState.OCCUPIED
 
-    def climb_spot(self, p: np.ndarray, top: float, *, within: float = 2.0) -> np.ndarray | None:
-        """The nearest point at ``p``'s height (odometry frame, the local map), within ``within``
-        metres, from which a straight climb to ``top`` keeps clear of what ``blocked(...,
-        climbing=True)`` shows, reached level in a straight line; None when there is none.
-
-        The runtime asks when the guards hold a climb (the vehicle under a ceiling its pose error
-        put it under). Optional: the default None gives the goal up as before."""
-        return None
-
     @abc.abstractmethod
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""

@@ -76,7 +76,6 @@ class Navigation(Protocol):
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool: ...
     def plan_local_path(self, start_world: np.ndarray, goal_world: np.ndarray) -> np.ndarray | None: ...
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None: ...
-    def climb_spot(self, here_world: np.ndarray, top_world_z: float) -> np.ndarray | None: ...
 
 
 class PlanHandle(Protocol):
@@ -276,15 +275,6 @@ class Robot:
         T_odom_world = invert(self.correction())
         a, b = transform_points(T_odom_world, np.stack([a_world, b_world]))
         return self.mapping.segment_free(a, b, local=True)
-
-    def climb_spot(self, here_world: np.ndarray, top_world_z: float) -> np.ndarray | None:
-        """Where (world frame, at ``here_world``'s height) the vehicle may climb straight to
-        ``top_world_z`` by the fresh local map (``Mapping.climb_spot``), or None."""
-        T_world_odom = self.correction()
-        here = np.asarray(here_world, float)
-        ends = transform_points(invert(T_world_odom), np.stack([here, [here[0], here[1], top_world_z]]))
-        spot = self.mapping.climb_spot(ends[0], float(ends[1][2]))
-        return None if spot is None else transform_points(T_world_odom, np.asarray(spot, float)[None])[0]
 
     #: room around a local path's two ends that it may use, m (a detour round a table or a shelf)
     LOCAL_MARGIN = 1.5

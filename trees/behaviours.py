@@ -484,9 +484,6 @@ class GoTo(RobotBehaviour):
         """The way on is blocked: a detour on the local map, else a new path (counted as a replan,
         which :class:`GiveUpGoal` limits)."""
         self.replanned += 1
-        if self._climb_elsewhere(here):
-            self.feedback_message = f"{why}: climbing where the local map lets it"
-            return Status.RUNNING
         if self._detour(here):
             self.feedback_message = f"{why}: detour on the local map"
             return Status.RUNNING
@@ -497,33 +494,6 @@ class GoTo(RobotBehaviour):
         if self._path_job is not None:
             self.flight.hold()  # the old path runs into what blocks it
         return Status.RUNNING
-
-    #: a waypoint this much higher than the robot (m) makes a held robot's way on a climb
-    CLIMB = 0.3
-
-    def _climb_elsewhere(self, here: np.ndarray) -> bool:
-        """The guards hold a climb (the unseen rest of a ceiling over the robot: the global map,
-        off by the pose error, put a shaft here): fly level to the nearest column the local map
-        lets the robot climb (``Navigation.climb_spot``), climb there, then on to the waypoint.
-        Three-floor seed 1 hovered 640 s under a slab's edge while 43 goals up the same column
-        were given up one after another. False when the way on is no climb or no column is near."""
-        target = self.path[self.index]
-        if target[2] - here[2] < self.CLIMB:
-            return False
-        spot = self.navigation.climb_spot(here, float(target[2]))
-        if spot is None or np.linalg.norm(spot[:2] - here[:2]) < self.WAYPOINT_TOLERANCE:
-            return False
-        up = np.array([spot[0], spot[1], target[2]])
-        self.path = np.vstack([here[None], spot[None], up[None], self.path[self.index :]])
-        self.index = self.first_index = 1
-        self.events.emit(
-            "climb_elsewhere",
-            at=np.round(here, 2).tolist(),
-            spot=np.round(spot, 2).tolist(),
-            top=round(float(target[2]), 2),
-            behaviour=self.name,
-        )
-        return True
 
     #: how far along the path a detour rejoins it, m: past what blocks the way, inside the local map
     DETOUR_REJOIN = 2.5

@@ -856,46 +856,6 @@ class VoxelMapBase(Mapping):
         block = store.dense_states(lo, shape)
         return obstacles(block, store.voxel, reach, ceiling_reach=ceiling)[tuple((idx - lo).T)]
 
-    def climb_spot(self, p: np.ndarray, top: float, *, within: float = 2.0) -> np.ndarray | None:
-        """The nearest point at ``p``'s height within ``within`` m whose column up to ``top`` keeps
-        the robot radius plus a margin and a voxel (the guards' distance) from the local map's
-        obstacles for a climb (the unseen rest of a ceiling included), and whose level way from
-        ``p`` is clear (:meth:`segment_free`); ``p`` itself when its own column is; None if none.
-
-        A vehicle held under a ceiling's unseen rest by the height guard, where the global map
-        (off by the pose error) put a shaft, finds the shaft air its local map saw a metre away.
-        """
-        self._require()
-        store, prm = self.local_map, self.params
-        v = store.voxel
-        p = np.asarray(p, dtype=float)
-        clear = self.local_radius + 0.5 * v + 0.1 + v  # the robot radius, a margin, a voxel
-        pad_xy = int(np.ceil((within + clear + prm.local_ceiling_reach) / v)) + 2
-        lo = to_index(p[None], v)[0] - np.array([pad_xy, pad_xy, 1])
-        hi = to_index(np.array([[p[0], p[1], max(top, p[2]) + clear]]), v)[0] + np.array([pad_xy, pad_xy, 2])
-        shape = tuple(int(n) for n in hi - lo)
-        blocked = obstacles(
-            store.dense_states(lo, shape), v, prm.unseen_surface_reach, ceiling_reach=prm.local_ceiling_reach
-        )
-        # a column is blocked where anything blocked lies within `clear` of it, from p's height up
-        first = max(int(to_index(p[None], v)[0][2] - lo[2]), 0)
-        in_column = blocked[:, :, first:].any(axis=2)
-        from scipy import ndimage
-
-        k = int(np.ceil(clear / v))
-        g = np.arange(-k, k + 1) * v
-        disc = np.hypot(*np.meshgrid(g, g, indexing="ij")) <= clear
-        near = ndimage.binary_dilation(in_column, structure=disc)
-        cells = np.argwhere(~near)
-        spots = np.column_stack([(cells + lo[:2] + 0.5) * v, np.full(len(cells), p[2])])
-        distance = np.linalg.norm(spots[:, :2] - p[:2], axis=1)
-        keep = distance <= within
-        spots, distance = spots[keep], distance[keep]
-        for i in np.argsort(distance, kind="stable")[:40]:
-            if distance[i] < 0.5 * v or self.segment_free(p, spots[i], local=True):
-                return p.copy() if distance[i] < 0.5 * v else spots[i]
-        return None
-
     def explored_volume(self) -> float:
         """Known (free or occupied) volume of the global map in m³."""
         self._require()

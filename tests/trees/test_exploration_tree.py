@@ -263,9 +263,6 @@ class StuckRobot(FakeRobot):
     def plan_local_path(self, a, b):
         return None
 
-    def climb_spot(self, here, top):
-        return None
-
     def send_setpoint_world(self, position, yaw):
         pass
 
@@ -445,66 +442,6 @@ def test_goto_held_in_place_with_no_way_round_gives_up_as_blocked():
     assert statuses[-1] == Status.FAILURE and len(robot.unreachable_marked) == 1
     assert go.feedback_message == "the local map showed the way blocked 3 times"
     assert robot.t < 5.0  # three holds of HOLD_PATIENCE each, not the 20 s no-progress clock
-
-
-class ShaftRobot(StuckRobot):
-    """Its path climbs a "shaft" at x = 0 that is the unseen rest of a slab (z 2) over it: the
-    height guard holds it 0.8 m under; the seen shaft is at x ≥ 1, where the local map lets it
-    climb (``climb_spot``, when ``shaft_seen``)."""
-
-    def __init__(self, shaft_seen: bool):
-        super().__init__()
-        self.here = np.array([0.0, 0.0, 1.0])
-        self.shaft_seen = shaft_seen
-        self.events = []
-        self.yaw = 0.0
-
-    def yaw_world(self):
-        return self.yaw
-
-    def request_path(self, goal):
-        from concurrent.futures import Future
-
-        future = Future()
-        future.set_result(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [5.0, 0.0, 3.0], goal]))
-        return future
-
-    def position_world(self):
-        return self.here.copy()
-
-    def send_setpoint_world(self, position, yaw):
-        self.yaw = yaw  # turns at once
-        sent = np.asarray(position, float).copy()
-        if abs(self.here[0]) < 1.0 and self.here[2] < 2.0:
-            sent[2] = min(sent[2], 1.2)  # under the unseen slab
-        step = sent - self.here
-        self.here = self.here + step * min(1.0, 0.2 / max(np.linalg.norm(step), 1e-9))
-        return sent
-
-    def climb_spot(self, here, top):
-        return np.array([1.5, here[1], here[2]]) if self.shaft_seen else None
-
-    def emit(self, name, **fields):
-        self.events.append((name, fields))
-
-
-def test_a_climb_held_under_a_ceiling_moves_to_where_it_may_climb():
-    """Three-floor seed 1 hovered 640 s under a slab's edge while 43 goals up that column were
-    given up; the goal now climbs where the local map lets it, once."""
-    robot = ShaftRobot(shaft_seen=True)
-    go = goal_to(robot)
-    statuses = fly(robot, go, 600)
-    assert statuses[-1] == Status.SUCCESS and not robot.unreachable_marked
-    (climb,) = [f for name, f in robot.events if name == "climb_elsewhere"]
-    assert climb["spot"][0] == 1.5 and climb["top"] == 3.0
-
-
-def test_a_held_climb_with_nowhere_to_climb_is_given_up_as_before():
-    robot = ShaftRobot(shaft_seen=False)
-    go = goal_to(robot)
-    statuses = fly(robot, go, 600)
-    assert statuses[-1] == Status.FAILURE and len(robot.unreachable_marked) == 1
-    assert not [name for name, _ in robot.events if name == "climb_elsewhere"]
 
 
 class TableRobot(StuckRobot):

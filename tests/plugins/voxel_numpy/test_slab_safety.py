@@ -261,29 +261,3 @@ def _fly(guard, start: np.ndarray, goal: np.ndarray, ticks: int = 40) -> np.ndar
         p = p + step * min(1.0, 0.1 / max(float(np.linalg.norm(step)), 1e-9))
         track.append(p)
     return np.array(track)
-
-
-@pytest.mark.parametrize("cls", BACKENDS)
-def test_a_held_climb_finds_a_column_it_may_climb(cls, tmp_path) -> None:
-    # Held under the unseen rest of the ceiling, the vehicle looks for the nearest column the
-    # guards let it climb: level, beyond the rule's reach (1.5 m from the seen edge) or in the
-    # seen shaft; from there the guards let it climb all the way.
-    from amslam.setpoints import SetpointFilter
-
-    shift = np.array([3.0, 1.0, 2.0])
-    m = load(
-        cls,
-        tmp_path,
-        np.full(N, UNKNOWN, np.int8),
-        local=_ceiling_seen_on_one_side(),
-        local_origin=(-30, -10, -20),
-    )
-    here, up = np.array([1.95, 1.05, 1.85]) - shift, np.array([0.0, 0.0, 1.65])
-    spot = m.climb_spot(here, float((here + up)[2]))
-    assert spot is not None and spot[2] == here[2]
-    assert 0.9 < np.linalg.norm(spot - here) <= 2.0  # past the unseen rest (x 1.0–2.5 m) and its margin
-    assert m.segment_free(here, spot, local=True)
-    np.testing.assert_allclose(_fly(SetpointFilter(m, 0.25, 0.0, 0.6), spot, spot + up)[-1], spot + up)
-    # under the seen ceiling with nowhere to climb within reach: none
-    under = np.array([0.3, 1.05, 1.85]) - shift
-    assert m.climb_spot(under, float((under + up)[2]), within=0.5) is None
