@@ -67,16 +67,20 @@ SLAB_MIN_AREA = 4.0
 def slabs(states: np.ndarray, voxel: float) -> np.ndarray:
     """The :func:`horizontal_surfaces` voxels of slabs, floors and ceilings: components of at least
     ``SLAB_MIN_AREA`` within their z layer (furniture tops excluded)."""
+    return large_in_layer(horizontal_surfaces(states), voxel, SLAB_MIN_AREA)
+
+
+def large_in_layer(mask: np.ndarray, voxel: float, min_area: float) -> np.ndarray:
+    """The voxels of ``mask`` whose component within their z layer (8-connected) covers at least
+    ``min_area`` m²."""
     from scipy import ndimage
 
-    surf = horizontal_surfaces(states)
-    if not surf.any():
-        return surf
+    if not mask.any():
+        return mask
     eight = np.zeros((3, 3, 3), dtype=bool)
     eight[:, :, 1] = True  # connected within the layer only
-    labels, n = ndimage.label(surf, structure=eight)
-    sizes = np.bincount(labels.reshape(-1), minlength=n + 1)
-    big = sizes * voxel**2 >= SLAB_MIN_AREA
+    labels, n = ndimage.label(mask, structure=eight)
+    big = np.bincount(labels.reshape(-1), minlength=n + 1) * voxel**2 >= min_area
     big[0] = False
     return big[labels]
 
@@ -123,7 +127,9 @@ def narrow_slab_gaps(
     return free & near & ~wide & through
 
 
-def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray:
+def unseen_surface(
+    states: np.ndarray, voxel: float, reach: float, surface: np.ndarray | None = None
+) -> np.ndarray:
     """Unknown voxels taken for the unseen continuation of a seen slab, floor or ceiling.
 
     A 0.2 m slab seen from below is one layer of occupied voxels with unknown above it; a slab edge
@@ -131,12 +137,13 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     voxels keep a path off a surface, so a path along (or through) such a slab can pass within a
     radius of it. Unknown voxels connected to a horizontal surface through unknown voxels within
     ``reach`` metres (6-connected steps) are treated as occupied for clearance instead.
+    ``surface``: the block's :func:`horizontal_surfaces`, when the caller has them.
     """
     from scipy import ndimage
 
     if reach <= 0:
         return np.zeros(states.shape, dtype=bool)
-    slab = horizontal_surfaces(states)
+    slab = horizontal_surfaces(states) if surface is None else surface
     if not slab.any():
         return np.zeros(states.shape, dtype=bool)
     unknown = states == UNKNOWN
@@ -150,7 +157,9 @@ def unseen_surface(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
 CEILING_MIN_AREA = 1.0
 
 
-def unseen_ceiling(states: np.ndarray, voxel: float, reach: float) -> np.ndarray:
+def unseen_ceiling(
+    states: np.ndarray, voxel: float, reach: float, surface: np.ndarray | None = None
+) -> np.ndarray:
     """Unknown voxels taken for the unseen rest of a ceiling seen from below, in its own layer.
 
     The camera looks level: a vehicle sees a ceiling only ahead of it, from a metre or more below,
@@ -161,21 +170,17 @@ def unseen_ceiling(states: np.ndarray, voxel: float, reach: float) -> np.ndarray
     unknown voxels of that layer (8-connected steps), are taken for more of it; seen air in that
     layer (a shaft seen from below) stays air. Only in the layer: the unseen air under it is not
     lowered. Only ceilings seen over ``CEILING_MIN_AREA`` of the block are continued.
+    ``surface``: the block's :func:`horizontal_surfaces`, when the caller has them.
     """
     from scipy import ndimage
 
     if reach <= 0:
         return np.zeros(states.shape, dtype=bool)
-    ceiling = horizontal_surfaces(states) & _shift(states == FREE, 2, 1)
+    surface = horizontal_surfaces(states) if surface is None else surface
+    # a ceiling spreads: the underside of a door's lintel (0.2 m deep) is no ceiling to continue
+    ceiling = large_in_layer(surface & _shift(states == FREE, 2, 1), voxel, CEILING_MIN_AREA)
     if not ceiling.any():
         return np.zeros(states.shape, dtype=bool)
-    # a ceiling spreads: the underside of a door's lintel (0.2 m deep) is no ceiling to continue
-    eight = np.zeros((3, 3, 3), dtype=bool)
-    eight[:, :, 1] = True
-    labels, n = ndimage.label(ceiling, structure=eight)
-    big = np.bincount(labels.reshape(-1), minlength=n + 1) * voxel**2 >= CEILING_MIN_AREA
-    big[0] = False
-    ceiling = big[labels]
     unknown = states == UNKNOWN
     steps = max(1, int(round(reach / voxel)))
     out = np.zeros(states.shape, dtype=bool)
@@ -206,10 +211,11 @@ def obstacles(
     part of a larger block passes those of the whole block, and everything else here depends only
     on the voxels within :func:`graph_rules_reach` of a voxel."""
     occ = states == OCCUPIED
+    surface = horizontal_surfaces(states) if unseen_reach > 0 or ceiling_reach > 0 else None
     if unseen_reach > 0:
-        occ |= unseen_surface(states, voxel, unseen_reach)
+        occ |= unseen_surface(states, voxel, unseen_reach, surface)
     if ceiling_reach > 0:
-        occ |= unseen_ceiling(states, voxel, ceiling_reach)
+        occ |= unseen_ceiling(states, voxel, ceiling_reach, surface)
     if slab_opening > 0:
         occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach, slab=slab)
     return occ
