@@ -5,6 +5,8 @@
   mean ± std per world and over all.
 * ``planners`` — one or more missions with each exploration planner (COP, TSP, greedy):
   explored volume against distance travelled and time, mean ± std per world and over all.
+* ``calibrate`` — one parameter's value chosen on training seeds and judged on held-out seeds
+  (:mod:`amslam.apps.calibration`).
 
 Every run is an ordinary run folder under ``<out>/<experiment>-<mission>-<timestamp>/runs``; the
 experiment folder adds ``results.json``, ``table.md`` and PNG plots.
@@ -20,6 +22,7 @@ from typing import Any
 import numpy as np
 
 import amslam
+from amslam.apps import calibration
 from amslam.apps.flights import SERIAL, Flight, FlightRunner, experiment_folder, flight_arguments, fly_all
 from amslam.cli import Experiment
 from amslam.registry import Registry
@@ -672,6 +675,12 @@ def amslam_experiments():
                 [args.mission, *args.more], registry, _seeds(args), Path(args.out), **_how(args)
             ),
             flight_arguments,
+            several_missions=True,
+        ),
+        "calibrate": Experiment(
+            "choose one parameter's value on training seeds and judge it on held-out seeds",
+            calibration.run_from_args,
+            calibration.calibration_arguments,
             several_missions=True,
         ),
         "pams": Experiment(

@@ -228,3 +228,41 @@ def test_a_real_time_runs_late_control_ticks_are_a_row_of_the_report() -> None:
         " | 50 / 40 / 10 / 12 |",
         "| latency frame to global map (ms) | median 200.0, p95 290.0, max 300.0 (3 samples) |",
     ]
+
+
+def test_trajectory_error_is_over_the_whole_flight_at_the_key_poses(tmp_path):
+    from types import SimpleNamespace
+
+    from amslam.apps.report import _trajectory_error
+    from amslam.types import KeyPose, RunSummary
+
+    # truth along x at 1 m/s sampled at 10 Hz; VIO drifts 0.1 m per second in y; SLAM's key poses,
+    # one per second, are 0.05 m off in z except the last, 0.5 m off (a bad end, a good flight)
+    truth = tuple((0.1 * i, _pose(0.1 * i, 0.0, 1.0)) for i in range(101))
+    vio = tuple((t, _pose(T[0, 3], 0.1 * t, 1.0)) for t, T in truth)
+    keyposes = tuple(
+        KeyPose(k, float(k), _pose(float(k), 0.0, 1.05 if k < 10 else 1.5), float(k)) for k in range(11)
+    )
+    summary = RunSummary(
+        mission=SimpleNamespace(name="line"),
+        run_dir=tmp_path,
+        verdict="completed",
+        truth=truth,
+        vio=vio,
+        keyposes=keyposes,
+        slam_optimises=True,
+    )
+    track = _trajectory_error(summary)["trajectory_error"]
+    assert track["at"] == "key poses" and track["samples"] == 11
+    vio_err = 0.1 * np.arange(11.0)
+    assert track["vio_rms_m"] == pytest.approx(np.sqrt(np.mean(vio_err**2)), abs=1e-4)
+    assert track["vio_max_m"] == pytest.approx(1.0, abs=1e-4)
+    slam_err = np.array([0.05] * 10 + [0.5])
+    assert track["slam_rms_m"] == pytest.approx(np.sqrt(np.mean(slam_err**2)), abs=1e-4)
+    assert track["slam_mean_m"] == pytest.approx(slam_err.mean(), abs=1e-4)
+    # the odometry baseline keeps no key poses: VIO alone, at its own samples
+    odometry = dataclasses.replace(summary, keyposes=(), slam_optimises=False)
+    track = _trajectory_error(odometry)["trajectory_error"]
+    assert track["at"] == "VIO samples" and track["samples"] == 101 and "slam_rms_m" not in track
+    # no true trajectory (a real vehicle): nothing
+    assert _trajectory_error(dataclasses.replace(summary, truth=())) == {}
