@@ -38,7 +38,16 @@ from typing import Any
 import numpy as np
 
 from amslam.interfaces import Backend, BackendParams, RunContext, Slam
-from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate, SlcGainModel
+from amslam.types import (
+    Detection,
+    KeyPose,
+    Landmark,
+    LoopClosureResult,
+    Odometry,
+    PoseUncertainty,
+    SlcCandidate,
+    SlcGainModel,
+)
 
 __all__ = ["BackendProcess", "BackendProcessError", "SlamProcess", "implementation"]
 
@@ -271,6 +280,9 @@ class SlamProcess(Slam):
 
     def slc_gain_model(self, keypose_ids: list[int]) -> SlcGainModel | None:
         return self._process.call("slc_gain_model", keypose_ids)
+
+    def pose_uncertainty(self) -> PoseUncertainty | None:
+        return self._process.call("pose_uncertainty")
 
 
 if __name__ == "__main__":

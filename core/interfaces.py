@@ -37,6 +37,7 @@ from amslam.types import (
     LoopClosureResult,
     Odometry,
     PlanRequest,
+    PoseUncertainty,
     RobotSpec,
     SlcCandidate,
     SlcGainModel,
@@ -409,6 +410,12 @@ class Slam(Backend):
         own ``info_gain``."""
         return None
 
+    def pose_uncertainty(self) -> PoseUncertainty | None:
+        """The latest key pose's position covariance (world frame) and the odometry noise that
+        grows it, for planners that keep the robot's localisation uncertainty within a bound
+        (paper 2 §IV-D). None: the backend keeps no covariances (the odometry baseline)."""
+        return None
+
 
 class Planner(Backend):
     """Exploration planning: a tour over viewpoints (and loop-closure candidates)."""
@@ -416,6 +423,9 @@ class Planner(Backend):
     #: False for planners that plan views of known objects (``PlanRequest.landmarks``) rather than
     #: of frontiers: the robot then asks them for a tour even when no frontier viewpoint is left.
     needs_frontiers: bool = True
+    #: True for planners that read ``PlanRequest.pose_uncertainty``: the runtime asks the SLAM
+    #: backend for it (a marginal covariance) only for them.
+    needs_pose_uncertainty: bool = False
 
     @abc.abstractmethod
     def plan(self, request: PlanRequest) -> list[TourItem]:

@@ -305,6 +305,7 @@ class PlanningService:
             slc_costs=slc_costs,
             slc_gain=slc_gain,
             landmarks=tuple(self.slam.landmarks()),
+            pose_uncertainty=self.slam.pose_uncertainty() if self.planner.needs_pose_uncertainty else None,
         )
         with self.boundary.calling("planner", "plan()"):
             tour = self.boundary.tour(self.planner.plan(request), request, self.plans_frontiers)

@@ -295,6 +295,46 @@ class OdometryNoise:
 
 
 @dataclass(frozen=True)
+class PoseUncertainty:
+    """How well the robot knows where it is, as its SLAM backend sees it when a plan is asked for:
+    what a planner keeping the robot's localisation uncertainty within a bound needs (paper 2
+    §IV-D), without the factor graph.
+
+    Attributes:
+        position_covariance: (3, 3) marginal covariance of the latest key pose's position, world
+            frame, m².
+        odometry: how it grows with the distance flown until a measurement corrects it.
+    """
+
+    position_covariance: np.ndarray
+    odometry: OdometryNoise
+
+    def __post_init__(self) -> None:
+        if np.shape(self.position_covariance) != (3, 3):
+            raise ValueError(
+                f"PoseUncertainty: position covariance {np.shape(self.position_covariance)}, expected (3, 3)"
+            )
+
+    @property
+    def position_std(self) -> float:
+        """The std along the worst-known direction, m (the largest eigenvalue's root)."""
+        return float(np.sqrt(max(0.0, float(np.linalg.eigvalsh(self.position_covariance)[-1]))))
+
+    def std_after(self, distance: float | np.ndarray) -> float | np.ndarray:
+        """The worst-direction std after flying ``distance`` metres with no correction: the
+        odometry's horizontal random walk (variance ``translation² · distance``) added to it."""
+        return np.sqrt(self.position_std**2 + self.odometry.translation**2 * np.asarray(distance, float))
+
+    def reach(self, max_std: float) -> float:
+        """How far the robot may fly before its std passes ``max_std``, m (0 when it already has)."""
+        room = max_std**2 - self.position_std**2
+        if room <= 0.0:
+            return 0.0
+        rate = self.odometry.translation**2
+        return math.inf if rate <= 0.0 else room / rate
+
+
+@dataclass(frozen=True)
 class SlcGainModel:
     """What eq. (10) needs to score a *sequence* of loop closures without the factor graph.
 
@@ -366,6 +406,8 @@ class PlanRequest:
         camera: the camera model, for field-of-view overlap.
         landmarks: the SLAM backend's current object map (world frame), for planners that plan
             views of known objects (paper 2's PAMS) rather than of frontiers.
+        pose_uncertainty: the robot's localisation uncertainty, for planners that ask for it
+            (``Planner.needs_pose_uncertainty``) from a backend that has one; None otherwise.
     """
 
     start: np.ndarray
@@ -377,6 +419,7 @@ class PlanRequest:
     slc_costs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     slc_gain: SlcGainModel | None = None
     landmarks: tuple[Landmark, ...] = ()
+    pose_uncertainty: PoseUncertainty | None = None
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from amslam.types import (
     Landmark,
     LoopClosureResult,
     Odometry,
+    PoseUncertainty,
     SlcCandidate,
     SlcGainModel,
 )
@@ -163,6 +164,12 @@ class SlamContract(BackendContract):
             current = model.keypose_ids[0]
             one = [chain_gain(model, [(current, i, 1.0)]) for i in ids if i != current]
             assert np.all(np.isfinite(one)) and np.all(np.asarray(one) >= -1e-9)
+        pose = slam.pose_uncertainty()
+        if pose is not None:  # a backend with covariances (PAMS's localisation constraint reads it)
+            assert isinstance(pose, PoseUncertainty)
+            cov = np.asarray(pose.position_covariance)
+            assert np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) >= -1e-12)
+            assert np.isfinite(pose.position_std) and pose.reach(pose.position_std + 1.0) > 0
 
     def test_loop_closure_adds_only_what_it_is_handed_now(self, flown) -> None:
         """``try_loop_closure`` gets the detections seen now, at ``odom``; the earlier ones were fed

@@ -32,7 +32,16 @@ from amslam.plugins.gtsam_slam.params import (
     LoopClosureParams,
     ShapeParams,
 )
-from amslam.types import Detection, KeyPose, Landmark, LoopClosureResult, Odometry, SlcCandidate, SlcGainModel
+from amslam.types import (
+    Detection,
+    KeyPose,
+    Landmark,
+    LoopClosureResult,
+    Odometry,
+    PoseUncertainty,
+    SlcCandidate,
+    SlcGainModel,
+)
 
 if TYPE_CHECKING:
     import gtsam
@@ -258,6 +267,20 @@ class GtsamSlam(Slam):
     def slc_gain_model(self, keypose_ids: list[int]) -> SlcGainModel | None:
         """Eq. (10) for chains of loop closures among the current key pose and ``keypose_ids``."""
         return self._active.slc_gain_model(keypose_ids)
+
+    def pose_uncertainty(self) -> PoseUncertainty | None:
+        """The latest key pose's position marginal, rotated into the world frame (gtsam's Pose3
+        covariance is in the body frame's tangent space: roll, pitch, yaw, x, y, z), and the
+        odometry noise of its factors. None before the first key pose."""
+        kps = self._front.kps
+        if not kps:
+            return None
+        g = self._graph
+        key = kps[-1].key
+        cov = g.marginals([key])[key]
+        R = g.pose(key)[:3, :3]
+        position = R @ cov[3:, 3:] @ R.T
+        return PoseUncertainty(0.5 * (position + position.T), g.noise.odometry_noise())
 
     def virtual_factor(self, keypose_id: int, travel_distance: float) -> gtsam.BetweenFactorPose3:
         """The virtual factor :meth:`information_gain` evaluates (for brute-force checks)."""

@@ -29,6 +29,22 @@ ties between orders of the same set). A target is done when its entropy falls be
 ``entropy_threshold`` (default: every component's std at ``target_std``) or its samples run out;
 a path stops early at the viewpoint where the threshold is reached.
 
+**Localisation constraint.** Paper 2 §IV-D minimises a target's uncertainty "while guaranteeing
+that the classification confidence and robot localization uncertainty are within a threshold".
+The first is the high-confidence region above; the second reads the SLAM backend's
+:class:`~amslam.types.PoseUncertainty` (the latest key pose's position covariance and the
+odometry noise that grows it): a path is a candidate only while the robot's predicted position
+std stays within ``max_position_std`` along it (variance ``σ² + translation² · metres flown``,
+the odometry's random walk with no correction on the way). When no path of the current target
+fits — the robot already knows its position too poorly, or every sample is too far — it first
+**relocalises**: it flies to look at the nearest landmark of the map known better than the bound
+(its marginal position std below ``max_position_std``), from ``relocalise_range``, facing it,
+where the SLAM backend's measurement of that landmark shrinks the pose's covariance. Each
+landmark is used for that once; with none left the target is planned without the constraint
+(event ``pams_localisation_unmet``), so a robot that cannot relocalise still maps. Without a
+backend covariance (the odometry baseline) there is no constraint. The paper gives no number
+(its footnote assumes accurate LIDAR-inertial odometry): the default 1 m is not calibrated.
+
 **Bookkeeping.** A planner only sees the robot's position at each request, so a planned viewpoint
 counts as *taken* (its information is added to the target) when the robot is found within
 ``reach_tolerance`` of it at a later request, as are the viewpoints planned before it on the same
@@ -292,6 +308,16 @@ class PamsParams(BackendParams):
         description="times a viewpoint may be given up (the robot's first open stop) before it is dropped",
     )
     default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
+    max_position_std: float | None = Field(
+        1.0,
+        gt=0.0,
+        le=1000,
+        description="localisation constraint: paths keep the robot's predicted position std within"
+        " this, m (relocalising at a known landmark first when none does); None = no constraint",
+    )
+    relocalise_range: float = Field(
+        3.0, gt=0.0, le=100, description="distance from which a landmark is looked at to relocalise, m"
+    )
 
     _prior_file = field_validator("prior_objects")(_prior_objects_file)
 
@@ -540,6 +566,7 @@ class PamsPlanner(_TargetPlanner):
     """``pams``: viewpoints where the models predict confident, accurate looks (paper 2 §IV-D)."""
 
     requires = ("sklearn",)  # imported when built (see Backend.requires)
+    needs_pose_uncertainty = True
 
     Params = PamsParams
 
@@ -550,6 +577,7 @@ class PamsPlanner(_TargetPlanner):
         self.states: dict[int, _TargetState] = {}
         self.rng = np.random.default_rng(0)
         self._emit = None
+        self.relocalised_at: set[int] = set()  # landmarks already flown to for relocalisation
 
     def configure(self, params: PamsParams, context: RunContext) -> None:
         """Load the uncertainty models; the prior map is read at the first request.
@@ -572,6 +600,7 @@ class PamsPlanner(_TargetPlanner):
         self.rng = context.rng
         self.states = {}
         self._emit = context.emit
+        self.relocalised_at = set()
 
     def _classes(self) -> set[str] | None:
         wanted = super()._classes()
@@ -666,8 +695,11 @@ class PamsPlanner(_TargetPlanner):
         return self.states[tid]
 
     # -- path choice --------------------------------------------------------------------------
-    def best_path(self, st: _TargetState, start: np.ndarray, threshold: float) -> tuple[list[int], float]:
-        """The ordered samples (at most ``horizon``) of largest gain and that gain.
+    def best_path(
+        self, st: _TargetState, start: np.ndarray, threshold: float, max_length: float = math.inf
+    ) -> tuple[list[int], float]:
+        """The ordered samples (at most ``horizon``) of largest gain and that gain; ``([], 0.0)``
+        when no sample lies within ``max_length`` metres (the localisation constraint's reach).
 
         Every one of the ``P(a, T)`` orders of the ``a`` free samples is evaluated; a path is cut
         at the viewpoint where the entropy reaches ``threshold`` (the target is done there). The
@@ -675,7 +707,8 @@ class PamsPlanner(_TargetPlanner):
         information summed once and the last viewpoint of all paths through a prefix evaluated
         at once (one stacked ``slogdet``): P(a, T)·T determinants one at a time took seconds per
         plan with the default 120 samples. Ties keep the first order, as a plain loop over the
-        permutations would (``_better``).
+        permutations would (``_better``). A path is cut before the first viewpoint beyond
+        ``max_length`` metres of flight: shorter paths of the same prefix compete instead.
         """
         left = np.flatnonzero(~st.used).tolist()
         T = min(self.params.horizon, len(left))
@@ -705,6 +738,13 @@ class PamsPlanner(_TargetPlanner):
         def extend(info: np.ndarray, last: int | None, length: float, taken: list[int]) -> None:
             rest = [k for k in range(len(left)) if k not in taken]
             steps = from_start[rest] if last is None else between[last, rest]
+            within = length + steps <= max_length + 1e-9
+            if taken and not within.all():  # the path may also end here, short of what is too far
+                h = -0.5 * float(np.linalg.slogdet(info)[1])
+                offer(np.array([h0 - h - weight * length]), [list(taken)], np.array([h0 - h]))
+            rest, steps = [k for k, ok in zip(rest, within, strict=True) if ok], steps[within]
+            if not rest:
+                return
             if len(taken) == T - 1:  # the paths' last viewpoints, all at once
                 h = -0.5 * np.linalg.slogdet(info + meas[rest])[1]
                 gain = h0 - h
@@ -719,7 +759,8 @@ class PamsPlanner(_TargetPlanner):
                     extend(here_info, k, here_length, [*taken, k])
 
         extend(np.linalg.inv(st.cov), None, 0.0, [])
-        assert best[0] is not None
+        if best[0] is None:
+            return [], 0.0
         _, taken, gain = best[0]
         return [left[k] for k in taken], gain
 
@@ -764,7 +805,18 @@ class PamsPlanner(_TargetPlanner):
                 )
                 continue
             free = int((~st.used).sum())
-            path, gain = self.best_path(st, request.start, threshold)
+            reach = self.localisation_reach(request)
+            path, gain = self.best_path(st, request.start, threshold, reach)
+            if not path:  # no path keeps the robot localised: look at a known landmark first
+                if relocalise := self.relocalise(request, height):
+                    return relocalise
+                self._event(
+                    "pams_localisation_unmet",
+                    tid,
+                    position_std=round(request.pose_uncertainty.position_std, 3),
+                    reach=round(reach, 2),
+                )
+                path, gain = self.best_path(st, request.start, threshold)
             st.used[path] = True
             target = self.targets[tid]
             items = []
@@ -783,6 +835,55 @@ class PamsPlanner(_TargetPlanner):
                 entropy=round(h, 4),
             )
             return items
+        return []
+
+    # -- localisation constraint ------------------------------------------------------------
+    def localisation_reach(self, request: PlanRequest) -> float:
+        """How far the robot may fly before its predicted position std passes
+        ``max_position_std``, m; unbounded without the constraint or a backend covariance."""
+        bound, pose = self.params.max_position_std, request.pose_uncertainty
+        if bound is None or pose is None:
+            return math.inf
+        return pose.reach(bound)
+
+    def relocalise(self, request: PlanRequest, height: float) -> list[TourItem]:
+        """A stop that looks at the nearest landmark known better than ``max_position_std``
+        (never one used before), from ``relocalise_range`` on the robot's side of it or, when
+        that spot is blocked by an object, at another bearing; empty when there is none."""
+        p, pose = self.params, request.pose_uncertainty
+        candidates = []
+        for lm in request.landmarks:
+            cov = np.asarray(lm.covariance, float)
+            if lm.id in self.relocalised_at or cov.shape != (3, 3) or not np.isfinite(cov).all():
+                continue
+            std = float(np.sqrt(max(0.0, float(np.linalg.eigvalsh(cov)[-1]))))
+            if std < p.max_position_std:
+                candidates.append(
+                    (float(np.linalg.norm(lm.position[:2] - request.start[:2])), lm.id, lm, std)
+                )
+        for distance, _, lm, std in sorted(candidates, key=lambda c: c[:2]):
+            centre = np.asarray(lm.position, float)
+            towards = math.atan2(request.start[1] - centre[1], request.start[0] - centre[0])
+            bearings = towards + np.radians(np.arange(0.0, 360.0, 30.0))
+            bearings = bearings[
+                np.argsort(np.abs((bearings - towards + np.pi) % (2 * np.pi) - np.pi), kind="stable")
+            ]
+            xy = centre[:2] + p.relocalise_range * np.column_stack([np.cos(bearings), np.sin(bearings)])
+            free = np.flatnonzero(self._free(xy, height=height))
+            if len(free) == 0:
+                continue
+            spot = np.array([*xy[free[0]], height])
+            self.relocalised_at.add(lm.id)
+            if self._emit is not None:
+                self._emit(
+                    "pams_relocalise",
+                    landmark=lm.id,
+                    cls=lm.class_name,
+                    landmark_std=round(std, 3),
+                    position_std=round(pose.position_std, 3),
+                    distance=round(distance, 2),
+                )
+            return [_item(spot, _facing(spot, centre), 0.0, lm.id)]
         return []
 
     def _event(self, name: str, tid: int, **fields) -> None:

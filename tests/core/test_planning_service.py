@@ -29,6 +29,7 @@ class UpperFloorOutOfReach:
 
 class Recorder:
     needs_frontiers = True
+    needs_pose_uncertainty = False
 
     def __init__(self):
         self.requests = []
@@ -112,3 +113,20 @@ def test_views_stay_reachable_when_the_map_shows_the_robot_inside_a_wall() -> No
     assert np.all(np.isfinite(request.costs)) and np.allclose(request.costs, request.costs.T)
     # the tour's closure (larger of a pair's two directions) keeps both views: seed 3 lost them all
     assert planning_graph(request).size == 2
+
+
+def test_the_pose_uncertainty_is_asked_for_only_by_planners_that_read_it() -> None:
+    asked = []
+
+    class SlamWithCovariance(NoSlam):
+        def pose_uncertainty(self):
+            asked.append(True)
+            return "the backend's pose uncertainty"
+
+    s, planner = service([viewpoint(IN_SHAFT, 30.0)])
+    s.slam = SlamWithCovariance()
+    s.plan_async(1.2).result()
+    assert planner.requests[-1].pose_uncertainty is None and not asked  # a marginal costs time
+    planner.needs_pose_uncertainty = True
+    s.plan_async(1.2).result()
+    assert planner.requests[-1].pose_uncertainty == "the backend's pose uncertainty" and asked

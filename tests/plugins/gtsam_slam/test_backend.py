@@ -366,3 +366,29 @@ def test_association_and_the_reported_class_posterior(gate: float | None) -> Non
         assert len(at_weak) == 1 and at_weak[0].observations == 2
         probs = at_weak[0].class_probabilities
         assert probs["table"] > 0.6 > probs["chair"]
+
+
+def test_pose_uncertainty_is_the_latest_key_poses_position_marginal_in_the_world_frame():
+    from amslam.types import Odometry
+
+    from .conftest import configured
+
+    slam = configured()
+    assert slam.pose_uncertainty() is None  # no key pose yet
+    stds = []
+    for k in range(41):  # 20 m due north (yaw 90°), no landmarks: nothing corrects the odometry
+        T = np.eye(4)
+        T[:3, :3] = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        T[:3, 3] = (0.0, 0.5 * k, 1.2)
+        slam.add_odometry(Odometry(0.1 * k, T))
+        if (pose := slam.pose_uncertainty()) is not None:
+            stds.append(pose.position_std)
+    pose = slam.pose_uncertainty()
+    cov = pose.position_covariance
+    np.testing.assert_allclose(cov, cov.T)
+    assert np.all(np.diff(stds) >= -1e-12) and stds[-1] > stds[0]  # grows with the distance flown
+    # the yaw random walk's lever arm widens the error across the track (world x), not along it
+    assert cov[0, 0] > cov[1, 1]
+    # the translation walk alone over 20 m bounds it from below (σ = 0.05 m/√m · √20 m)
+    assert pose.position_std >= 0.05 * np.sqrt(20.0) - 1e-6
+    assert pose.odometry == slam._graph.noise.odometry_noise()

@@ -3,6 +3,7 @@ and the prior-visit baseline."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -385,3 +386,87 @@ def test_the_low_uncertainty_region_is_the_papers_95_percent_within_the_error_li
     assert norm.cdf(0.1, scale=limits[0]) - norm.cdf(-0.1, scale=limits[0]) == pytest.approx(0.95)
     looser = region_std_limits(PamsParams(error_confidence=0.68), ["x"])
     assert looser[0] > limits[0]
+
+
+# -- localisation constraint (paper 2 §IV-D) ----------------------------------------------------
+
+
+def _pose(std: float, translation: float = 0.05):
+    from amslam.types import OdometryNoise, PoseUncertainty
+
+    noise = OdometryNoise(translation, 0.01, 0.005, 0.001, 0.01, 0.001, 0.001)
+    return PoseUncertainty(np.diag([std**2, (0.5 * std) ** 2, 0.01]), noise)
+
+
+def test_pose_uncertainty_grows_with_the_distance_flown_and_bounds_the_reach():
+    pose = _pose(0.6)
+    assert pose.position_std == pytest.approx(0.6)  # the worst direction
+    assert pose.std_after(100.0) == pytest.approx(math.sqrt(0.36 + 0.0025 * 100))
+    assert pose.reach(1.0) == pytest.approx((1.0 - 0.36) / 0.0025)  # 256 m
+    assert pose.std_after(pose.reach(1.0)) == pytest.approx(1.0)
+    assert pose.reach(0.5) == 0.0
+    with pytest.raises(ValueError, match="expected \\(3, 3\\)"):
+        type(pose)(np.eye(2), pose.odometry)
+
+
+def _flown(start: np.ndarray, tour) -> float:
+    stops = [start, *(item.position for item in tour)]
+    return float(sum(np.linalg.norm(b - a) for a, b in zip(stops, stops[1:], strict=False)))
+
+
+def test_paths_keep_the_robot_within_its_localisation_bound(tmp_path, models_path):
+    events: list = []
+
+    def planner():
+        return _pams(
+            tmp_path,
+            models_path,
+            events,
+            prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
+            target_std=1e-4,
+            max_position_error=0.6,
+            max_dimension_error=1.0,
+            sampling="uniform",
+            samples=12,
+            max_position_std=1.0,
+        )
+
+    request = _request()
+    free_planner = planner()
+    free = free_planner.plan(request)  # no covariance from the backend: no constraint
+    nearest = min(np.linalg.norm(p - request.start) for p in free_planner.states[0].samples)
+    reach = max(nearest + 0.5, 0.7 * _flown(request.start, free))
+    assert reach < _flown(request.start, free)  # the unconstrained path would break the bound
+    pose = _pose(math.sqrt(1.0 - 0.0025 * reach))
+    assert pose.reach(1.0) == pytest.approx(reach)
+    tour = planner().plan(dataclasses.replace(request, pose_uncertainty=pose))
+    assert tour and all(item.ref == 0 for item in tour)
+    assert _flown(request.start, tour) <= reach + 1e-6
+    assert not [e for e, _ in events if e.startswith("pams_relocal") or e == "pams_localisation_unmet"]
+
+
+def test_a_robot_too_uncertain_relocalises_at_a_known_landmark_first(tmp_path, models_path):
+    events: list = []
+    planner = _pams(
+        tmp_path,
+        models_path,
+        events,
+        prior_objects=_prior(tmp_path, [("car", CAR["center"], CAR)]),
+        max_position_error=0.6,
+        max_dimension_error=1.0,
+        max_position_std=0.5,
+        relocalise_range=3.0,
+    )
+    known = Landmark(7, "pole", np.array([-4.0, 0.0, 1.0]), np.eye(3) * 0.1**2, 9)
+    vague = Landmark(8, "pole", np.array([-1.0, 0.0, 1.0]), np.eye(3) * 0.9**2, 2)  # nearer, worse known
+    request = dataclasses.replace(_request(landmarks=[known, vague]), pose_uncertainty=_pose(0.8))
+    (stop,) = planner.plan(request)
+    assert stop.ref == 7 and stop.gain == 0.0
+    np.testing.assert_allclose(stop.position, [-1.0, 0.0, 2.0], atol=1e-9)  # 3 m from it, on our side
+    assert abs(math.remainder(stop.yaw - math.pi, 2 * math.pi)) < 1e-9  # facing it
+    (relocalise,) = [f for e, f in events if e == "pams_relocalise"]
+    assert relocalise["landmark"] == 7 and relocalise["position_std"] == 0.8
+    # still too uncertain and no other known landmark: the target is planned all the same
+    tour = planner.plan(request)
+    assert tour and all(item.ref == 0 for item in tour)
+    assert [e for e, _ in events].count("pams_localisation_unmet") == 1
