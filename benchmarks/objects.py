@@ -39,6 +39,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from amslam.apps.tables import mean_std
+
 # The packaged missions the SLC ablation flies (``amslam experiment slc-ablation``), so that its
 # flights score here too (``--runs``); the three-floor and house missions fly odometry and the
 # greedy planner by default: the benchmark scores the full stack on every building.
@@ -52,15 +54,6 @@ BUILDINGS = {
 DETECTORS = {"sim": [], "onnx": ["detector.plugin=onnx"]}
 SUMMARY = ("mapped_pct", "duplicates_pct", "spurious_pct", "mean_error_m", "median_error_m", "off_0_5")
 COUNTS = ("objects", "matched", "duplicates", "spurious")
-
-
-def _stats(values: list[float]) -> str:
-    vals = [v for v in values if v is not None and math.isfinite(v)]
-    if not vals:
-        return "—"
-    mean = sum(vals) / len(vals)
-    std = math.sqrt(sum((v - mean) ** 2 for v in vals) / len(vals))
-    return f"{mean:.2f} ± {std:.2f}" if len(vals) > 1 else f"{mean:.2f}"
 
 
 def flight_figures(metrics: dict[str, Any]) -> dict[str, Any] | None:
@@ -110,7 +103,7 @@ def tables(rows: list[dict[str, Any]]) -> str:
         out.append(
             f"| {building} | {detector} | {len(figs)} of {len(group)}{ended} | "
             + " | ".join(
-                _stats([f[k] for f in figs])
+                mean_std([f[k] for f in figs], 2)
                 for k in (
                     "mapped_pct",
                     "duplicates_pct",

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from amslam.apps.flights import SERIAL, Flight, FlightRunner, experiment_folder, fly_all
+from amslam.apps.tables import mean_std
 from amslam.errors import AmslamError, MissionError
 from amslam.registry import Registry
 
@@ -268,14 +269,6 @@ CONTEXT_COLUMNS = (
 )
 
 
-def _mean_std(values: list[float | None], digits: int) -> str:
-    finite = [v for v in values if v is not None]
-    if not finite:
-        return "—"
-    text = f"{np.mean(finite):.{digits}f} ± {np.std(finite):.{digits}f}"
-    return text if len(finite) == len(values) else f"{text} ({len(finite)} of {len(values)})"
-
-
 def _value_rows(rows: list[dict[str, Any]], values: list[Any], metric: str) -> list[str]:
     """One table row per value (and world, when there are several): flights completed, the metric
     and the context columns, mean ± std over seeds."""
@@ -289,8 +282,8 @@ def _value_rows(rows: list[dict[str, Any]], values: list[Any], metric: str) -> l
             if not mine:
                 continue
             done = sum(r["metrics"].get("verdict") == "completed" for r in mine)
-            cells = [_mean_std([metric_of(r["metrics"], metric) for r in mine], 3)] + [
-                _mean_std([metric_of(r["metrics"], path) for r in mine], digits)
+            cells = [mean_std([metric_of(r["metrics"], metric) for r in mine], 3)] + [
+                mean_std([metric_of(r["metrics"], path) for r in mine], digits)
                 for _, path, digits in CONTEXT_COLUMNS
             ]
             lines.append(

@@ -24,6 +24,7 @@ import numpy as np
 import amslam
 from amslam.apps import calibration
 from amslam.apps.flights import SERIAL, Flight, FlightRunner, experiment_folder, flight_arguments, fly_all
+from amslam.apps.tables import mean_std
 from amslam.cli import Experiment
 from amslam.registry import Registry
 
@@ -135,17 +136,6 @@ def plot_trajectories(rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
-
-
-def _mean_std(values: Any, digits: int = 1, unit: str = " %") -> str:
-    """``mean ± std`` (population std) of the finite ones among ``values``, with how many when
-    some runs did not measure it; "—" when none did."""
-    all_ = list(values)
-    finite = [float(v) for v in all_ if v is not None and np.isfinite(v)]
-    if not finite:
-        return "—"
-    text = f"{np.mean(finite):.{digits}f} ± {np.std(finite):.{digits}f}{unit}"
-    return text if len(finite) == len(all_) else f"{text} ({len(finite)} of {len(all_)})"
 
 
 def _xyz(offset: Any) -> str:
@@ -283,10 +273,10 @@ def slc_tables(rows: list[dict]) -> str:
             f"{sum(f['slam_below_vio'] for f in fs)} of {len(fs)} | "
             f"{sum(f['accepted'] for f in fs)} / {sum(attempts) if attempts else '—'} | "
             + " | ".join(
-                _mean_std(f[key] for f in fs)
+                mean_std((f[key] for f in fs), unit=" %")
                 for key in ("pos_vs_vio", "pos_vs_off", "yaw_vs_vio", "yaw_vs_off", "pose_unc", "lm_unc")
             )
-            + f" | {_mean_std(x for f in fs for x in f['upon'])} |"
+            + f" | {mean_std((x for f in fs for x in f['upon']), unit=' %')} |"
         )
     return "\n".join([*lines, ""])
 
@@ -436,10 +426,10 @@ def planner_table(rows: list[dict]) -> str:
             ms = [r["metrics"] for r, _ in sel]
             lines.append(
                 f"| {world} | {planner} | {sum(m.get('verdict') == 'completed' for m in ms)} of {len(ms)} | "
-                f"{_mean_std((m.get('explored_percent') for m in ms), unit='')} | "
-                f"{_mean_std((m.get('distance_m') for m in ms), unit='')} | "
-                f"{_mean_std((t for _, (_, t) in sel), unit='')} | "
-                f"{_mean_std((d for _, (d, _) in sel), unit='')} |"
+                f"{mean_std(m.get('explored_percent') for m in ms)} | "
+                f"{mean_std(m.get('distance_m') for m in ms)} | "
+                f"{mean_std((t for _, (_, t) in sel))} | "
+                f"{mean_std((d for _, (d, _) in sel))} |"
             )
     return "\n".join(lines) + "\n"
 

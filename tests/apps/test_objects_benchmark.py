@@ -66,7 +66,7 @@ def test_runs_scores_flights_flown_already_by_mission_and_slc(tmp_path, capsys):
         (run / "mission.yaml").write_text(f"name: {name}\nexploration: {{slc: {str(slc).lower()}}}\n")
     assert _benchmark().main(["--runs", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "| one_floor | ? | 1 of 1 | 80.00 | 10.00 |" in out
-    assert "| one_floor (SLC off) | ? | 1 of 1 | 60.00 | 40.00 |" in out
+    assert "| one_floor | ? | 1 of 1 | 80.00 ± 0.00 | 10.00 ± 0.00 |" in out
+    assert "| one_floor (SLC off) | ? | 1 of 1 | 60.00 ± 0.00 | 40.00 ± 0.00 |" in out
     assert _benchmark().main(["--runs", str(tmp_path / "empty")]) == 2
     assert "no run folder" in capsys.readouterr().err
