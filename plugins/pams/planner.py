@@ -808,7 +808,7 @@ class PamsPlanner(_TargetPlanner):
             reach = self.localisation_reach(request)
             path, gain = self.best_path(st, request.start, threshold, reach)
             if not path:  # no path keeps the robot localised: look at a known landmark first
-                if relocalise := self.relocalise(request, height):
+                if relocalise := self.relocalise(request, height, st):
                     return relocalise
                 self._event(
                     "pams_localisation_unmet",
@@ -846,45 +846,66 @@ class PamsPlanner(_TargetPlanner):
             return math.inf
         return pose.reach(bound)
 
-    def relocalise(self, request: PlanRequest, height: float) -> list[TourItem]:
-        """A stop that looks at the nearest landmark known better than ``max_position_std``
-        (never one used before), from ``relocalise_range`` on the robot's side of it or, when
-        that spot is blocked by an object, at another bearing; empty when there is none."""
+    def relocalise(self, request: PlanRequest, height: float, st: _TargetState) -> list[TourItem]:
+        """A stop that looks at a landmark known well enough to bring one of the target's free
+        samples back within reach, from ``relocalise_range`` (on the robot's side of it, turned
+        when an object blocks that spot), facing it; empty when no landmark does.
+
+        Measuring a landmark ties the pose to it, so after the stop the robot's std is about the
+        landmark's own (the measurement's noise is left out: the models give it for targets, not
+        for every class). A landmark qualifies when that std, grown over the flight on to the
+        nearest free sample, stays within ``max_position_std``; among those the shortest detour
+        (robot → stop → that sample) wins. A landmark barely better known than the robot (in a
+        parking lot far from the take-off, every landmark's std is near the robot's) is no
+        relocalisation. Each landmark serves once.
+        """
         p, pose = self.params, request.pose_uncertainty
-        candidates = []
+        samples = st.samples[~st.used]
+        if not len(samples):
+            return []
+        best = None
         for lm in request.landmarks:
             cov = np.asarray(lm.covariance, float)
             if lm.id in self.relocalised_at or cov.shape != (3, 3) or not np.isfinite(cov).all():
                 continue
             std = float(np.sqrt(max(0.0, float(np.linalg.eigvalsh(cov)[-1]))))
-            if std < p.max_position_std:
-                candidates.append(
-                    (float(np.linalg.norm(lm.position[:2] - request.start[:2])), lm.id, lm, std)
-                )
-        for distance, _, lm, std in sorted(candidates, key=lambda c: c[:2]):
-            centre = np.asarray(lm.position, float)
-            towards = math.atan2(request.start[1] - centre[1], request.start[0] - centre[0])
-            bearings = towards + np.radians(np.arange(0.0, 360.0, 30.0))
-            bearings = bearings[
-                np.argsort(np.abs((bearings - towards + np.pi) % (2 * np.pi) - np.pi), kind="stable")
-            ]
-            xy = centre[:2] + p.relocalise_range * np.column_stack([np.cos(bearings), np.sin(bearings)])
-            free = np.flatnonzero(self._free(xy, height=height))
-            if len(free) == 0:
+            if std >= p.max_position_std:
                 continue
-            spot = np.array([*xy[free[0]], height])
-            self.relocalised_at.add(lm.id)
-            if self._emit is not None:
-                self._emit(
-                    "pams_relocalise",
-                    landmark=lm.id,
-                    cls=lm.class_name,
-                    landmark_std=round(std, 3),
-                    position_std=round(pose.position_std, 3),
-                    distance=round(distance, 2),
-                )
-            return [_item(spot, _facing(spot, centre), 0.0, lm.id)]
-        return []
+            spot = self._relocalise_spot(request.start, np.asarray(lm.position, float), height)
+            if spot is None:
+                continue
+            on = float(np.min(np.linalg.norm(samples - spot, axis=1)))
+            if std**2 + pose.odometry.translation**2 * on > p.max_position_std**2:
+                continue
+            detour = float(np.linalg.norm(spot - request.start)) + on
+            if best is None or detour < best[0]:
+                best = (detour, lm, std, spot)
+        if best is None:
+            return []
+        detour, lm, std, spot = best
+        self.relocalised_at.add(lm.id)
+        if self._emit is not None:
+            self._emit(
+                "pams_relocalise",
+                landmark=lm.id,
+                cls=lm.class_name,
+                landmark_std=round(std, 3),
+                position_std=round(pose.position_std, 3),
+                detour=round(detour, 2),
+            )
+        return [_item(spot, _facing(spot, lm.position), 0.0, lm.id)]
+
+    def _relocalise_spot(self, start: np.ndarray, centre: np.ndarray, height: float) -> np.ndarray | None:
+        """Where to look at a landmark from: ``relocalise_range`` from it on the robot's side, or
+        the nearest bearing (30° steps) no object blocks; None when every one is blocked."""
+        towards = math.atan2(start[1] - centre[1], start[0] - centre[0])
+        bearings = towards + np.radians(np.arange(0.0, 360.0, 30.0))
+        order = np.argsort(np.abs((bearings - towards + np.pi) % (2 * np.pi) - np.pi), kind="stable")
+        xy = centre[:2] + self.params.relocalise_range * np.column_stack(
+            [np.cos(bearings[order]), np.sin(bearings[order])]
+        )
+        free = np.flatnonzero(self._free(xy, height=height))
+        return np.array([*xy[free[0]], height]) if len(free) else None
 
     def _event(self, name: str, tid: int, **fields) -> None:
         if self._emit is not None:

@@ -458,7 +458,8 @@ def test_a_robot_too_uncertain_relocalises_at_a_known_landmark_first(tmp_path, m
         relocalise_range=3.0,
     )
     known = Landmark(7, "pole", np.array([-4.0, 0.0, 1.0]), np.eye(3) * 0.1**2, 9)
-    vague = Landmark(8, "pole", np.array([-1.0, 0.0, 1.0]), np.eye(3) * 0.9**2, 2)  # nearer, worse known
+    # nearer and below the bound, but known too poorly to bring a sample of the car within reach
+    vague = Landmark(8, "pole", np.array([-1.0, 0.0, 1.0]), np.eye(3) * 0.49**2, 2)
     request = dataclasses.replace(_request(landmarks=[known, vague]), pose_uncertainty=_pose(0.8))
     (stop,) = planner.plan(request)
     assert stop.ref == 7 and stop.gain == 0.0
