@@ -87,7 +87,7 @@ class MeshWorldParams(BackendParams):
             return self
         path = mission_file_path(self.objects, info)
         try:
-            entries = _object_entries(path)
+            entries = object_entries(path)
         except PlatformError as exc:
             raise FieldError("objects", str(exc)) from None
         missing = [
@@ -102,7 +102,7 @@ class MeshWorldParams(BackendParams):
         return self
 
 
-def _object_entries(path: Path) -> list[dict]:
+def object_entries(path: Path) -> list[dict]:
     """The object entries of an objects file (a list, or ``{"objects": [...]}``); PlatformError
     naming the file when it is not one."""
     try:
@@ -196,7 +196,7 @@ def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
         obj_path = (find_world_file(p.objects, base_dir) or base_dir / p.objects).resolve()
         if not obj_path.is_file():
             raise PlatformError(f"mesh world: objects file not found: {obj_path}")
-        entries = _object_entries(obj_path)
+        entries = object_entries(obj_path)
         obj_dir = obj_path.parent
 
     objects: list[WorldObject] = []

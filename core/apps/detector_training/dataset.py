@@ -29,11 +29,15 @@ A dataset is a compressed ``.npz`` with::
 
 from __future__ import annotations
 
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from amslam.errors import AmslamError
+from amslam.geometry import yaw_matrix
 from amslam.plugins.sim.camera import CHECKER, NOISE, PLAIN, STRIPES, CameraParams, Look, Renderer
 from amslam.plugins.sim.procedural import ProceduralWorldParams, generate_building
 from amslam.plugins.sim.world import (
@@ -45,9 +49,12 @@ from amslam.plugins.sim.world import (
     merge_meshes,
     prism_mesh,
 )
+from amslam.types import CameraModel
 
 #: The classes the procedural buildings furnish, in the order of the shipped model's class ids.
 CLASSES: tuple[str, ...] = ("chair", "table", "shelf", "sofa")
+#: The buildings a model is judged on (``evaluate``): no training set renders them.
+HELDOUT_SEEDS: tuple[int, ...] = (900, 901, 902, 903)
 
 #: Building footprints and floor counts the seeds cycle through (variety of rooms and depths).
 _LAYOUTS: tuple[tuple[tuple[float, float], int], ...] = (
@@ -56,6 +63,16 @@ _LAYOUTS: tuple[tuple[tuple[float, float], int], ...] = (
     ((24.0, 16.0), 2),
     ((18.0, 14.0), 1),
 )
+
+#: The arrays every training set file holds (:meth:`Dataset.save` writes ``sources`` too: files
+#: written before it did lack that one).
+_ARRAYS = ("images", "instance", "inst_class", "seeds", "names")
+#: What reading a damaged ``.npz`` raises: at opening, or only when an array is decompressed.
+_UNREADABLE = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error)
+
+
+class DatasetError(AmslamError, ValueError):
+    """A training set, or a world to render one from, that cannot be used; the message names it."""
 
 
 @dataclass
@@ -78,31 +95,42 @@ class Dataset:
         return len(self.images)
 
     def save(self, path: Path) -> None:
-        """Write the dataset as a compressed ``.npz``."""
+        """Write the dataset as a compressed ``.npz`` at ``path`` exactly."""
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(
-            path,
-            images=self.images,
-            instance=self.instance,
-            inst_class=self.inst_class,
-            seeds=self.seeds,
-            sources=self.sources,
-            names=np.array(self.names),
-        )
+        # through a file: given a name, numpy appends ".npz" to one without it, and a cache
+        # saved under another name than the one asked for is never found again
+        with open(path, "wb") as f:
+            np.savez_compressed(
+                f,
+                images=self.images,
+                instance=self.instance,
+                inst_class=self.inst_class,
+                seeds=self.seeds,
+                sources=self.sources,
+                names=np.array(self.names),
+            )
 
     @staticmethod
     def load(path: Path) -> Dataset:
-        """Read a dataset written by :meth:`save`."""
-        with np.load(path) as z:
-            sources = z["sources"] if "sources" in z.files else None
-            return Dataset(
-                z["images"],
-                z["instance"],
-                z["inst_class"],
-                z["seeds"],
-                tuple(str(n) for n in z["names"]),
-                sources,
-            )
+        """Read a dataset written by :meth:`save`; :class:`DatasetError` naming the file if it is not one."""
+        try:
+            archive = np.load(path)
+        except ValueError:  # numpy's words for an unknown format are about pickles: unhelpful here
+            raise DatasetError(f"{path}: not an .npz file (a training set written by Dataset.save)") from None
+        except _UNREADABLE as exc:
+            raise DatasetError(f"{path}: not a readable training set ({type(exc).__name__}: {exc})") from None
+        if not isinstance(archive, np.lib.npyio.NpzFile):
+            raise DatasetError(f"{path}: one array, not a training set (an .npz written by Dataset.save)")
+        with archive as z:
+            missing = [name for name in _ARRAYS if name not in z.files]
+            if missing:
+                raise DatasetError(f"{path}: not a training set, no {', '.join(missing)} in it")
+            try:
+                images, instance, inst_class, seeds, names = (z[name] for name in _ARRAYS)
+                sources = z["sources"] if "sources" in z.files else None
+            except _UNREADABLE as exc:
+                raise DatasetError(f"{path}: damaged ({type(exc).__name__}: {exc})") from None
+        return Dataset(images, instance, inst_class, seeds, tuple(str(n) for n in names), sources)
 
     @staticmethod
     def concatenate(parts: list[Dataset]) -> Dataset:
@@ -128,16 +156,33 @@ class Dataset:
 
     def objects(self, i: int, min_pixels: int = 1) -> list[tuple[int, np.ndarray]]:
         """``(class index, boolean mask)`` of every labelled instance of frame ``i``."""
-        out = []
-        inst = self.instance[i]
-        for iid in range(1, self.inst_class.shape[1]):
-            c = int(self.inst_class[i, iid])
-            if c < 0:
-                continue
-            m = inst == iid
-            if m.sum() >= min_pixels:
-                out.append((c, m))
-        return out
+        return labelled_masks(self.instance[i], self.inst_class[i], min_pixels)
+
+
+def labelled_masks(
+    instance: np.ndarray, inst_class: np.ndarray, min_pixels: int = 1
+) -> list[tuple[int, np.ndarray]]:
+    """``(class index, boolean mask)`` of each labelled instance of one frame, by instance id.
+
+    ``instance``: the frame's instance image (resized or flipped as the caller needs);
+    ``inst_class``: its row of :attr:`Dataset.inst_class`. Instances with fewer than
+    ``min_pixels`` pixels in ``instance`` are left out.
+    """
+    out = []
+    for iid in range(1, len(inst_class)):
+        c = int(inst_class[iid])
+        if c < 0:
+            continue
+        m = instance == iid
+        if np.count_nonzero(m) >= min_pixels:
+            out.append((c, m))
+    return out
+
+
+def mask_box(mask: np.ndarray) -> np.ndarray:
+    """``(x1, y1, x2, y2)`` of a non-empty mask, in pixel edges (float): an instance's box is its mask's."""
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], dtype=float)
 
 
 def building(seed: int, randomise: bool = False) -> World:
@@ -165,6 +210,16 @@ def building(seed: int, randomise: bool = False) -> World:
     _stretch_furniture(spec, rng)
     _add_clutter(spec, World(spec), rng)
     return World(spec)
+
+
+def _default_start(spec: WorldSpec) -> np.ndarray:
+    """The world's start at 1.2 m above its floor: a point of the free space to search from."""
+    return np.array([*spec.start_xy, spec.start_floor_z + 1.2])
+
+
+def _floor_below(world: World, z: np.ndarray) -> np.ndarray:
+    """Height of the floor each height ``z`` stands on."""
+    return np.asarray(world.spec.floor_heights)[world.floor_index(z)]
 
 
 def _stretch_furniture(spec: WorldSpec, rng: np.random.Generator) -> None:
@@ -198,10 +253,8 @@ def _add_clutter(spec: WorldSpec, world: World, rng: np.random.Generator) -> Non
     that not every box-shaped thing in a room is one of its classes (a real house has
     cabinets, beds, lamps and TVs; the procedural buildings have none).
     """
-    spec_start = np.array([*spec.start_xy, spec.start_floor_z + 1.2])
-    pts = world.summary(spec_start).reachable_points
-    fh = np.asarray(spec.floor_heights)
-    floor_z = fh[world.floor_index(pts[:, 2])]
+    pts = world.summary(_default_start(spec)).reachable_points
+    floor_z = _floor_below(world, pts[:, 2])
     keep = (world.distance(pts) > 0.7) & (np.linalg.norm(pts[:, :2] - spec.start_xy, axis=1) > 2.0)
     pts, floor_z = pts[keep], floor_z[keep]
     if not len(pts):
@@ -234,9 +287,7 @@ def _add_clutter(spec: WorldSpec, world: World, rng: np.random.Generator) -> Non
                     (np.array([-w / 2, -0.03, 0.5]), np.array([w / 2, 0.03, 0.5 + h])),
                 ]
             )
-        yaw = rng.uniform(-np.pi, np.pi)
-        c, s_ = np.cos(yaw), np.sin(yaw)
-        v = v @ np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]).T + np.array([xy[0], xy[1], z])
+        v = v @ yaw_matrix(rng.uniform(-np.pi, np.pi)).T + np.array([xy[0], xy[1], z])
         colour = rng.uniform(0.15, 0.9, 3)
         name = f"{CLUTTER}_{next_id}"
         spec.parts.append(MeshPart.uniform(name, v, t, next_id, colour))
@@ -248,17 +299,12 @@ def _add_clutter(spec: WorldSpec, world: World, rng: np.random.Generator) -> Non
 
 def _packaged_classes(objects_file: Path) -> dict[str, str]:
     """``MeshWorldParams.class_map`` giving each object of ``objects_file`` its packaged-map class."""
-    import json
-
     from amslam.apps.worlds.classmap import load_class_map
-    from amslam.plugins.sim.meshworld import normalize_class
+    from amslam.plugins.sim.meshworld import normalize_class, object_entries
 
     rules = load_class_map()
-    entries = json.loads(objects_file.read_text())
-    if isinstance(entries, dict):
-        entries = entries.get("objects", [])
     out = {}
-    for e in entries:
+    for e in object_entries(objects_file):  # PlatformError naming the file if it is not one
         found = rules.classify(str(e.get("class", "")), str(e.get("name", "")))
         if found is not None:
             out[normalize_class(str(e.get("class", "")))] = found[0]
@@ -293,12 +339,15 @@ def mesh_world(folder: Path) -> tuple[World, np.ndarray]:
         )
     )
     platform = SimPlatform()
-    platform.configure(params, RunContext(rng=np.random.default_rng(0), run_dir=folder, mission_dir=folder))
-    platform.start()
-    start = platform.ground_truth()[:3, 3] + np.array([0.0, 0.0, 1.0])
-    world = platform.world
-    platform.close()
-    return world, start
+    try:
+        platform.configure(
+            params, RunContext(rng=np.random.default_rng(0), run_dir=folder, mission_dir=folder)
+        )
+        platform.start()
+        start = platform.ground_truth()[:3, 3] + np.array([0.0, 0.0, 1.0])
+        return platform.world, start
+    finally:
+        platform.close()
 
 
 def sample_poses(
@@ -312,20 +361,18 @@ def sample_poses(
 
     Positions are reachable cells at least 0.3 m from any geometry and 0.6–2.2 m above their
     floor; 70 % of the headings aim at an object 0.8–5 m away in line of sight, the rest are
-    uniform. The camera
-    pitches by up to ``pitch_deg`` either way around the level forward mount. ``start``: a point
-    in the free space (default: the world's start, 1.2 m up).
+    uniform. The camera pitches by up to ``pitch_deg`` either way around the level forward
+    mount. ``start``: a point in the free space (default: the world's start, 1.2 m up).
+    :class:`DatasetError` if no such position is reachable from ``start``.
     """
-    spec = world.spec
     if start is None:
-        start = np.array([*spec.start_xy, spec.start_floor_z + 1.2])
+        start = _default_start(world.spec)
     pts = world.summary(start).reachable_points
-    fh = np.asarray(spec.floor_heights)
-    above = pts[:, 2] - fh[world.floor_index(pts[:, 2])]
+    above = pts[:, 2] - _floor_below(world, pts[:, 2])
     pts = pts[(above > 0.6) & (above < 2.2)]
     pts = pts[world.distance(pts) > 0.3]
     if len(pts) == 0:
-        raise ValueError(f"world {world.name}: no reachable point at flight height")
+        raise DatasetError(f"world {world.name}: no reachable point at flight height")
     centroids = np.array([o.centroid for o in world.objects]) if world.objects else np.zeros((0, 3))
     poses = []
     for _ in range(n):
@@ -344,14 +391,9 @@ def sample_poses(
                 if len(seen):
                     c = c[seen[rng.integers(len(seen))]]
                     yaw = float(np.arctan2(c[1] - p[1], c[0] - p[0]) + rng.normal(0.0, 0.35))
-        pitch = np.radians(rng.uniform(-pitch_deg, pitch_deg))
-        # body: level, heading yaw; camera: optical z along body x, pitched down by `pitch`
-        cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
-        R_wb = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-        tilt = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-        R_bc = tilt @ np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+        mount = CameraModel.forward_mount(rng.uniform(-pitch_deg, pitch_deg))
         T = np.eye(4)
-        T[:3, :3] = R_wb @ R_bc
+        T[:3, :3] = yaw_matrix(yaw) @ mount[:3, :3]
         T[:3, 3] = p
         poses.append(T)
     return poses
@@ -370,8 +412,7 @@ def _surfaces(world: World) -> np.ndarray:
             if len(q.triangles)
         ]
     )
-    fh = np.asarray(world.spec.floor_heights)
-    above = centres - fh[world.floor_index(centres)]
+    above = centres - _floor_below(world, centres)
     horizontal = world.tri_abs_nz > 0.9
     group[structure] = n_inst
     group[structure & horizontal & (above < 1.0)] = n_inst + 1
@@ -460,6 +501,29 @@ def label_frame(
 OWN_LOOK_SHARE = 0.5
 
 
+def _worlds_to_render(
+    seeds: list[int], frames_per_seed: int, mesh_worlds: tuple[Path, ...], mesh_frames: int | None
+) -> list[tuple[str, int, int, int]]:
+    """``(source, seed, rng stream, frames)`` of each world :func:`render_dataset` renders.
+
+    ``seed`` is -1 for a mesh world, whose source is its folder. ValueError when there is no
+    frame to render or a frame count is negative.
+    """
+    mesh_n = frames_per_seed if mesh_frames is None else mesh_frames
+    asked = (
+        f"{len(seeds)} buildings × {frames_per_seed} frames, {len(mesh_worlds)} mesh worlds × {mesh_n} frames"
+    )
+    if min(frames_per_seed, mesh_n) < 0:
+        raise ValueError(f"a negative frame count: {asked}")
+    if len(seeds) * frames_per_seed + len(mesh_worlds) * mesh_n == 0:
+        raise ValueError(f"no frames to render: {asked}")
+    worlds = [(f"seed {s}", s, 10_000 + s, frames_per_seed) for s in seeds]
+    for k, folder in enumerate(mesh_worlds):
+        # a stream of its own per world, apart from the procedural seeds' 10 000+
+        worlds.append((str(folder), -1, 70_000 + k, mesh_n))
+    return worlds
+
+
 def render_dataset(
     seeds: list[int],
     frames_per_seed: int,
@@ -488,16 +552,18 @@ def render_dataset(
             and look, as the held-out sets are rendered.
         mesh_worlds: folders written by ``amslam world import`` to render too.
         mesh_frames: frames per mesh world (default ``frames_per_seed``).
+
+    Raises:
+        ValueError: no frame to render, or a negative frame count.
+        AmslamError: a mesh world that cannot be read (``PlatformError``), a world without a
+            reachable point at flight height (:class:`DatasetError`); the message names it.
     """
+    worlds = _worlds_to_render(seeds, frames_per_seed, mesh_worlds, mesh_frames)
     cam_params = CameraParams(width=width, height=height)
     camera = cam_params.model()
     renderer = Renderer(camera, cam_params)
     images, instances, inst_classes, frame_seeds, sources = [], [], [], [], []
     max_inst = 1
-    worlds: list[tuple[str, int, int, int]] = [(f"seed {s}", s, 10_000 + s, frames_per_seed) for s in seeds]
-    for k, folder in enumerate(mesh_worlds):
-        # a stream of its own per world, apart from the procedural seeds' 10 000+
-        worlds.append((str(folder), -1, 70_000 + k, frames_per_seed if mesh_frames is None else mesh_frames))
     for source, seed, stream, n_frames in worlds:
         if seed >= 0:
             world, start, name = building(seed, randomise), None, source

@@ -1,6 +1,6 @@
 """Accuracy of a YOLOv8-seg model on held-out simulator frames: precision, recall, mask IoU.
 
-Frames come from buildings whose seeds the training never saw (``train.HELDOUT_SEEDS``), rendered
+Frames come from buildings whose seeds the training never saw (``dataset.HELDOUT_SEEDS``), rendered
 at the demo camera's 320×240 and at the D435i's 640×480. The model runs through the plugin's own
 path (letterbox, threshold, NMS, masks: :class:`~.decoder.SegmentationModel`). A prediction is a
 true positive when it overlaps a not yet matched ground-truth instance of the same class with
@@ -23,15 +23,17 @@ seeds, another mesh world), never on the buildings the model is judged on.
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from amslam.apps.detector_training.dataset import Dataset, render_dataset
-from amslam.plugins.onnx_detector.decoder import SegmentationModel
+from amslam.apps.detector_training.dataset import CLASSES, HELDOUT_SEEDS, Dataset, mask_box, render_dataset
+from amslam.cli import positive_int
+from amslam.errors import AmslamError
+from amslam.plugins.onnx_detector.decoder import Instance, ModelInfo, SegmentationModel, inspect_model
 
-HELDOUT_SEEDS = (900, 901, 902, 903)
 #: confidence thresholds ``--choose-threshold`` tries
 THRESHOLDS: tuple[float, ...] = (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7)
 
@@ -77,14 +79,9 @@ class Counts:
         return float(np.mean(self.ious)) if self.ious else float("nan")
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
+def _mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     inter = np.count_nonzero(a & b)
     return inter / max(np.count_nonzero(a | b), 1)
-
-
-def _box(mask: np.ndarray) -> np.ndarray:
-    ys, xs = np.nonzero(mask)
-    return np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], dtype=float)
 
 
 def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -111,18 +108,32 @@ def evaluate(
     )
 
 
-def predict(model: SegmentationModel, data: Dataset, *, conf: float = 0.25, iou: float = 0.5) -> list[list]:
+def check_classes(info: ModelInfo, names: tuple[str, ...]) -> None:
+    """Refuse a model whose classes are not ``names``: ValueError saying what it has.
+
+    Predictions are scored by class index, so a model of other classes (an ultralytics COCO
+    export) would be counted against the wrong instances, or index past ``names``.
+    """
+    if info.num_classes != len(names) or (info.names and info.names != tuple(names)):
+        has = list(info.names) if info.names else f"{info.num_classes} unnamed classes"
+        raise ValueError(f"the model's classes ({has}) are not the frames' {list(names)}")
+
+
+def predict(
+    model: SegmentationModel, data: Dataset, *, conf: float = 0.25, iou: float = 0.5
+) -> list[list[Instance]]:
     """The model's instances on every frame of ``data`` (best first), at confidence ``conf``.
 
     Scoring them at a higher threshold (:func:`score`) gives what the model run at that
     threshold gives: NMS keeps a box only for boxes scored above it, so dropping the weaker
-    ones afterwards changes no survivor.
+    ones afterwards changes no survivor. ValueError if the model's classes are not ``data``'s.
     """
+    check_classes(model.info, data.names)
     return [model(data.images[i], conf=conf, iou=iou) for i in range(len(data))]
 
 
 def score(
-    predictions: list[list],
+    predictions: list[list[Instance]],
     data: Dataset,
     *,
     conf: float = 0.25,
@@ -134,40 +145,40 @@ def score(
         raise ValueError(f"match must be 'mask' or 'box', got {match!r}")
     H, W = data.images.shape[1:3]
     min_px = max(1, int(round(min_pixels * H * W / (640 * 480))))
-    per = {n: Counts() for n in data.names}
+    per_class = {n: Counts() for n in data.names}
     for i in range(len(data)):
         preds = [q for q in predictions[i] if q.score >= conf]
         gts = data.objects(i)
-        big = [np.count_nonzero(m) >= min_px for _, m in gts]
-        boxes = [_box(m) for _, m in gts]
+        counted = [np.count_nonzero(m) >= min_px for _, m in gts]  # the others are "don't care"
+        boxes = [mask_box(m) for _, m in gts]
         used = [False] * len(gts)
-        for p in preds:  # best score first
+        for p in preds:  # best score first: an instance goes to the strongest prediction on it
             best, best_iou = -1, 0.5
             for g, (c, m) in enumerate(gts):
                 if c == p.class_id and not used[g]:
-                    v = _iou(p.mask, m) if match == "mask" else _box_iou(p.box, boxes[g])
+                    v = _mask_iou(p.mask, m) if match == "mask" else _box_iou(p.box, boxes[g])
                     if v >= best_iou:
                         best, best_iou = g, v
-            counts = per[data.names[p.class_id]]
+            counts = per_class[data.names[p.class_id]]
             if best < 0:
                 counts.fp += 1
                 continue
             used[best] = True
-            if big[best]:
+            if counted[best]:
                 counts.tp += 1
-                counts.ious.append(_iou(p.mask, gts[best][1]))
+                counts.ious.append(_mask_iou(p.mask, gts[best][1]))
         for g, (c, m) in enumerate(gts):
-            if big[g]:
+            if counted[g]:
                 # size in pixels of a 320×240 image, so that resolutions compare
                 area = np.count_nonzero(m) * 320 * 240 / (H * W)
-                per[data.names[c]].sizes.append((int(round(area)), used[g]))
+                per_class[data.names[c]].sizes.append((int(round(area)), used[g]))
                 if not used[g]:
-                    per[data.names[c]].fn += 1
+                    per_class[data.names[c]].fn += 1
     total = Counts()
-    for c in per.values():
+    for c in per_class.values():
         total.add(c)
-    per["all"] = total
-    return per
+    per_class["all"] = total
+    return per_class
 
 
 def f1(c: Counts) -> float:
@@ -176,7 +187,10 @@ def f1(c: Counts) -> float:
 
 
 def choose_threshold(
-    predictions: list[list[list]], sets: list[Dataset], thresholds: tuple[float, ...], match: str = "box"
+    predictions: list[list[list[Instance]]],
+    sets: list[Dataset],
+    thresholds: tuple[float, ...],
+    match: str = "box",
 ) -> tuple[float, list[tuple[float, Counts]]]:
     """The confidence threshold of the best F1 (all classes, all sets pooled) and every threshold's counts.
 
@@ -287,15 +301,23 @@ def _seeds(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"--seeds: comma-separated integers, got {text!r}") from None
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Command line: render the held-out frames, run the model, print the tables."""
-    from amslam.plugins.onnx_detector.detector import shipped_model
+def _sizes(text: str) -> tuple[tuple[int, int], ...]:
+    """``--sizes``: ``WxH,...`` as ((W, H), ...)."""
+    try:
+        sizes = [tuple(int(v) for v in spec.split("x")) for spec in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or any(len(wh) != 2 or min(wh) < 1 for wh in sizes):
+        raise argparse.ArgumentTypeError(f"WxH,... such as 320x240,640x480, got {text!r}")
+    return tuple((w, h) for w, h in sizes)
 
+
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", type=Path, default=None, help="default: the shipped model")
-    ap.add_argument("--frames", type=int, default=40, help="frames per held-out building")
+    ap.add_argument("--frames", type=positive_int, default=40, help="frames per held-out building")
     ap.add_argument("--conf", type=float, default=0.25)
-    ap.add_argument("--sizes", default="320x240,640x480", help="image sizes to render, WxH,...")
+    ap.add_argument("--sizes", type=_sizes, default="320x240,640x480", help="image sizes to render, WxH,...")
     ap.add_argument(
         "--seeds",
         type=_seeds,
@@ -318,32 +340,103 @@ def main(argv: list[str] | None = None) -> None:
         "(320×240, box IoU ≥ 0.5, all classes) per confidence threshold, and the best",
     )
     ap.add_argument("--centroids", action="store_true", help="also: centroid errors (masks, centres)")
+    return ap
+
+
+def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line's arguments, checked before any frame is rendered (exit status 2 otherwise)."""
+    from amslam.plugins.onnx_detector.detector import shipped_model
+
+    ap = _parser()
     args = ap.parse_args(argv)
     for folder in args.world:
         if not (folder / "world.ply").is_file():
             ap.error(f"--world {folder}: no world.ply there (a folder written by `amslam world import`)")
-    model = SegmentationModel(args.model or shipped_model())
+    if not args.seeds and not args.world:
+        ap.error("nothing to evaluate: --seeds '' and no --world")
+    if not 0.0 < args.conf < 1.0:
+        ap.error(f"--conf {args.conf}: a class score threshold, between 0 and 1")
+    if args.choose_threshold and (320, 240) not in args.sizes:
+        ap.error("--choose-threshold scores the 320×240 frames: --sizes must hold 320x240")
+    if args.centroids and not args.seeds:
+        ap.error("--centroids renders procedural buildings: not with --seeds ''")
+    model = args.model or shipped_model()
+    try:
+        check_classes(inspect_model(model), CLASSES)
+    except ValueError as exc:  # ModelError too: missing, unreadable, not the YOLOv8-seg layout
+        ap.error(f"--model {model}: {exc}")
+    return args
+
+
+def _render_sets(args: argparse.Namespace) -> dict[str, Dataset]:
+    """The frames to evaluate on, by ``"W×H, seeds"`` or ``"W×H, <mesh world>"``."""
     sets: dict[str, Dataset] = {}
-    results = {}
-    for spec in args.sizes.split(","):
-        w, h = (int(v) for v in spec.split("x"))
+    for w, h in args.sizes:
         if args.seeds:
             sets[f"{w}×{h}, seeds"] = render_dataset(list(args.seeds), args.frames, width=w, height=h)
         for folder in args.world:
             sets[f"{w}×{h}, {folder.name}"] = render_dataset(
                 [], 0, width=w, height=h, mesh_worlds=(folder,), mesh_frames=args.frames
             )
+    return sets
+
+
+def _threshold_table(keys: list[str], best: float, rows: list[tuple[float, Counts]]) -> str:
+    """:func:`choose_threshold`'s result on the sets ``keys``, as a titled markdown table."""
+    lines = [
+        f"Confidence threshold on {', '.join(keys)} (box IoU ≥ 0.5, all classes):",
+        "",
+        "| threshold | detections | precision | recall | F1 |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    for t, c in rows:
+        mark = " **best**" if t == best else ""
+        lines.append(f"| {t:.2f}{mark} | {c.tp + c.fp} | {c.precision:.3f} | {c.recall:.3f} | {f1(c):.3f} |")
+    return "\n".join(lines)
+
+
+def _centroid_table(errors: dict[str, dict[str, np.ndarray]]) -> str:
+    """:func:`centroid_errors`, as a titled markdown table."""
+    lines = [
+        "Centroid of each detection (320×240, m) against the exact mask's centroid, against the",
+        "object's true centre, and the exact mask's centroid against the true centre:",
+        "",
+        "| class | detections | reference | median | 75th percentile | 90th percentile | mean |",
+        "|---|---:|---|---:|---:|---:|---:|",
+    ]
+    refs = {
+        "mask": "onnx − exact mask",
+        "object": "onnx − object centre",
+        "exact": "exact mask − object centre",
+    }
+    for name, e in sorted(errors.items()):
+        for key, label in refs.items():
+            q = np.percentile(e[key], [50, 75, 90])
+            lines.append(
+                f"| {name} | {len(e[key])} | {label} | {q[0]:.3f} | {q[1]:.3f} | {q[2]:.3f} "
+                f"| {e[key].mean():.3f} |"
+            )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Render the frames, run the model, print the tables; ``args`` as :func:`parse_arguments` gives them."""
+    from amslam.plugins.onnx_detector.detector import shipped_model
+
+    model_path = args.model or shipped_model()
+    model = SegmentationModel(model_path)
+    sets = _render_sets(args)
     # one run of the network per frame; a threshold search scores the same predictions at each threshold
     lowest = min(args.conf, THRESHOLDS[0]) if args.choose_threshold else args.conf
     predictions = {key: predict(model, data, conf=lowest) for key, data in sets.items()}
-    for key, data in sets.items():
-        for match in ("mask", "box"):
-            results[(f"{key}, {len(data)}", match)] = score(
-                predictions[key], data, conf=args.conf, match=match
-            )
+    results = {
+        (f"{key}, {len(data)}", match): score(predictions[key], data, conf=args.conf, match=match)
+        for key, data in sets.items()
+        for match in ("mask", "box")
+    }
     where = [f"seeds {list(args.seeds)}"] if args.seeds else []
     where += [str(f) for f in args.world]
-    print(f"model {args.model or shipped_model()}, {', '.join(where)}, conf {args.conf}")
+    print(f"model {model_path}, {', '.join(where)}, conf {args.conf}")
     print(table(results))
     print()
     print("Recall by object size (visible pixels, scaled to a 320×240 image; instances in brackets):")
@@ -351,39 +444,23 @@ def main(argv: list[str] | None = None) -> None:
     print(_size_table(results))
     if args.choose_threshold:
         keys = [k for k in sets if k.startswith("320×240")]
-        best, rows = choose_threshold(
-            [predictions[k] for k in keys],
-            [sets[k] for k in keys],
-            tuple(np.round(np.arange(0.1, 0.75, 0.05), 2)),
-        )
+        best, rows = choose_threshold([predictions[k] for k in keys], [sets[k] for k in keys], THRESHOLDS)
         print()
-        print(f"Confidence threshold on {', '.join(keys)} (box IoU ≥ 0.5, all classes):")
-        print()
-        print("| threshold | detections | precision | recall | F1 |")
-        print("|---:|---:|---:|---:|---:|")
-        for t, c in rows:
-            mark = " **best**" if t == best else ""
-            print(f"| {t:.2f}{mark} | {c.tp + c.fp} | {c.precision:.3f} | {c.recall:.3f} | {f1(c):.3f} |")
+        print(_threshold_table(keys, best, rows))
     if args.centroids:
-        errors = centroid_errors(args.model or shipped_model(), tuple(args.seeds), args.frames)
+        errors = centroid_errors(model_path, tuple(args.seeds), args.frames)
         print()
-        print("Centroid of each detection (320×240, m) against the exact mask's centroid, against the")
-        print("object's true centre, and the exact mask's centroid against the true centre:")
-        print()
-        print("| class | detections | reference | median | 75th percentile | 90th percentile | mean |")
-        print("|---|---:|---|---:|---:|---:|---:|")
-        refs = {
-            "mask": "onnx − exact mask",
-            "object": "onnx − object centre",
-            "exact": "exact mask − object centre",
-        }
-        for name, e in sorted(errors.items()):
-            for key, label in refs.items():
-                q = np.percentile(e[key], [50, 75, 90])
-                print(
-                    f"| {name} | {len(e[key])} | {label} | {q[0]:.3f} | {q[1]:.3f} | {q[2]:.3f} "
-                    f"| {e[key].mean():.3f} |"
-                )
+        print(_centroid_table(errors))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command line: render the held-out frames, run the model, print the tables."""
+    args = parse_arguments(argv)
+    try:
+        run(args)
+    except AmslamError as exc:  # a mesh world that cannot be read, or without room to fly
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":

@@ -18,9 +18,8 @@ of its centre (FCOS/YOLOX-style centre sampling; YOLOv8's task-aligned assigner 
 network to rank cells). Losses: binary cross-entropy for the classes (summed over all cells,
 normalised by the positives, as YOLOv8 does) against IoU-aware targets (a positive cell's
 target is the IoU of its box with the object's, like YOLOv8's task-aligned scores), generalised
-IoU for the boxes, and YOLOv8's mask
-loss: per-pixel cross-entropy of ``sigmoid(coeffs @ protos)`` against the instance mask at
-prototype resolution, inside the box, normalised by the box area.
+IoU for the boxes, and YOLOv8's mask loss: per-pixel cross-entropy of ``sigmoid(coeffs @ protos)``
+against the instance mask at prototype resolution, inside the box, normalised by the box area.
 
 Re-train (about 20 minutes on one core, plus 2.5 minutes to render the frames; torch is needed
 for training only)::
@@ -39,8 +38,8 @@ from __future__ import annotations
 
 import argparse
 import ast
-import importlib.util
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -49,7 +48,18 @@ from typing import Any
 import cv2
 import numpy as np
 
-from amslam.apps.detector_training.dataset import CLASSES, Dataset, render_dataset
+from amslam.apps.detector_training.dataset import (
+    CLASSES,
+    HELDOUT_SEEDS,
+    Dataset,
+    labelled_masks,
+    mask_box,
+    render_dataset,
+)
+from amslam.cli import positive_int, whole_number
+from amslam.errors import AmslamError
+from amslam.interfaces import missing_modules
+from amslam.plugins.onnx_detector.decoder import PAD_VALUE
 
 #: Strides of the detection levels (YOLOv8's P3–P5) and the prototype stride.
 STRIDES: tuple[int, ...] = (8, 16, 32)
@@ -72,12 +82,10 @@ def level_sizes(strides: tuple[int, ...]) -> dict[int, tuple[float, float]]:
 
 
 NUM_MASKS = 32
-PAD_VALUE = 114
 
 #: The shipped model's training buildings (``--seeds N`` takes the first N of seeds 100, 101, …; never
-#: the held-out 900–903, nor the demo's 7).
+#: the held-out ``HELDOUT_SEEDS`` 900–903, nor the demo's 7).
 TRAIN_SEEDS = tuple(range(100, 136))
-HELDOUT_SEEDS = (900, 901, 902, 903)
 
 
 def _torch():
@@ -89,19 +97,9 @@ def _torch():
     return torch
 
 
-def build_model(
-    nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64), strides: tuple[int, ...] = STRIDES
-) -> Any:
-    """The tiny YOLOv8-seg-like network (a ``torch.nn.Module``) for ``nc`` classes.
-
-    With ``strides=P2_STRIDES`` the feature pyramid goes one step further down, to the stride-4
-    features, and a fourth head detects there (as YOLOv8's ``-p2`` models do).
-    """
-    level_sizes(strides)  # validates the levels
-    p2 = strides[0] == 4
-    torch = _torch()
+def _blocks(torch: Any) -> tuple[type, type, type]:
+    """YOLOv8's building blocks as ``torch.nn.Module`` classes: ``Conv``, ``Res`` and ``Head``."""
     nn = torch.nn
-    F = torch.nn.functional
 
     class Conv(nn.Module):
         """Convolution, batch norm, SiLU: YOLOv8's basic block."""
@@ -142,6 +140,24 @@ def build_model(
         def forward(self, x):
             x = self.stem(x)
             return self.box(x), self.cls(x), self.coef(x)
+
+    return Conv, Res, Head
+
+
+def build_model(
+    nc: int, width: tuple[int, ...] = (16, 24, 32, 48, 64), strides: tuple[int, ...] = STRIDES
+) -> Any:
+    """The tiny YOLOv8-seg-like network (a ``torch.nn.Module``) for ``nc`` classes.
+
+    With ``strides=P2_STRIDES`` the feature pyramid goes one step further down, to the stride-4
+    features, and a fourth head detects there (as YOLOv8's ``-p2`` models do).
+    """
+    level_sizes(strides)  # ValueError for levels the assigner has no box sizes for
+    p2 = strides[0] == 4
+    torch = _torch()
+    nn = torch.nn
+    F = torch.nn.functional
+    Conv, Res, Head = _blocks(torch)
 
     class TinyYoloSeg(nn.Module):
         def __init__(self, nc: int):
@@ -226,9 +242,10 @@ def make_batch(
     H, W = data.images.shape[1:3]
     r = min(size / H, size / W)
     nh, nw = round(H * r), round(W * r)
+    # the border of inference's letterbox (decoder.letterbox): the network learns the same grey
     imgs = np.full((B, size, size, 3), PAD_VALUE, dtype=np.float32)
     targets = []
-    pm = size // PROTO_STRIDE
+    proto_size = size // PROTO_STRIDE
     for b, i in enumerate(idx):
         img = data.images[i]
         inst = data.instance[i]
@@ -250,24 +267,17 @@ def make_batch(
             inst = inst[:, ::-1]
         imgs[b, oy : oy + nh, ox : ox + nw] = np.clip(img, 0, 255)
         boxes, classes, masks = [], [], []
-        for iid in range(1, data.inst_class.shape[1]):
-            c = int(data.inst_class[i, iid])
-            if c < 0:
-                continue
-            m = inst == iid
-            if not m.any():
-                continue
-            ys, xs = np.nonzero(m)
-            boxes.append([xs.min() + ox, ys.min() + oy, xs.max() + 1 + ox, ys.max() + 1 + oy])
+        for c, m in labelled_masks(inst, data.inst_class[i]):  # the instances left after resizing
+            boxes.append(mask_box(m) + [ox, oy, ox, oy])
             classes.append(c)
             canvas = np.zeros((size, size), dtype=np.float32)
             canvas[oy : oy + nh, ox : ox + nw] = m
-            masks.append(cv2.resize(canvas, (pm, pm), interpolation=cv2.INTER_AREA))
+            masks.append(cv2.resize(canvas, (proto_size, proto_size), interpolation=cv2.INTER_AREA))
         targets.append(
             {
                 "boxes": np.asarray(boxes, dtype=np.float32).reshape(-1, 4),
                 "classes": np.asarray(classes, dtype=np.int64),
-                "masks": np.asarray(masks, dtype=np.float32).reshape(-1, pm, pm),
+                "masks": np.asarray(masks, dtype=np.float32).reshape(-1, proto_size, proto_size),
             }
         )
     return imgs.transpose(0, 3, 1, 2) / 255.0, targets
@@ -353,7 +363,7 @@ def compute_loss(levels, protos, targets, anchor_xy, strides, gains=(5.0, 1.0, 5
     box_losses, mask_losses = [], []
     n_pos = n_mask = 0
     rng = rng if rng is not None else np.random.default_rng(0)
-    pm = protos.shape[-1]
+    proto_size = protos.shape[-1]
     for b, t in enumerate(targets):
         which = assign(t["boxes"], anchor_xy, strides)
         pos = np.flatnonzero(which >= 0)
@@ -374,11 +384,11 @@ def compute_loss(levels, protos, targets, anchor_xy, strides, gains=(5.0, 1.0, 5
         # `mask_cells` random cells per instance (the mask loss dominated the step time otherwise)
         keep = _cap_per_group(g, mask_cells, rng)
         mpos, mg = pos_t[torch.from_numpy(keep)], g[keep]
-        logits = coef[b, :, mpos].T @ protos[b].reshape(NUM_MASKS, -1)  # (P, pm*pm)
+        logits = coef[b, :, mpos].T @ protos[b].reshape(NUM_MASKS, -1)  # (P, proto_size²)
         gt_masks = torch.from_numpy(t["masks"][mg].reshape(len(mg), -1))
         bce = F.binary_cross_entropy_with_logits(logits, gt_masks, reduction="none")
         gb = t["boxes"][mg] / PROTO_STRIDE
-        ii = np.arange(pm) + 0.5
+        ii = np.arange(proto_size) + 0.5
         inside_x = (ii[None] >= gb[:, 0:1]) & (ii[None] <= gb[:, 2:3])
         inside_y = (ii[None] >= gb[:, 1:2]) & (ii[None] <= gb[:, 3:4])
         crop = (inside_y[:, :, None] & inside_x[:, None, :]).reshape(len(mg), -1).astype(np.float32)
@@ -460,8 +470,47 @@ def export_onnx(
 
 
 # -------------------------------------------------------------------------------------------
-# main
+# training
 # -------------------------------------------------------------------------------------------
+def lr_factor(step: int, warmup: int, total: int) -> float:
+    """Share of the peak learning rate at optimiser step ``step`` of ``total``: a linear warm-up
+    over ``warmup`` steps, then a cosine from 1 down to 0.02."""
+    if step < warmup:
+        return (step + 1) / warmup
+    return 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * (step - warmup) / max(1, total - warmup)))
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _load_weights(model: Any, path: Path) -> None:
+    """Start ``model`` from the weights in ``path``; AmslamError naming the file if they do not fit."""
+    torch = _torch()
+    try:
+        state = torch.load(path)
+    except Exception as exc:  # not a torch file: pickle, zip and EOF errors, among others
+        raise AmslamError(
+            f"initial weights {path}: not weights saved by train.py ({_first_line(exc)})"
+        ) from None
+    try:
+        model.load_state_dict(state)
+    except (RuntimeError, TypeError, AttributeError) as exc:  # other layers (--p2 or not), not a dict
+        raise AmslamError(f"initial weights {path}: not this network's ({_first_line(exc)})") from None
+
+
+def _training_metadata(data: Dataset, epochs: int, levels: tuple[int, ...]) -> dict[str, str]:
+    """What the exported model records of its training, besides ultralytics' own keys."""
+    return {
+        "train_frames": str(len(data)),
+        "epochs": str(epochs),
+        "train_seeds": str(sorted(set(data.seeds[data.seeds >= 0].tolist()))),
+        "train_worlds": str(sorted(set(data.sources[data.seeds < 0].tolist()))),
+        "levels": str(list(levels)),
+    }
+
+
 def train(
     data: Dataset,
     out: Path,
@@ -486,21 +535,16 @@ def train(
     rng = np.random.default_rng(seed)
     model = build_model(len(data.names), strides=levels)
     if init is not None:
-        model.load_state_dict(torch.load(init))
+        _load_weights(model, init)
+    # now rather than at the export: the weights are saved there first, after all the training
+    out.parent.mkdir(parents=True, exist_ok=True)
     n_params = sum(p.numel() for p in model.parameters())
     anchor_xy, strides = anchors(size, levels)
     steps_per_epoch = max(1, len(data) // batch)
     total = epochs * steps_per_epoch
     warmup = min(200, total // 10)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=5e-4)
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt,
-        lambda k: (
-            (k + 1) / warmup
-            if k < warmup
-            else 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * (k - warmup) / max(1, total - warmup)))
-        ),
-    )
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: lr_factor(k, warmup, total))
     print(f"{len(data)} frames, {n_params / 1e6:.2f} M parameters, {total} steps", flush=True)
     t0 = time.time()
     step = 0
@@ -519,36 +563,52 @@ def train(
             sched.step()
             step += 1
             if step % log_every == 0:
-                el = time.time() - t0
+                elapsed = time.time() - t0
+                eta = elapsed / step * (total - step)
                 print(
                     f"epoch {epoch + 1}/{epochs} step {step}/{total} loss {float(loss):.3f} "
                     f"box {parts['box']:.3f} cls {parts['cls']:.3f} mask {parts['mask']:.3f} "
-                    f"lr {sched.get_last_lr()[0]:.2e} {el:.0f}s (eta {el / step * (total - step):.0f}s)",
+                    f"lr {sched.get_last_lr()[0]:.2e} {elapsed:.0f}s (eta {eta:.0f}s)",
                     flush=True,
                 )
     model.eval()
     # the weights before the export folds the batch norms: what a later run could start from
     torch.save(model.state_dict(), out.with_suffix(".pt"))
-    export_onnx(
-        model,
-        out,
-        size,
-        data.names,
-        extra={
-            "train_frames": str(len(data)),
-            "epochs": str(epochs),
-            "train_seeds": str(sorted(set(data.seeds[data.seeds >= 0].tolist()))),
-            "train_worlds": str(sorted(set(data.sources[data.seeds < 0].tolist()))),
-            "levels": str(list(levels)),
-        },
-        levels=levels,
-    )
+    export_onnx(model, out, size, data.names, extra=_training_metadata(data, epochs, levels), levels=levels)
     print(f"exported {out} ({out.stat().st_size / 1e6:.2f} MB) after {time.time() - t0:.0f}s", flush=True)
     return out
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Command line: render (or load) the training set, train, export."""
+# -------------------------------------------------------------------------------------------
+# command line
+# -------------------------------------------------------------------------------------------
+def _folders(text: str) -> tuple[Path, ...]:
+    """``--mesh-worlds``: comma-separated folders."""
+    return tuple(Path(f) for f in text.split(",") if f.strip())
+
+
+def _unwritable(path: Path) -> str | None:
+    """Why the file ``path`` could not be written (in a folder made as needed), or None if it can."""
+    folder = path.parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"{folder} is a file, not a folder"
+    if not os.access(folder, os.W_OK):
+        return f"{folder} is not writable"
+    return None
+
+
+def _default_cache(args: argparse.Namespace) -> Path:
+    """The training set's cache file: named after what it holds, so other options render anew."""
+    kind = ("dr-" if args.randomise else "") + ("plain-" if args.with_plain else "")
+    name = f"train-{kind}{args.seeds}x{args.frames}"
+    if args.mesh_worlds:
+        name += f"+{'+'.join(f.name for f in args.mesh_worlds)}x{args.mesh_frames}"
+    return Path(f"runs/onnx_detector/{name}.npz")
+
+
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=Path("plugins/onnx_detector/models/sim_yolov8seg.onnx"))
     ap.add_argument(
@@ -558,13 +618,18 @@ def main(argv: list[str] | None = None) -> None:
         help="training set cache: rendered once, reused when present "
         "(default: runs/onnx_detector/train-SEEDSxFRAMES.npz)",
     )
-    ap.add_argument("--seeds", type=int, default=len(TRAIN_SEEDS), help="training buildings (seeds 100..)")
-    ap.add_argument("--frames", type=int, default=64, help="frames per training building")
-    ap.add_argument("--epochs", type=int, default=10)
-    ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--size", type=int, default=320, help="square network input (multiple of 32)")
     ap.add_argument(
-        "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
+        "--seeds", type=whole_number(0), default=len(TRAIN_SEEDS), help="training buildings (seeds 100..)"
+    )
+    ap.add_argument("--frames", type=positive_int, default=64, help="frames per training building")
+    ap.add_argument("--epochs", type=positive_int, default=10)
+    ap.add_argument("--batch", type=positive_int, default=8)
+    ap.add_argument("--size", type=positive_int, default=320, help="square network input (multiple of 32)")
+    ap.add_argument(
+        "--threads",
+        type=positive_int,
+        default=1,
+        help="torch threads (1 is fastest on a busy 2-core machine)",
     )
     ap.add_argument("--p2", action="store_true", help="add the stride-4 detection level (small, far objects)")
     ap.add_argument(
@@ -576,11 +641,12 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument(
         "--mesh-worlds",
+        type=_folders,
         default="",
         help="also train on these mesh worlds, comma-separated folders written by `amslam world import` "
         "(never the worlds a model is judged on)",
     )
-    ap.add_argument("--mesh-frames", type=int, default=160, help="frames per mesh world")
+    ap.add_argument("--mesh-frames", type=positive_int, default=160, help="frames per mesh world")
     ap.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (AdamW, cosine schedule)")
     ap.add_argument(
         "--init", type=Path, default=None, help="start from these weights (a .pt written by an earlier run)"
@@ -590,61 +656,96 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="with randomisation: the same buildings rendered without it too (the pre-#23 training set)",
     )
+    return ap
+
+
+def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line's arguments, checked before any rendering (exit status 2 otherwise).
+
+    ``mesh_worlds`` is a tuple of folders; ``data`` is the default cache file when not given.
+    """
+    ap = _parser()
     args = ap.parse_args(argv)
     if args.init is not None and not args.init.is_file():
         ap.error(f"--init {args.init}: no such file (the .pt an earlier run wrote next to its .onnx)")
     if args.with_plain and not args.randomise:
         ap.error("--with-plain adds unrandomised buildings to randomised ones: not with --no-randomise")
-    mesh_worlds = tuple(Path(f) for f in args.mesh_worlds.split(",") if f.strip())
-    for folder in mesh_worlds:
+    for folder in args.mesh_worlds:
         if not (folder / "world.ply").is_file():
             ap.error(
                 f"--mesh-worlds: {folder} holds no world.ply (a folder written by `amslam world import`)"
             )
-    seeds = list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + args.seeds))
+    most = min(HELDOUT_SEEDS) - TRAIN_SEEDS[0]
+    if args.seeds > most:
+        ap.error(f"--seeds {args.seeds}: at most {most}; the seeds from {min(HELDOUT_SEEDS)} on are held out")
+    if args.seeds == 0 and not args.mesh_worlds:
+        ap.error("--seeds 0 and no --mesh-worlds: nothing to train on")
+    if args.seeds == 0 and args.with_plain:
+        ap.error("--with-plain renders the --seeds buildings a second time: none with --seeds 0")
+    if args.size % 32:
+        ap.error(f"--size {args.size}: not a multiple of 32, the network's coarsest stride")
+    if not args.lr > 0:
+        ap.error(f"--lr {args.lr}: not positive")
     if args.data is None:
-        kind = ("dr-" if args.randomise else "") + ("plain-" if args.with_plain else "")
-        name = f"train-{kind}{args.seeds}x{args.frames}"
-        if mesh_worlds:
-            name += f"+{'+'.join(f.name for f in mesh_worlds)}x{args.mesh_frames}"
-        args.data = Path(f"runs/onnx_detector/{name}.npz")
+        args.data = _default_cache(args)
+    for option, path in (("--out", args.out), ("--data", args.data)):
+        problem = None if option == "--data" and args.data.exists() else _unwritable(path)
+        if problem:
+            ap.error(f"{option} {path}: cannot be written, {problem}")
+    return args
+
+
+def _training_seeds(n: int) -> list[int]:
+    """The first ``n`` training buildings (``--seeds``)."""
+    return list(range(TRAIN_SEEDS[0], TRAIN_SEEDS[0] + n))
+
+
+def _render_training_set(args: argparse.Namespace) -> Dataset:
+    """Render the training set the arguments ask for and save it to ``args.data``."""
+    seeds = _training_seeds(args.seeds)
+    t = time.time()
+    data = render_dataset(
+        seeds,
+        args.frames,
+        progress=True,
+        classes=CLASSES,
+        randomise=args.randomise,
+        mesh_worlds=args.mesh_worlds,
+        mesh_frames=args.mesh_frames,
+    )
+    if args.with_plain:
+        data = Dataset.concatenate([render_dataset(seeds, args.frames, progress=True, classes=CLASSES), data])
+    data.save(args.data)
+    print(f"rendered {len(data)} frames in {time.time() - t:.0f}s → {args.data}", flush=True)
+    return data
+
+
+def run(args: argparse.Namespace) -> Path:
+    """Load (or render) the training set, train, export; the exported model's path.
+
+    ``args`` as :func:`parse_arguments` returns them. AmslamError for a cache or a mesh world that
+    cannot be read and for torch or onnx missing; SystemExit for a cache of other buildings or frames.
+    """
     data = Dataset.load(args.data) if args.data.exists() else None
-    with_plain = args.with_plain and args.randomise
-    expected = len(seeds) * args.frames * (2 if with_plain else 1) + len(mesh_worlds) * args.mesh_frames
+    expected = (
+        args.seeds * args.frames * (2 if args.with_plain else 1) + len(args.mesh_worlds) * args.mesh_frames
+    )
     if data is not None and (
-        sorted(set(data.seeds[data.seeds >= 0].tolist())) != seeds or len(data) != expected
+        sorted(set(data.seeds[data.seeds >= 0].tolist())) != _training_seeds(args.seeds)
+        or len(data) != expected
     ):
         raise SystemExit(
             f"{args.data} holds other buildings or frames than --seeds/--frames/--mesh-worlds ask for"
         )
     # before minutes of rendering, not at the first use
-    missing = [name for name in ("torch", "onnx") if importlib.util.find_spec(name) is None]
+    missing = missing_modules(("torch", "onnx"))
     if missing:
-        print(
-            f"error: training the detector needs {' and '.join(missing)}: pip install 'amslam[train]'",
-            file=sys.stderr,
-        )
-        raise SystemExit(2)
+        raise AmslamError(f"training the detector needs {' and '.join(missing)}: pip install 'amslam[train]'")
     if data is not None:
         print(f"loaded {args.data}: {len(data)} frames", flush=True)
     else:
-        t = time.time()
-        data = render_dataset(
-            seeds,
-            args.frames,
-            progress=True,
-            classes=CLASSES,
-            randomise=args.randomise,
-            mesh_worlds=mesh_worlds,
-            mesh_frames=args.mesh_frames,
-        )
-        if with_plain:
-            data = Dataset.concatenate(
-                [render_dataset(seeds, args.frames, progress=True, classes=CLASSES), data]
-            )
-        data.save(args.data)
-        print(f"rendered {len(data)} frames in {time.time() - t:.0f}s → {args.data}", flush=True)
-    train(
+        data = _render_training_set(args)
+    return train(
         data,
         args.out,
         size=args.size,
@@ -655,6 +756,16 @@ def main(argv: list[str] | None = None) -> None:
         lr=args.lr,
         init=args.init,
     )
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command line: render (or load) the training set, train, export."""
+    args = parse_arguments(argv)
+    try:
+        run(args)
+    except AmslamError as exc:  # an unreadable cache or mesh world, torch missing, foreign --init
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":

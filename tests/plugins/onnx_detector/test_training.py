@@ -1,8 +1,10 @@
-"""Training data, cell assignment and the held-out evaluation (torch is not needed for these)."""
+"""Training data, cell assignment and the held-out evaluation (torch is not needed for these, but
+for the one test that trains), and the command lines' answers to bad input."""
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,7 @@ from amslam.apps.detector_training.dataset import (
     CLASSES,
     CLUTTER,
     Dataset,
+    DatasetError,
     building,
     label_frame,
     random_look,
@@ -20,8 +23,17 @@ from amslam.apps.detector_training.dataset import (
 )
 from amslam.apps.detector_training.evaluate import choose_threshold, evaluate, predict
 from amslam.apps.detector_training.evaluate import main as evaluate_main
-from amslam.apps.detector_training.train import P2_STRIDES, STRIDES, anchors, assign, make_batch
+from amslam.apps.detector_training.train import (
+    P2_STRIDES,
+    STRIDES,
+    anchors,
+    assign,
+    lr_factor,
+    make_batch,
+    train,
+)
 from amslam.apps.detector_training.train import main as train_main
+from amslam.errors import AmslamError
 from amslam.plugins.onnx_detector.decoder import SegmentationModel
 from amslam.plugins.sim.camera import CameraParams, Renderer, viewing_pose
 from amslam.plugins.sim.world import boxes_mesh, room_shell
@@ -234,3 +246,195 @@ def test_a_cache_written_before_sources_were_kept_still_loads(tiny_set: Dataset,
     )
     old = Dataset.load(tmp_path / "old.npz")
     assert old.sources.tolist() == ["seed 100"] * len(tiny_set)
+
+
+def _refused(main, argv: list[str], capsys) -> str:
+    """What ``main(argv)`` says on stderr when it stops with exit status 2 (never a traceback)."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return err
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"not an archive", b"", b"PK\x03\x04 a torn zip"],
+    ids=["text", "empty", "torn zip"],
+)
+def test_a_cache_that_is_no_training_set_is_named(content: bytes, tmp_path: Path) -> None:
+    path = tmp_path / "cache.npz"
+    path.write_bytes(content)
+    with pytest.raises(DatasetError, match=re.escape(str(path))):
+        Dataset.load(path)
+
+
+def test_a_cache_of_other_arrays_or_a_folder_is_named(tiny_set: Dataset, tmp_path: Path) -> None:
+    np.save(tmp_path / "one.npy", tiny_set.seeds)
+    with pytest.raises(DatasetError, match="one array"):
+        Dataset.load(tmp_path / "one.npy")
+    np.savez_compressed(tmp_path / "part.npz", images=tiny_set.images, seeds=tiny_set.seeds)
+    with pytest.raises(DatasetError, match="no instance, inst_class, names"):
+        Dataset.load(tmp_path / "part.npz")
+    tiny_set.save(tmp_path / "whole.npz")
+    data = (tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatasetError, match="cut.npz"):
+        Dataset.load(tmp_path / "cut.npz")
+    with pytest.raises(DatasetError, match="IsADirectoryError"):
+        Dataset.load(tmp_path)
+
+
+def test_a_cache_is_saved_under_the_name_given(tiny_set: Dataset, tmp_path: Path) -> None:
+    tiny_set.save(tmp_path / "train.cache")  # numpy alone would write train.cache.npz
+    assert [f.name for f in tmp_path.iterdir()] == ["train.cache"]
+    np.testing.assert_array_equal(Dataset.load(tmp_path / "train.cache").images, tiny_set.images)
+
+
+def test_training_on_an_unreadable_cache_says_so_in_one_line(tmp_path: Path, capsys) -> None:
+    cache = tmp_path / "train.npz"
+    cache.write_text("not a training set")
+    err = _refused(
+        train_main, ["--data", str(cache), "--seeds", "1", "--out", str(tmp_path / "m.onnx")], capsys
+    )
+    assert err == f"error: {cache}: not an .npz file (a training set written by Dataset.save)\n"
+
+
+def test_rendering_no_frame_is_refused() -> None:
+    with pytest.raises(ValueError, match="no frames to render: 0 buildings"):
+        render_dataset([], 3)
+    with pytest.raises(ValueError, match="no frames to render: 1 buildings × 0 frames"):
+        render_dataset([100], 0)
+    with pytest.raises(ValueError, match="a negative frame count"):
+        render_dataset([100], -1)
+
+
+def test_a_mesh_world_with_a_broken_objects_file_is_named(little_mesh_world: Path, capsys) -> None:
+    objects = little_mesh_world / "objects.json"
+    objects.write_text('{"objects": [1, 2')
+    argv = ["--seeds", "", "--world", str(little_mesh_world), "--sizes", "160x120", "--frames", "2"]
+    err = _refused(evaluate_main, argv, capsys)
+    assert err.startswith("error: not a JSON objects file") and str(objects) in err
+    with pytest.raises(AmslamError, match="not a JSON objects file"):
+        render_dataset([], 0, mesh_worlds=(little_mesh_world,), mesh_frames=2)
+
+
+def test_a_mesh_world_without_room_to_fly_is_named(tmp_path: Path, capsys) -> None:
+    folder = tmp_path / "crawlspace"
+    folder.mkdir()
+    _write_mesh(folder / "world.ply", *boxes_mesh(room_shell((6.0, 4.0, 0.8))))
+    argv = ["--seeds", "", "--world", str(folder), "--sizes", "160x120", "--frames", "2"]
+    err = _refused(evaluate_main, argv, capsys)
+    assert err == "error: world crawlspace: no reachable point at flight height\n"
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--model", "NOWHERE"], "NOWHERE: model file not found"),
+        (["--model", "COCO"], "the model's classes (['person', 'car', 'dog']) are not the frames'"),
+        (["--sizes", "320x"], "argument --sizes: WxH,... such as 320x240,640x480, got '320x'"),
+        (["--sizes", "320x240,"], "argument --sizes"),
+        (["--frames", "0"], "argument --frames: 0 is not at least 1"),
+        (["--seeds", ""], "nothing to evaluate: --seeds '' and no --world"),
+        (["--conf", "1.5"], "--conf 1.5: a class score threshold, between 0 and 1"),
+        (["--choose-threshold", "--sizes", "640x480"], "--choose-threshold scores the 320×240 frames"),
+        (["--centroids", "--seeds", "", "--world", "WORLD"], "--centroids renders procedural buildings"),
+    ],
+)
+def test_evaluation_refuses_bad_arguments_before_rendering(
+    argv: list[str], said: str, little_mesh_world: Path, tmp_path: Path, capsys
+) -> None:
+    coco = constant_model(
+        tmp_path / "coco.onnx",
+        candidates([((120.0, 160.0, 80.0, 80.0), [0.9, 0.0, 0.1], [1.0])]),
+        np.zeros((1, 32, 80, 80), np.float32),
+        metadata={"names": "{0: 'person', 1: 'car', 2: 'dog'}"},
+    )
+    places = {"NOWHERE": str(tmp_path / "none.onnx"), "COCO": str(coco), "WORLD": str(little_mesh_world)}
+    said = said.replace("NOWHERE", places["NOWHERE"])
+    assert said in _refused(evaluate_main, [places.get(a, a) for a in argv], capsys)
+
+
+def test_a_model_of_other_classes_is_not_scored(tmp_path: Path) -> None:
+    data = Dataset(
+        np.zeros((1, 120, 160, 3), np.uint8),
+        np.zeros((1, 120, 160), np.int16),
+        np.full((1, 1), -1, np.int16),
+        np.array([0]),
+        ("chair", "table"),
+    )
+    out0 = candidates([((120.0, 160.0, 80.0, 80.0), [0.9, 0.0, 0.1], [1.0])])
+    model = SegmentationModel(
+        constant_model(tmp_path / "m.onnx", out0, np.zeros((1, 32, 80, 80), np.float32))
+    )
+    with pytest.raises(ValueError, match="3 unnamed classes"):
+        predict(model, data)
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--seeds", "801"], "--seeds 801: at most 800; the seeds from 900 on are held out"),
+        (["--seeds", "-1"], "argument --seeds: -1 is not at least 0"),
+        (["--seeds", "0"], "--seeds 0 and no --mesh-worlds: nothing to train on"),
+        (["--seeds", "0", "--with-plain", "--mesh-worlds", "WORLD"], "--with-plain renders the --seeds"),
+        (["--frames", "0"], "argument --frames: 0 is not at least 1"),
+        (["--epochs", "0"], "argument --epochs: 0 is not at least 1"),
+        (["--batch", "0"], "argument --batch: 0 is not at least 1"),
+        (["--threads", "0"], "argument --threads: 0 is not at least 1"),
+        (["--mesh-frames", "0"], "argument --mesh-frames: 0 is not at least 1"),
+        (["--size", "100"], "--size 100: not a multiple of 32"),
+        (["--lr", "0"], "--lr 0.0: not positive"),
+        (["--out", "FILE/m.onnx"], "--out FILE/m.onnx: cannot be written, FILE is a file, not a folder"),
+        (["--data", "FILE/d.npz"], "--data FILE/d.npz: cannot be written, FILE is a file, not a folder"),
+    ],
+)
+def test_training_refuses_bad_arguments_before_rendering(
+    argv: list[str], said: str, little_mesh_world: Path, tmp_path: Path, capsys
+) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    before = sorted(tmp_path.rglob("*"))
+
+    def place(a: str) -> str:
+        return a.replace("WORLD", str(little_mesh_world)).replace("FILE", str(afile))
+
+    argv = ["--out", str(tmp_path / "out" / "m.onnx"), "--data", str(tmp_path / "d.npz"), *argv]
+    assert place(said) in _refused(train_main, [place(a) for a in argv], capsys)
+    assert sorted(tmp_path.rglob("*")) == before, "nothing is written"
+
+
+def test_the_learning_rate_warms_up_then_falls_along_a_cosine() -> None:
+    assert [lr_factor(k, 4, 20) for k in range(4)] == [0.25, 0.5, 0.75, 1.0]
+    assert lr_factor(4, 4, 20) == pytest.approx(1.0)
+    assert lr_factor(12, 4, 20) == pytest.approx(0.51)
+    assert lr_factor(20, 4, 20) == pytest.approx(0.02)
+    assert lr_factor(0, 0, 5) == pytest.approx(1.0)  # train() gives runs under 10 steps no warm-up
+
+
+def test_training_writes_into_a_new_folder_and_names_foreign_weights(
+    tiny_set: Dataset, tmp_path: Path
+) -> None:
+    pytest.importorskip("torch")
+    pytest.importorskip("onnx")
+    out = tmp_path / "new" / "m.onnx"  # the weights (.pt) are saved there before the export
+    assert train(tiny_set, out, size=64, epochs=1, batch=6, threads=1) == out
+    assert out.is_file() and out.with_suffix(".pt").is_file()
+    foreign = tmp_path / "foreign.pt"
+    foreign.write_text("not weights")
+    with pytest.raises(
+        AmslamError, match=re.escape(f"initial weights {foreign}: not weights saved by train.py")
+    ):
+        train(tiny_set, tmp_path / "m2.onnx", size=64, epochs=1, batch=6, threads=1, init=foreign)
+    with pytest.raises(AmslamError, match="not this network's"):  # the weights of a network without --p2
+        train(
+            tiny_set,
+            tmp_path / "m3.onnx",
+            size=64,
+            batch=6,
+            threads=1,
+            init=out.with_suffix(".pt"),
+            levels=P2_STRIDES,
+        )
