@@ -374,6 +374,10 @@ def calibration_table(result: dict[str, Any]) -> str:
         *_value_rows(result["held_out"], judged, metric),
         "",
     ]
+    requirements = [Requirement.parse(r) for r in result["requirements"]]
+    for v, score in zip(judged, score_values(result["held_out"], judged, metric, requirements), strict=True):
+        if not score["eligible"]:  # what the choice asked of training flights, asked of these too
+            lines += [f"- `{_value_text(v)}` on the held-out seeds: {score['why_not']}", ""]
     if other is None:
         return "\n".join([*lines, "No other eligible value to compare with.", ""])
     pairs = paired(result["held_out"], chosen, other, metric)
