@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from amslam.mission import ExplorationSection
@@ -130,3 +132,29 @@ def test_the_pose_uncertainty_is_asked_for_only_by_planners_that_read_it() -> No
     planner.needs_pose_uncertainty = True
     s.plan_async(1.2).result()
     assert planner.requests[-1].pose_uncertainty == "the backend's pose uncertainty" and asked
+
+
+def test_a_loop_closure_place_found_unreachable_is_not_offered_again() -> None:
+    # one-floor seed 10: the same SLC goal came back at every replan, was given up eight times in
+    # 0.7 s, and exploration stopped at 77 % ("8 goals in a row unreachable")
+    from amslam.types import SlcCandidate
+
+    class SlamWithCandidates(NoSlam):
+        def slc_candidates(self, sensing_range):
+            return [
+                SlcCandidate(3, np.array([1.68, 6.94, 0.4]), 0.0, (1, 2), 0.5),
+                SlcCandidate(9, np.array([4.0, 2.0, 1.2]), 0.0, (5,), 0.2),
+            ]
+
+        def slc_gain_model(self, keypose_ids):
+            return None
+
+    s, planner = service([viewpoint(IN_SHAFT, 30.0)])
+    s.slam, s.exploration = SlamWithCandidates(), ExplorationSection(slc=True, slc_min_travel=1.0)
+    s.snapshot = dataclasses.replace(s.snapshot, distance=50.0)
+    s.plan_async(1.2).result()
+    offered = planner.requests[-1].slc_candidates
+    assert [c.keypose_id for c in offered] == [3, 9] and offered[0].position[2] == 1.2  # lifted
+    s.mark_unreachable(np.array([1.68, 6.94, 1.2]))  # GoToSLC gave it up
+    s.plan_async(1.2).result()
+    assert [c.keypose_id for c in planner.requests[-1].slc_candidates] == [9]
