@@ -106,16 +106,15 @@ def test_a_calibration_flies_training_then_held_out_seeds_and_writes_its_folder(
         return {"overrides": list(overrides), "run_dir": None, "metrics": metrics, "wall_s": 0.0}
 
     monkeypatch.setattr(flights_module, "fly_one", fake_flight)
-    folder = calibrate(
-        [str(mission)],
-        registry,
-        "planner.min_gain",
-        ["0.0", "1.0", "2.5"],
-        [1, 2],
-        [3, 4],
-        tmp_path / "out",
-        log=lambda line: None,
-    )
+
+    def run(resume=None):
+        values, training, held_out = ["0.0", "1.0", "2.5"], [1, 2], [3, 4]
+        return calibrate(
+            [str(mission)], registry, "planner.min_gain", values, training, held_out, tmp_path / "out",
+            log=lambda line: None, resume=resume,
+        )  # fmt: skip
+
+    folder = run()
     result = json.loads((folder / "results.json").read_text())
     assert result["flown_before"] == 0.0 and result["chosen"] == 1.0 and result["compared_with"] == 0.0
     assert len(result["training"]) == 6 and {r["seed"] for r in result["held_out"]} == {3, 4}
@@ -128,17 +127,7 @@ def test_a_calibration_flies_training_then_held_out_seeds_and_writes_its_folder(
     assert "confirm the choice" in (folder / "table.md").read_text()
     # a resumed calibration flies nothing again
     flown.clear()
-    calibrate(
-        [str(mission)],
-        registry,
-        "planner.min_gain",
-        ["0.0", "1.0", "2.5"],
-        [1, 2],
-        [3, 4],
-        tmp_path / "out",
-        log=lambda line: None,
-        resume=str(folder),
-    )
+    run(resume=str(folder))
     assert flown == []
 
 
