@@ -284,7 +284,7 @@ def _value_rows(rows: list[dict[str, Any]], values: list[Any], metric: str) -> l
             done = sum(r["metrics"].get("verdict") == "completed" for r in mine)
             cells = [mean_std([metric_of(r["metrics"], metric) for r in mine], 3)] + [
                 mean_std([metric_of(r["metrics"], path) for r in mine], digits)
-                for _, path, digits in CONTEXT_COLUMNS
+                for _, path, digits in _context(metric)
             ]
             lines.append(
                 f"| {_value_text(v)} | {world} | {done} of {len(mine)} | " + " | ".join(cells) + " |"
@@ -292,9 +292,14 @@ def _value_rows(rows: list[dict[str, Any]], values: list[Any], metric: str) -> l
     return lines
 
 
-def _header(param: str, metric: str, extra: str = "") -> list[str]:
-    heads = [param, "world", "completed", metric] + [h for h, _, _ in CONTEXT_COLUMNS]
-    return ["| " + " | ".join(heads) + f" |{extra}", "|" + "---|" * len(heads)]
+def _context(metric: str) -> tuple[tuple[str, str, int], ...]:
+    """The context columns but the calibrated metric's own (``sim_duration_s`` is one)."""
+    return tuple(c for c in CONTEXT_COLUMNS if c[1] != metric)
+
+
+def _header(param: str, metric: str) -> list[str]:
+    heads = [param, "world", "completed", metric] + [h for h, _, _ in _context(metric)]
+    return ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
 
 
 def paired(

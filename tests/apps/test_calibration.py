@@ -76,6 +76,9 @@ def test_the_table_gives_the_choice_and_whether_the_held_out_seeds_confirm_it():
     result["held_out"][2]["metrics"]["trajectory_error"]["slam_rms_m"] = 0.12
     assert "**The held-out seeds confirm the choice.**" in calibration_table(result)
     assert "on the held-out seeds" not in calibration_table(result)
+    # a metric that is one of the context columns is shown once
+    assert calibration_table(dict(result, metric="sim_duration_s")).count("time (s)") == 0
+    assert "| time (s) |" in table
     # a held-out flight of the chosen value that misses the requirement is said
     result["held_out"][2]["metrics"]["explored_percent"] = 77.0
     assert "- `30.0` on the held-out seeds: 1 flight(s) miss explored_percent >= 95" in calibration_table(
