@@ -40,6 +40,9 @@ from amslam.types import (
     Viewpoint,
 )
 
+#: a viewpoint or loop-closure place this near (m) to where a goal was given up is not offered again
+UNREACHABLE_RADIUS = 0.75
+
 
 @dataclass(frozen=True)
 class SlcSchedule:
@@ -230,11 +233,11 @@ class PlanningService:
         return out
 
     def _worth_visiting(self, vps: list[Viewpoint]) -> np.ndarray:
-        """Which viewpoints have enough gain, are not near a goal found unreachable (0.75 m) and
-        not near one visited (0.5 m)."""
+        """Which viewpoints have enough gain, are not near a goal found unreachable
+        (``UNREACHABLE_RADIUS``) and not near one visited (0.5 m)."""
         ok = np.array([vp.gain >= self.exploration.min_viewpoint_gain for vp in vps])
         pos = np.array([vp.position for vp in vps])
-        for near, within in ((self.unreachable, 0.75), (self.visited, 0.5)):
+        for near, within in ((self.unreachable, UNREACHABLE_RADIUS), (self.visited, 0.5)):
             if near:
                 d = np.linalg.norm(pos[:, None] - np.asarray(near)[None], axis=2)
                 ok &= ~np.any(d < within, axis=1)
@@ -357,7 +360,7 @@ class PlanningService:
     def _slc_candidates(self, inputs: PlanInputs) -> tuple[SlcCandidate, ...]:
         """The SLAM backend's loop-closure candidates the schedule allows now, lifted to the
         cruise height (a key pose from the take-off climb is still a fine place to look from, in
-        the air), minus those at a place a goal was found unreachable (0.75 m, as viewpoints):
+        the air), minus those at a place a goal was found unreachable (as viewpoints are):
         offered again, an unreachable one came back at every replan — one-floor seed 10 gave it
         up eight times in 0.7 s and exploration stopped at 77 % ("8 goals in a row
         unreachable")."""
@@ -367,7 +370,9 @@ class PlanningService:
             if inputs.slc.due(c)
         )
         return tuple(
-            c for c in lifted if not np.any(np.linalg.norm(inputs.unreachable - c.position, axis=1) < 0.75)
+            c
+            for c in lifted
+            if not np.any(np.linalg.norm(inputs.unreachable - c.position, axis=1) < UNREACHABLE_RADIUS)
         )
 
     def _adopt(self, plan: Plan) -> None:

@@ -320,13 +320,10 @@ class PoseUncertainty:
         """The std along the worst-known direction, m (the largest eigenvalue's root)."""
         return float(np.sqrt(max(0.0, float(np.linalg.eigvalsh(self.position_covariance)[-1]))))
 
-    def std_after(self, distance: float | np.ndarray) -> float | np.ndarray:
-        """The worst-direction std after flying ``distance`` metres with no correction: the
-        odometry's horizontal random walk (variance ``translation² · distance``) added to it."""
-        return np.sqrt(self.position_std**2 + self.odometry.translation**2 * np.asarray(distance, float))
-
     def reach(self, max_std: float) -> float:
-        """How far the robot may fly before its std passes ``max_std``, m (0 when it already has)."""
+        """How far the robot may fly before its std passes ``max_std``, m (0 when it already has):
+        with no correction on the way the odometry's horizontal random walk adds
+        ``translation² · distance`` to the worst direction's variance."""
         room = max_std**2 - self.position_std**2
         if room <= 0.0:
             return 0.0

@@ -67,14 +67,24 @@ class Requirement:
         return f"{self.metric} {self.op} {self.bound:g}"
 
 
+def _at(config: dict[str, Any], path: str) -> Any:
+    """The value at a dotted ``path`` of a nested dict (a mission's resolved config, a flight's
+    metrics); KeyError naming the first missing part."""
+    node: Any = config
+    for part in path.split("."):
+        if not isinstance(node, dict) or part not in node:
+            raise KeyError(part)
+        node = node[part]
+    return node
+
+
 def metric_of(metrics: dict[str, Any], path: str) -> float | None:
     """The number at a dotted ``path`` of a flight's ``metrics.json`` (``final_error.slam_position_m``);
     None when the flight did not record it or it is not a finite number."""
-    node: Any = metrics
-    for part in path.split("."):
-        if not isinstance(node, dict) or part not in node:
-            return None
-        node = node[part]
+    try:
+        node = _at(metrics, path)
+    except KeyError:
+        return None
     if isinstance(node, bool) or not isinstance(node, int | float) or not np.isfinite(node):
         return None
     return float(node)
@@ -83,15 +93,6 @@ def metric_of(metrics: dict[str, Any], path: str) -> float | None:
 def _value_text(value: Any) -> str:
     """A value as ``--set`` takes it (YAML): ``10.0``, ``true``, ``[1, 2]``."""
     return json.dumps(value)
-
-
-def _at(config: dict[str, Any], path: str) -> Any:
-    node: Any = config
-    for part in path.split("."):
-        if not isinstance(node, dict) or part not in node:
-            raise KeyError(part)
-        node = node[part]
-    return node
 
 
 def check_values(

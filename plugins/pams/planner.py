@@ -76,7 +76,7 @@ from amslam.interfaces import (
 from amslam.lib.tours import exact_open_tour, nearest_neighbour_tour, two_opt
 from amslam.plugins.pams.uncertainty import POSITION_COMPONENTS, ClassModel, UncertaintyModels
 from amslam.rundir import read_landmarks
-from amslam.types import BoundingBox, PlanRequest, TourItem, TourItemKind
+from amslam.types import BoundingBox, PlanRequest, PoseUncertainty, TourItem, TourItemKind
 
 # -- targets -----------------------------------------------------------------------------------
 
@@ -451,6 +451,18 @@ class _TargetPlanner(Planner):
             ok &= np.all((xy >= area.lo[:2] + 0.5) & (xy <= area.hi[:2] - 0.5), axis=1)
         return ok
 
+    def spots_facing(self, centre: np.ndarray, distance: float, came_from: np.ndarray) -> np.ndarray:
+        """Places (N×2) ``distance`` from ``centre``, the first on the side facing ``came_from``,
+        then turned around it 15°, 30° … 180° to either side: where to look at an object from,
+        in the order to try them while another object blocks the place."""
+        d = np.asarray(came_from, float)[:2] - np.asarray(centre, float)[:2]
+        base = math.atan2(d[1], d[0]) if np.linalg.norm(d) > 1e-6 else 0.0
+        offsets = np.radians(np.arange(15, 181, 15))
+        bearings = base + np.concatenate([[0.0], np.ravel(np.column_stack([offsets, -offsets]))])
+        return np.asarray(centre, float)[:2] + distance * np.column_stack(
+            [np.cos(bearings), np.sin(bearings)]
+        )
+
     @property
     def targets_all(self) -> dict[int, Target]:
         """Every object to keep clear of: the targets and the other shaped prior objects."""
@@ -516,12 +528,7 @@ class PriorVisitPlanner(_TargetPlanner):
         """Where to look at target ``tid`` from: ``standoff`` beyond its edge on the side facing
         ``came_from`` (the approach), turned around the object while that place is blocked."""
         t = self.targets[tid]
-        d = np.asarray(came_from, float)[:2] - t.position[:2]
-        base = math.atan2(d[1], d[0]) if np.linalg.norm(d) > 1e-6 else 0.0
-        dist = t.radius + self.params.standoff
-        offsets = np.radians(np.arange(15, 181, 15))
-        bearings = base + np.concatenate([[0.0], np.ravel(np.column_stack([offsets, -offsets]))])
-        xy = t.position[:2] + dist * np.column_stack([np.cos(bearings), np.sin(bearings)])
+        xy = self.spots_facing(t.position, t.radius + self.params.standoff, came_from)
         ok = self._free(xy, skip=tid, height=self._height(request))
         j = int(np.argmax(ok)) if ok.any() else 0
         return np.array([xy[j, 0], xy[j, 1], self._height(request)])
@@ -849,7 +856,7 @@ class PamsPlanner(_TargetPlanner):
     def relocalise(self, request: PlanRequest, height: float, st: _TargetState) -> list[TourItem]:
         """A stop that looks at a landmark known well enough to bring one of the target's free
         samples back within reach, from ``relocalise_range`` (on the robot's side of it, turned
-        when an object blocks that spot), facing it; empty when no landmark does.
+        when an object blocks that spot: :meth:`spots_facing`), facing it; empty when no landmark does.
 
         Measuring a landmark ties the pose to it, so after the stop the robot's std is about the
         landmark's own (the measurement's noise is left out: the models give it for targets, not
@@ -868,14 +875,17 @@ class PamsPlanner(_TargetPlanner):
             cov = np.asarray(lm.covariance, float)
             if lm.id in self.relocalised_at or cov.shape != (3, 3) or not np.isfinite(cov).all():
                 continue
-            std = float(np.sqrt(max(0.0, float(np.linalg.eigvalsh(cov)[-1]))))
+            after = PoseUncertainty(cov, pose.odometry)  # the robot's, once it has looked
+            std = after.position_std
             if std >= p.max_position_std:
                 continue
-            spot = self._relocalise_spot(request.start, np.asarray(lm.position, float), height)
-            if spot is None:
+            xy = self.spots_facing(lm.position, p.relocalise_range, request.start)
+            free = np.flatnonzero(self._free(xy, height=height))
+            if len(free) == 0:
                 continue
+            spot = np.array([*xy[free[0]], height])
             on = float(np.min(np.linalg.norm(samples - spot, axis=1)))
-            if std**2 + pose.odometry.translation**2 * on > p.max_position_std**2:
+            if after.reach(p.max_position_std) < on:
                 continue
             detour = float(np.linalg.norm(spot - request.start)) + on
             if best is None or detour < best[0]:
@@ -894,18 +904,6 @@ class PamsPlanner(_TargetPlanner):
                 detour=round(detour, 2),
             )
         return [_item(spot, _facing(spot, lm.position), 0.0, lm.id)]
-
-    def _relocalise_spot(self, start: np.ndarray, centre: np.ndarray, height: float) -> np.ndarray | None:
-        """Where to look at a landmark from: ``relocalise_range`` from it on the robot's side, or
-        the nearest bearing (30° steps) no object blocks; None when every one is blocked."""
-        towards = math.atan2(start[1] - centre[1], start[0] - centre[0])
-        bearings = towards + np.radians(np.arange(0.0, 360.0, 30.0))
-        order = np.argsort(np.abs((bearings - towards + np.pi) % (2 * np.pi) - np.pi), kind="stable")
-        xy = centre[:2] + self.params.relocalise_range * np.column_stack(
-            [np.cos(bearings[order]), np.sin(bearings[order])]
-        )
-        free = np.flatnonzero(self._free(xy, height=height))
-        return np.array([*xy[free[0]], height]) if len(free) else None
 
     def _event(self, name: str, tid: int, **fields) -> None:
         if self._emit is not None:

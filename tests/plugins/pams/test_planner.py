@@ -401,9 +401,9 @@ def _pose(std: float, translation: float = 0.05):
 def test_pose_uncertainty_grows_with_the_distance_flown_and_bounds_the_reach():
     pose = _pose(0.6)
     assert pose.position_std == pytest.approx(0.6)  # the worst direction
-    assert pose.std_after(100.0) == pytest.approx(math.sqrt(0.36 + 0.0025 * 100))
+    assert pose.reach(math.sqrt(0.36 + 0.0025 * 100)) == pytest.approx(100.0)
     assert pose.reach(1.0) == pytest.approx((1.0 - 0.36) / 0.0025)  # 256 m
-    assert pose.std_after(pose.reach(1.0)) == pytest.approx(1.0)
+    assert math.sqrt(0.36 + 0.0025 * pose.reach(1.0)) == pytest.approx(1.0)
     assert pose.reach(0.5) == 0.0
     with pytest.raises(ValueError, match="expected \\(3, 3\\)"):
         type(pose)(np.eye(2), pose.odometry)
