@@ -198,7 +198,7 @@ def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
     return out
 
 
-def _world_of(run_dir: Path, registry: Registry) -> WorldSummary:
+def run_world(run_dir: Path, registry: Registry) -> WorldSummary:
     """The world summary of a run, rebuilt from its mission (same seed, same pin)."""
     from amslam.mission import load_mission
     from amslam.runner import started_platform
@@ -228,7 +228,7 @@ def _fly(
         done = reuse[key]
         log(f"    {mission.name:<28} reused {done['run_dir']}")
         if done["world"] is None:
-            done["world"] = _world_of(done["run_dir"], registry)
+            done["world"] = run_world(done["run_dir"], registry)
         return done
     started = time.perf_counter()
     runner = Runner(mission, registry, runs)
