@@ -264,6 +264,9 @@ class SlamProcess(Slam):
     def landmarks(self) -> list[Landmark]:
         return self._process.call("landmarks")
 
+    def object_map(self) -> list[Landmark]:
+        return self._process.call("object_map")
+
     def uncertainty(self) -> tuple[float, float]:
         return self._process.call("uncertainty")
 

@@ -378,6 +378,12 @@ class Slam(Backend):
     def landmarks(self) -> list[Landmark]:
         """The semantic map."""
 
+    def object_map(self) -> list[Landmark]:
+        """The map of objects reported at the end of a run (``landmarks.json``, the metrics): by
+        default :meth:`landmarks`; a backend may place each object better from all it saw (the
+        gtsam backend: at the box fitted to all its points) than the points its graph needs."""
+        return self.landmarks()
+
     def uncertainty(self) -> tuple[float, float]:
         """(mean pose covariance trace, mean landmark covariance trace)."""
         return (0.0, 0.0)

@@ -600,7 +600,7 @@ class Runner:
         check = self.boundary
         if slam is not None:
             flown.update(
-                landmarks=ask("slam", "landmarks()", lambda: tuple(slam.landmarks())),
+                landmarks=ask("slam", "object_map()", lambda: tuple(slam.object_map())),
                 keyposes=ask("slam", "keyposes()", lambda: tuple(slam.keyposes())),
                 slam_optimises=implementation(slam).__name__ != "OdometrySlam",
                 final_T_world_odom=ask(

@@ -48,6 +48,10 @@ if TYPE_CHECKING:
 
 __all__ = ["MOVED_PARAMETERS", "GtsamSlam"]
 
+#: Object points kept per detection for the reported boxes (``object_map: boxes``): as many as the
+#: measurement log keeps, ~10 MB over a 5000-detection flight.
+KEPT_POINTS = 128
+
 
 def _moved() -> dict[str, str]:
     """The flat parameter names of the backend before its parts had sections → their new paths."""
@@ -116,6 +120,13 @@ class GtsamSlam(Slam):
             " landmarks (eqs. 1-2); plane: ground points for the local ground planes, no landmarks",
         )
         shapes: ShapeParams = Field(default_factory=ShapeParams, description="shape landmark parameters")
+        object_map: Literal["boxes", "landmarks"] = Field(
+            "boxes",
+            description="the object map reported at the end (landmarks.json, the metrics): 'boxes', an"
+            " object of a centroid class at the box fitted to all its detections' points, moved with the"
+            " optimised key poses and completed with its class's median box (a visible part's middle"
+            " sits on the viewer's side); 'landmarks', the graph's points",
+        )
 
         @model_validator(mode="before")
         @classmethod
@@ -155,7 +166,15 @@ class GtsamSlam(Slam):
 
         shape_landmarks = ShapeLandmarks(params.landmark_models, params.shapes, rng)
         self._graph = SlamGraph(params.graph, shape_landmarks)
-        self._front = FrontEnd(self._graph, params.association, params.keyposes, emit=emit)
+        self._front = FrontEnd(
+            self._graph,
+            params.association,
+            params.keyposes,
+            emit=emit,
+            keep_points=params.object_map == "boxes",
+            max_kept_points=KEPT_POINTS,
+        )
+        self._T_body_cam: np.ndarray | None = None
         self._loops = LoopCloser(params.loop_closure, self._front, params.association.chi2, rng, emit)
         lc = params.loop_closure
         self._active = ActiveSlam(params.active, self._front, lc.panorama_radius, lc.min_matches)
@@ -186,6 +205,7 @@ class GtsamSlam(Slam):
 
     def add_detections(self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]) -> None:
         """Associate detections (camera frame, made at VIO pose ``odom``) and add their factors."""
+        self._T_body_cam = np.asarray(T_body_cam, float)
         self._front.add_detections(odom, T_body_cam, detections)
 
     def try_loop_closure(
@@ -247,6 +267,29 @@ class GtsamSlam(Slam):
                 )
             )
         return out
+
+    def object_map(self) -> list[Landmark]:
+        """:meth:`landmarks`, each centroid-class object at the box fitted to all its points
+        (``object_map: boxes``, :mod:`.object_boxes`); shape landmarks keep the graph's shape."""
+        out = self.landmarks()
+        if self.params.object_map != "boxes" or self._T_body_cam is None:
+            return out
+        from dataclasses import replace
+
+        from amslam.lib.shapes import shape_center
+        from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes
+
+        g = self._graph
+        observations: dict[int, list] = {}
+        for lm in g.landmarks.values():
+            root = lm.id if lm.alias_of is None else g.live_id(lm.id)
+            observations.setdefault(root, []).extend(lm.observations)
+        plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
+        boxes = fitted_boxes(plain, observations, g.estimate, self._T_body_cam)
+        return [
+            replace(lm, position=shape_center(boxes[lm.id]), shape=boxes[lm.id]) if lm.id in boxes else lm
+            for lm in out
+        ]
 
     def uncertainty(self) -> tuple[float, float]:
         """(mean trace of the 6×6 pose marginals, mean trace of the landmarks' position marginals)."""

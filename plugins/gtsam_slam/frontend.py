@@ -53,8 +53,8 @@ class FrontEnd:
         keys: the gtsam keys of this robot's key poses.
         T_world_odom: the robot's known start: its odometry frame in the world frame.
         emit: ``emit(event, **fields)`` for the run's event log.
-        keep_points: keep each observation's object points (the base fits shapes to all of them;
-            onboard they would pile up over a flight).
+        keep_points: keep each observation's object points (the base and the reported object
+            map fit boxes to all of them), at most ``max_kept_points`` of each (every k-th).
     """
 
     def __init__(
@@ -67,6 +67,7 @@ class FrontEnd:
         T_world_odom: np.ndarray | None = None,
         emit: Callable[..., None] = lambda *a, **k: None,
         keep_points: bool = False,
+        max_kept_points: int | None = None,
     ) -> None:
         self.graph = graph
         self.p = association
@@ -76,6 +77,7 @@ class FrontEnd:
         self.T_world_odom_start = np.eye(4) if T_world_odom is None else np.asarray(T_world_odom, float)
         self.emit = emit
         self.keep_points = keep_points
+        self.max_kept_points = max_kept_points
         self.kps: list[KeyPoseRec] = []
         self.last_odom: Odometry | None = None
         self.distance = 0.0  # travelled so far (VIO), m
@@ -194,6 +196,8 @@ class FrontEnd:
                 points = None
                 if self.keep_points:
                     pc = np.asarray(d.points_cam, float).reshape(-1, 3)
+                    if self.max_kept_points and len(pc) > self.max_kept_points:
+                        pc = pc[:: -(-len(pc) // self.max_kept_points)]
                     points = pc @ T_kp_cam[:3, :3].T + T_kp_cam[:3, 3]
                 g.observe(
                     lm,

@@ -1,0 +1,122 @@
+"""The reported object map: each object at the box fitted to all its points (issue #23)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import gtsam
+import numpy as np
+
+from amslam.geometry import invert, pose_from
+from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes
+from amslam.plugins.gtsam_slam.synthetic import camera_mount
+
+CHAIR = np.array([0.5, 0.5, 0.9])
+
+
+def face(lo: np.ndarray, y: float, rng: np.random.Generator, n: int = 80) -> np.ndarray:
+    """Points on the face of the box at ``lo`` (size CHAIR) at height-wise plane ``y``."""
+    pts = lo + rng.uniform(0, 1, (n, 3)) * CHAIR
+    pts[:, 1] = y + rng.normal(0.0, 0.01, n)  # a depth camera's noise
+    return pts
+
+
+def test_chairs_all_seen_from_the_front_stay_as_deep_as_they_look() -> None:
+    rng = np.random.default_rng(3)
+    chairs = [np.array([2.0 * i, 0.0, 0.0]) for i in range(4)]
+    values = gtsam.Values()
+    landmarks, observations = [], {}
+    key = 0
+    for j, lo in enumerate(chairs):
+        obs = []
+        for dx in (-1.0, 0.0, 1.0):  # three views from the front, one metre apart
+            T = pose_from(lo + np.array([0.25 + dx, -2.5, 1.2]), np.pi / 2)
+            values.insert(key, gtsam.Pose3(T))
+            body = (invert(T) @ np.c_[face(lo, lo[1], rng), np.ones(80)].T).T[:, :3]
+            obs.append(SimpleNamespace(pose_key=key, points=body))
+            key += 1
+        landmarks.append(SimpleNamespace(id=j, class_name="chair"))
+        observations[j] = obs
+    landmarks.append(SimpleNamespace(id=9, class_name="chair"))  # a landmark without points
+    boxes = fitted_boxes(landmarks, observations, values, camera_mount())
+    assert set(boxes) == {0, 1, 2, 3}
+    for j, lo in enumerate(chairs):
+        centre = lo + CHAIR / 2
+        box = boxes[j]
+        # across the view and in height the box is the chair's; its depth is what the front face
+        # shows, and with every chair of the class seen from the front alone there is no whole
+        # one to complete it from: a class's boxes complete each other's partial views
+        assert np.linalg.norm(np.asarray(box["center"])[[0, 2]] - centre[[0, 2]]) < 0.05
+        assert abs(box["center"][1] - lo[1]) < 0.05
+
+
+def test_a_class_seen_whole_completes_its_partial_views() -> None:
+    rng = np.random.default_rng(4)
+    values = gtsam.Values()
+    landmarks, observations = [], {}
+    key = 0
+    for j in range(4):
+        lo = np.array([2.0 * j, 0.0, 0.0])
+        obs = []
+        # three chairs seen from the front and the back (whole), the fourth from the front only
+        sides = ((-2.5, np.pi / 2), (3.0, -np.pi / 2)) if j < 3 else ((-2.5, np.pi / 2),)
+        for y, yaw in sides:
+            T = pose_from(lo + np.array([0.25, y, 1.2]), yaw)
+            values.insert(key, gtsam.Pose3(T))
+            pts = face(lo, lo[1] if y < 0 else lo[1] + CHAIR[1], rng)
+            body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
+            obs.append(SimpleNamespace(pose_key=key, points=body))
+            key += 1
+        landmarks.append(SimpleNamespace(id=j, class_name="chair"))
+        observations[j] = obs
+    boxes = fitted_boxes(landmarks, observations, values, camera_mount())
+    centre = np.array([6.0, 0.0, 0.0]) + CHAIR / 2
+    # the fourth chair's box is put behind its front face at the class's depth: its centre is the
+    # chair's, where the middle of what the camera saw is half a chair towards the camera
+    visible = np.median(np.vstack([o.points for o in observations[3]]), axis=0)
+    values_T = values.atPose3(key - 1).matrix()
+    visible_world = values_T[:3, :3] @ visible + values_T[:3, 3]
+    assert np.linalg.norm(np.asarray(boxes[3]["center"]) - centre) < 0.08
+    assert np.linalg.norm(visible_world - centre) > 0.2
+    np.testing.assert_allclose(sorted(boxes[3]["dims"][:2]), sorted(CHAIR[:2]), atol=0.1)
+
+
+def test_a_flight_reports_its_objects_at_their_boxes(tmp_path) -> None:  # noqa: ANN001
+    import json
+    import textwrap
+
+    from amslam.mission import load_mission
+    from amslam.registry import build_plugin_manager
+    from amslam.runner import Runner
+
+    mission = textwrap.dedent(
+        """\
+        name: tiny
+        seed: 3
+        robot: {radius: 0.25, max_speed: 1.0, altitude: 1.2}
+        limits: {max_time: 30, max_distance: 400}
+        platform:
+          plugin: sim
+          world: {size: [12, 8], floors: 1}
+          camera: {width: 160, height: 120, rate_hz: 5}
+        mapping: {plugin: open3d}
+        slam: {plugin: gtsam}
+        detector: {plugin: sim}
+        planner: {plugin: greedy}
+        exploration: {look_around: true}
+        """
+    )
+    (tmp_path / "tiny.yaml").write_text(mission)
+    registry = build_plugin_manager(())
+    maps = {}
+    for choice in ("boxes", "landmarks"):
+        m = load_mission(str(tmp_path / "tiny.yaml"), registry, [f"slam.object_map={choice}"])
+        run = Runner(m, registry, tmp_path / choice).run().run_dir
+        maps[choice] = json.loads((run / "landmarks.json").read_text())
+    boxes, points = maps["boxes"], maps["landmarks"]
+    assert [lm["id"] for lm in boxes] == [lm["id"] for lm in points]  # the same flight, the same map
+    shaped = [lm for lm in boxes if lm.get("shape")]
+    assert shaped and not any(lm.get("shape") for lm in points)
+    for lm in shaped:
+        assert lm["shape"]["model"] == "cuboid"
+        np.testing.assert_allclose(lm["position"], lm["shape"]["center"])
