@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -23,21 +22,7 @@ from amslam.plugins.sim.teams import split_area
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner, started_platform
 from amslam.types import Landmark, WorldSummary
-
-MISSION = """\
-name: tiny
-seed: 5
-robot: {radius: 0.25, max_speed: 1.0, altitude: 1.2}
-limits: {max_time: MAX_TIME, max_distance: 400}
-platform:
-  plugin: sim
-  world: {size: [12, 8], floors: 1}
-  camera: {width: 160, height: 120, rate_hz: 5}
-mapping: {plugin: open3d}
-slam: {plugin: gtsam}
-detector: {plugin: sim}
-planner: {plugin: greedy}
-"""
+from tests.tiny_mission import tiny_mission_file, tiny_mission_text
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +31,7 @@ def registry():  # noqa: ANN201
 
 
 def mission_file(folder: Path, max_time: float = 400) -> Path:
-    path = folder / "tiny.yaml"
-    path.write_text(textwrap.dedent(MISSION.replace("MAX_TIME", str(max_time))))
-    return path
+    return tiny_mission_file(folder, max_time)
 
 
 def test_split_area_along_the_longer_side() -> None:
@@ -101,7 +84,7 @@ def test_heterogeneous_team_has_an_overhead_robot(registry, tmp_path: Path) -> N
 def test_overhead_lawnmower_stays_high_and_clear(registry, tmp_path: Path) -> None:  # noqa: ANN001
     spec = tmp_path / "lot.yaml"
     spec.write_text(
-        MISSION.replace("MAX_TIME", "240")
+        tiny_mission_text(240)
         .replace("altitude: 1.2", "altitude: 3.0")
         .replace(
             "world: {size: [12, 8], floors: 1}", "world: {kind: outdoor, size: [24, 14], ground_class: null}"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -15,22 +14,7 @@ from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
 from amslam.types import WorldSummary
 from tests.apps.benchmark_script import load_benchmark
-
-MISSION = """\
-name: tiny
-seed: 3
-robot: {radius: 0.25, max_speed: 1.0, altitude: 1.2}
-limits: {max_time: 40, max_distance: 400}
-platform:
-  plugin: sim
-  world: {size: [12, 8], floors: 1}
-  camera: {width: 160, height: 120, rate_hz: 5}
-mapping: {plugin: open3d}
-slam: {plugin: gtsam}
-detector: {plugin: sim}
-planner: {plugin: greedy}
-exploration: {look_around: true}
-"""
+from tests.tiny_mission import tiny_mission_file
 
 
 @pytest.fixture(scope="module")
@@ -41,8 +25,8 @@ def registry():  # noqa: ANN201
 @pytest.fixture(scope="module")
 def flight(registry, tmp_path_factory) -> Path:  # noqa: ANN001
     folder = tmp_path_factory.mktemp("offline")
-    (folder / "tiny.yaml").write_text(textwrap.dedent(MISSION))
-    mission = load_mission(str(folder / "tiny.yaml"), registry, [])
+    spec = str(tiny_mission_file(folder, max_time=40, seed=3))
+    mission = load_mission(spec, registry, ["exploration.look_around=true"])
     return Runner(mission, registry, folder / "runs").run().run_dir
 
 

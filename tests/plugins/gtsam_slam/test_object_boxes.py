@@ -83,34 +83,17 @@ def test_a_class_seen_whole_completes_its_partial_views() -> None:
 
 def test_a_flight_reports_its_objects_at_their_boxes(tmp_path) -> None:  # noqa: ANN001
     import json
-    import textwrap
 
     from amslam.mission import load_mission
     from amslam.registry import build_plugin_manager
     from amslam.runner import Runner
+    from tests.tiny_mission import tiny_mission_file
 
-    mission = textwrap.dedent(
-        """\
-        name: tiny
-        seed: 3
-        robot: {radius: 0.25, max_speed: 1.0, altitude: 1.2}
-        limits: {max_time: 30, max_distance: 400}
-        platform:
-          plugin: sim
-          world: {size: [12, 8], floors: 1}
-          camera: {width: 160, height: 120, rate_hz: 5}
-        mapping: {plugin: open3d}
-        slam: {plugin: gtsam}
-        detector: {plugin: sim}
-        planner: {plugin: greedy}
-        exploration: {look_around: true}
-        """
-    )
-    (tmp_path / "tiny.yaml").write_text(mission)
+    spec = str(tiny_mission_file(tmp_path, max_time=30, seed=3))
     registry = build_plugin_manager(())
     maps = {}
     for choice in ("boxes", "landmarks"):
-        m = load_mission(str(tmp_path / "tiny.yaml"), registry, [f"slam.object_map={choice}"])
+        m = load_mission(spec, registry, ["exploration.look_around=true", f"slam.object_map={choice}"])
         run = Runner(m, registry, tmp_path / choice).run().run_dir
         maps[choice] = json.loads((run / "landmarks.json").read_text())
     boxes, points = maps["boxes"], maps["landmarks"]
