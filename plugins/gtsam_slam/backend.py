@@ -269,8 +269,9 @@ class GtsamSlam(Slam):
         return out
 
     def object_map(self) -> list[Landmark]:
-        """:meth:`landmarks`, each centroid-class object at the box fitted to all its points
-        (``object_map: boxes``, :mod:`.object_boxes`); shape landmarks keep the graph's shape."""
+        """:meth:`landmarks`, each centroid-class object at the box fitted to all its points and
+        a landmark whose box is another's twin folded into it (``object_map: boxes``,
+        :mod:`.object_boxes`); shape landmarks keep the graph's shape."""
         out = self.landmarks()
         if self.params.object_map != "boxes" or self._T_body_cam is None:
             return out
@@ -285,10 +286,12 @@ class GtsamSlam(Slam):
             root = lm.id if lm.alias_of is None else g.live_id(lm.id)
             observations.setdefault(root, []).extend(lm.observations)
         plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
-        boxes = fitted_boxes(plain, observations, g.estimate, self._T_body_cam)
+        reported = fitted_boxes(plain, observations, g.estimate, self._T_body_cam)
+        boxes = reported.boxes
         return [
             replace(lm, position=shape_center(boxes[lm.id]), shape=boxes[lm.id]) if lm.id in boxes else lm
             for lm in out
+            if lm.id not in reported.folded
         ]
 
     def uncertainty(self) -> tuple[float, float]:

@@ -38,7 +38,7 @@ def test_chairs_all_seen_from_the_front_stay_as_deep_as_they_look() -> None:
         landmarks.append(SimpleNamespace(id=j, class_name="chair"))
         observations[j] = obs
     landmarks.append(SimpleNamespace(id=9, class_name="chair"))  # a landmark without points
-    boxes = fitted_boxes(landmarks, observations, values, camera_mount())
+    boxes = fitted_boxes(landmarks, observations, values, camera_mount()).boxes
     assert set(boxes) == {0, 1, 2, 3}
     for j, lo in enumerate(chairs):
         centre = lo + CHAIR / 2
@@ -69,7 +69,7 @@ def test_a_class_seen_whole_completes_its_partial_views() -> None:
             key += 1
         landmarks.append(SimpleNamespace(id=j, class_name="chair"))
         observations[j] = obs
-    boxes = fitted_boxes(landmarks, observations, values, camera_mount())
+    boxes = fitted_boxes(landmarks, observations, values, camera_mount()).boxes
     centre = np.array([6.0, 0.0, 0.0]) + CHAIR / 2
     # the fourth chair's box is put behind its front face at the class's depth: its centre is the
     # chair's, where the middle of what the camera saw is half a chair towards the camera
@@ -103,3 +103,43 @@ def test_a_flight_reports_its_objects_at_their_boxes(tmp_path) -> None:  # noqa:
     for lm in shaped:
         assert lm["shape"]["model"] == "cuboid"
         np.testing.assert_allclose(lm["position"], lm["shape"]["center"])
+
+
+def test_one_chair_mapped_twice_is_reported_once_and_neighbours_stay_apart() -> None:
+    rng = np.random.default_rng(5)
+    values = gtsam.Values()
+    observations: dict[int, list] = {}
+    key = 0
+
+    def seen(j: int, lo: np.ndarray, y: float, yaw: float, shared_key: int | None = None) -> int:
+        nonlocal key
+        k = shared_key
+        if k is None:
+            k = key
+            values.insert(k, gtsam.Pose3(pose_from(lo + np.array([0.25, y, 1.2]), yaw)))
+            key += 1
+        T = values.atPose3(k).matrix()
+        pts = face(lo, lo[1] if y < 0 else lo[1] + CHAIR[1], rng)
+        body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
+        observations.setdefault(j, []).append(SimpleNamespace(pose_key=k, points=body))
+        return k
+
+    row = [np.array([0.75 * i, 0.0, 0.0]) for i in range(3)]  # a row of chairs 0.75 m apart
+    for j, lo in enumerate(row):
+        seen(j, lo, -2.5, np.pi / 2)
+        seen(j, lo, 3.0, -np.pi / 2)
+    # chair 1 mapped a second time (landmark 7) from views of its own ...
+    seen(7, row[1], -2.5, np.pi / 2)
+    seen(7, row[1], -2.5, np.pi / 2)
+    # ... and an object of another class where chair 2 stands
+    seen(8, row[2], -2.5, np.pi / 2)
+    landmarks = [SimpleNamespace(id=j, class_name="chair") for j in (0, 1, 2, 7)]
+    landmarks.append(SimpleNamespace(id=8, class_name="table"))
+    reported = fitted_boxes(landmarks, observations, values, camera_mount())
+    assert reported.folded == {7: 1}  # the twin joins the chair seen more, not the row
+    assert set(reported.boxes) == {0, 1, 2, 8}
+    # two landmarks seen from one key pose are two objects, however their boxes overlap
+    k = seen(9, row[0], -2.5, np.pi / 2)
+    seen(10, row[0], -2.5, np.pi / 2, shared_key=k)
+    apart = [SimpleNamespace(id=j, class_name="chair") for j in (9, 10)]
+    assert fitted_boxes(apart, observations, values, camera_mount()).folded == {}
