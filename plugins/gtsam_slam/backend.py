@@ -127,6 +127,13 @@ class GtsamSlam(Slam):
             " optimised key poses and completed with its class's median box (a visible part's middle"
             " sits on the viewer's side); 'landmarks', the graph's points",
         )
+        object_twin_margin: float = Field(
+            0.0,
+            ge=0,
+            le=10,
+            description="reported boxes of a class that hold each other's centres within this margin (m),"
+            " never seen from one key pose, are one object (object_map: boxes)",
+        )
 
         @model_validator(mode="before")
         @classmethod
@@ -286,7 +293,9 @@ class GtsamSlam(Slam):
             root = lm.id if lm.alias_of is None else g.live_id(lm.id)
             observations.setdefault(root, []).extend(lm.observations)
         plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
-        reported = fitted_boxes(plain, observations, g.estimate, self._T_body_cam)
+        reported = fitted_boxes(
+            plain, observations, g.estimate, self._T_body_cam, twin_margin=self.params.object_twin_margin
+        )
         boxes = reported.boxes
         return [
             replace(lm, position=shape_center(boxes[lm.id]), shape=boxes[lm.id]) if lm.id in boxes else lm

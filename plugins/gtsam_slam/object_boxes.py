@@ -48,6 +48,7 @@ def fitted_boxes(
     values: gtsam.Values,
     T_body_cam: np.ndarray,
     tolerance: float = 0.15,
+    twin_margin: float = 0.0,
 ) -> ObjectBoxes:
     """Each landmark's box, for landmarks whose observations kept points; twins folded together.
 
@@ -63,6 +64,7 @@ def fitted_boxes(
         values: the optimised key poses.
         T_body_cam: the camera mount (the cameras' positions tell which faces were seen).
         tolerance: a shortfall of the class's box up to this is noise, not a missing part (m).
+        twin_margin: each box is inflated by this for the twins' test (m).
     """
     views: dict[int, tuple[str, np.ndarray, np.ndarray, set[int]]] = {}  # points, cameras, keys
     for lm in landmarks:
@@ -90,7 +92,7 @@ def fitted_boxes(
         return shapes.complete_cuboid(box, cameras, typical[cls], tolerance=tolerance).shape
 
     out = {j: completed(box, views[j][0], views[j][2]) for j, box in fits.items()}
-    folded = _twins(out, views)
+    folded = _twins(out, views, twin_margin)
     for j in set(folded.values()):  # a survivor's box from its twins' points as well
         group = [j, *(k for k, into in folded.items() if into == j)]
         box = _fit(np.vstack([views[k][1] for k in group]))
@@ -107,7 +109,7 @@ def _fit(points: np.ndarray) -> dict | None:
     return shapes.fit_cuboid(points[:: -(-len(points) // MAX_POINTS)])
 
 
-def _twins(fits: dict[int, dict], views: dict) -> dict[int, int]:
+def _twins(fits: dict[int, dict], views: dict, margin: float) -> dict[int, int]:
     """Landmark id → the id it is folded into (see :func:`fitted_boxes`); chains resolved."""
     ids = sorted(fits, key=lambda j: -len(views[j][3]))  # more observations first
     into: dict[int, int] = {}
@@ -118,6 +120,6 @@ def _twins(fits: dict[int, dict], views: dict) -> dict[int, int]:
             if b in into or views[a][0] != views[b][0] or views[a][3] & views[b][3]:
                 continue
             ca, cb = shapes.shape_center(fits[a])[None], shapes.shape_center(fits[b])[None]
-            if shapes.points_inside(fits[a], cb, 0.0)[0] and shapes.points_inside(fits[b], ca, 0.0)[0]:
+            if shapes.points_inside(fits[a], cb, margin)[0] and shapes.points_inside(fits[b], ca, margin)[0]:
                 into[b] = a
     return into
