@@ -47,14 +47,16 @@ def fitted_boxes(
     observations: dict[int, list],
     values: gtsam.Values,
     T_body_cam: np.ndarray,
+    *,
+    twin_margin: float,
     tolerance: float = 0.15,
-    twin_margin: float = 0.0,
 ) -> ObjectBoxes:
     """Each landmark's box, for landmarks whose observations kept points; twins folded together.
 
     Two landmarks of a class are one object seen twice (the graph's fusion missed them) when each
-    one's box holds the other's centre and no key pose saw both (two objects in one view are two
-    objects): a chair 0.75 m from its neighbour in a row holds neither centre. A twin is folded
+    one's completed box, inflated by ``twin_margin``, holds the other's centre and no key pose saw
+    both (two objects in one view are two objects): a chair 0.75 m from its neighbour in a row
+    holds neither centre. A twin is folded
     into the one with more observations, whose box is fitted again to both's points.
 
     Args:
@@ -63,8 +65,8 @@ def fitted_boxes(
             into it (each with ``pose_key`` and body-frame ``points``).
         values: the optimised key poses.
         T_body_cam: the camera mount (the cameras' positions tell which faces were seen).
-        tolerance: a shortfall of the class's box up to this is noise, not a missing part (m).
         twin_margin: each box is inflated by this for the twins' test (m).
+        tolerance: a shortfall of the class's box up to this is noise, not a missing part (m).
     """
     views: dict[int, tuple[str, np.ndarray, np.ndarray, set[int]]] = {}  # points, cameras, keys
     for lm in landmarks:
