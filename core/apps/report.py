@@ -524,6 +524,12 @@ def _draw_shape(ax, shape: dict, colour: str) -> None:
         ax.add_patch(mpatches.Circle((root[0], root[1]), shape["radius"], fill=False, ec=colour, lw=1.0))
 
 
+#: Width of one legend entry of the top view at font size 8 (marker and "occupied voxels"), and
+#: the height of a row of entries, inches.
+LEGEND_ENTRY_WIDTH = 1.55
+LEGEND_ROW_HEIGHT = 0.22
+
+
 def top_view_figure(summary: RunSummary):
     """The figure of ``top_view.png``: one panel per floor, all sized to the building; occupied
     voxels, the ground-truth, VIO and SLAM trajectories, and the landmarks coloured by class, with
@@ -551,9 +557,13 @@ def top_view_figure(summary: RunSummary):
     # every panel shows the building at one scale: its height fixed, its width following the plan
     panel_h = 5.0
     panel_w = float(np.clip(panel_h * (hi[0] - lo[0]) / (hi[1] - lo[1]), 3.0, 12.0))
-    fig, axes = plt.subplots(
-        1, len(bands), figsize=(panel_w * len(bands) + 0.8, panel_h + 1.8), squeeze=False
-    )
+    # the legend under the panels: as many columns as fit the figure's width (one row of nine
+    # entries overflowed a one-panel figure at both edges), the figure as much taller as it has rows
+    width = panel_w * len(bands) + 0.8
+    entries = 1 + sum(len(t) > 0 for t in trajectories) + len(classes)
+    columns = max(1, min(entries, int(width / LEGEND_ENTRY_WIDTH)))
+    legend_h = 0.3 + LEGEND_ROW_HEIGHT * -(-entries // columns)
+    fig, axes = plt.subplots(1, len(bands), figsize=(width, panel_h + 1.5 + legend_h), squeeze=False)
     for floor, (ax, (z0, z1)) in enumerate(zip(axes[0], bands, strict=True)):
         # Slice above the floor slab and below the ceiling, where walls and furniture are.
         band = (occupied[:, 2] > z0 + 0.3) & (occupied[:, 2] < min(z1, z0 + 2.2))
@@ -592,9 +602,9 @@ def top_view_figure(summary: RunSummary):
         Line2D([], [], ls="", marker="o", ms=6, mfc=colour[c], mec="white", label=f"{c} ×{counts[c]}")
         for c in classes
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 9), fontsize=8, frameon=False)
+    fig.legend(handles=handles, loc="lower center", ncol=columns, fontsize=8, frameon=False)
     fig.suptitle(f"{summary.mission.name}: map, trajectories and landmarks (top view)")
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.tight_layout(rect=(0, legend_h / fig.get_figheight(), 1, 1))
     return fig
 
 
