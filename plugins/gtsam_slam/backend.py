@@ -289,13 +289,9 @@ class GtsamSlam(Slam):
         from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes
 
         g = self._graph
-        observations: dict[int, list] = {}
-        for lm in g.landmarks.values():
-            root = lm.id if lm.alias_of is None else g.live_id(lm.id)
-            observations.setdefault(root, []).extend(lm.observations)
         plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
         reported = fitted_boxes(
-            plain, observations, g.estimate, self._T_body_cam, twin_margin=self.params.object_twin_margin
+            plain, g.estimate, self._T_body_cam, twin_margin=self.params.object_twin_margin
         )
         boxes = reported.boxes
         return [

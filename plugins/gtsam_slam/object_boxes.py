@@ -42,9 +42,18 @@ class ObjectBoxes:
     folded: dict[int, int]
 
 
+@dataclass
+class _Seen:
+    """What one landmark's detections saw: world points, camera positions, key poses."""
+
+    class_name: str
+    points: np.ndarray
+    cameras: np.ndarray
+    keys: set[int]
+
+
 def fitted_boxes(
     landmarks: Iterable[LandmarkRec],
-    observations: dict[int, list],
     values: gtsam.Values,
     T_body_cam: np.ndarray,
     *,
@@ -56,34 +65,36 @@ def fitted_boxes(
     Two landmarks of a class are one object seen twice (the graph's fusion missed them) when each
     one's completed box, inflated by ``twin_margin``, holds the other's centre and no key pose saw
     both (two objects in one view are two objects): a chair 0.75 m from its neighbour in a row
-    holds neither centre. A twin is folded
-    into the one with more observations, whose box is fitted again to both's points.
+    holds neither centre. A twin is folded into the one with more observations, whose box is
+    fitted again to both's points.
 
     Args:
-        landmarks: the landmarks to report.
-        observations: per landmark id, its observations and those of the twins the graph fused
-            into it (each with ``pose_key`` and body-frame ``points``).
+        landmarks: the landmarks to report, with their observations (``pose_key``, body-frame
+            ``points``; the graph's fusion has moved a fused twin's observations to its survivor).
         values: the optimised key poses.
         T_body_cam: the camera mount (the cameras' positions tell which faces were seen).
         twin_margin: each box is inflated by this for the twins' test (m).
         tolerance: a shortfall of the class's box up to this is noise, not a missing part (m).
     """
-    views: dict[int, tuple[str, np.ndarray, np.ndarray, set[int]]] = {}  # points, cameras, keys
+    seen: dict[int, _Seen] = {}
     for lm in landmarks:
-        obs = [o for o in observations.get(lm.id, []) if o.points is not None and len(o.points)]
+        obs = [o for o in lm.observations if o.points is not None and len(o.points)]
         if not obs:
             continue
         poses = [values.atPose3(o.pose_key).matrix() for o in obs]
-        pts = np.vstack([transform_points(T, o.points) for T, o in zip(poses, obs, strict=True)])
-        cameras = np.array([(T @ T_body_cam)[:3, 3] for T in poses])
-        views[lm.id] = (lm.class_name, pts, cameras, {o.pose_key for o in obs})
-    fits = {j: box for j, v in views.items() if (box := _fit(v[1])) is not None}
+        seen[lm.id] = _Seen(
+            lm.class_name,
+            np.vstack([transform_points(T, o.points) for T, o in zip(poses, obs, strict=True)]),
+            np.array([(T @ T_body_cam)[:3, 3] for T in poses]),
+            {o.pose_key for o in obs},
+        )
+    fits = {j: box for j, v in seen.items() if (box := _fit(v.points)) is not None}
     typical: dict[str, np.ndarray] = {}
-    for cls in {views[j][0] for j in fits}:
+    for cls in {seen[j].class_name for j in fits}:
         dims = [
             [*sorted(box["dims"][:2], reverse=True), box["dims"][2]]
             for j, box in fits.items()
-            if views[j][0] == cls
+            if seen[j].class_name == cls
         ]
         if len(dims) >= MIN_CLASS_BOXES:
             typical[cls] = np.median(np.array(dims), axis=0)
@@ -93,13 +104,13 @@ def fitted_boxes(
             return box
         return shapes.complete_cuboid(box, cameras, typical[cls], tolerance=tolerance).shape
 
-    out = {j: completed(box, views[j][0], views[j][2]) for j, box in fits.items()}
-    folded = _twins(out, views, twin_margin)
+    out = {j: completed(box, seen[j].class_name, seen[j].cameras) for j, box in fits.items()}
+    folded = _twins(out, seen, twin_margin)
     for j in set(folded.values()):  # a survivor's box from its twins' points as well
         group = [j, *(k for k, into in folded.items() if into == j)]
-        box = _fit(np.vstack([views[k][1] for k in group]))
+        box = _fit(np.vstack([seen[k].points for k in group]))
         if box is not None:
-            out[j] = completed(box, views[j][0], np.vstack([views[k][2] for k in group]))
+            out[j] = completed(box, seen[j].class_name, np.vstack([seen[k].cameras for k in group]))
     for k in folded:
         del out[k]
     return ObjectBoxes(out, folded)
@@ -111,15 +122,15 @@ def _fit(points: np.ndarray) -> dict | None:
     return shapes.fit_cuboid(points[:: -(-len(points) // MAX_POINTS)])
 
 
-def _twins(fits: dict[int, dict], views: dict, margin: float) -> dict[int, int]:
+def _twins(fits: dict[int, dict], seen: dict[int, _Seen], margin: float) -> dict[int, int]:
     """Landmark id → the id it is folded into (see :func:`fitted_boxes`); chains resolved."""
-    ids = sorted(fits, key=lambda j: -len(views[j][3]))  # more observations first
+    ids = sorted(fits, key=lambda j: -len(seen[j].keys))  # more observations first
     into: dict[int, int] = {}
     for a_i, a in enumerate(ids):
         if a in into:
             continue
         for b in ids[a_i + 1 :]:
-            if b in into or views[a][0] != views[b][0] or views[a][3] & views[b][3]:
+            if b in into or seen[a].class_name != seen[b].class_name or seen[a].keys & seen[b].keys:
                 continue
             ca, cb = shapes.shape_center(fits[a])[None], shapes.shape_center(fits[b])[None]
             if shapes.points_inside(fits[a], cb, margin)[0] and shapes.points_inside(fits[b], ca, margin)[0]:

@@ -21,6 +21,11 @@ def face(lo: np.ndarray, y: float, rng: np.random.Generator, n: int = 80) -> np.
     return pts
 
 
+def report(landmarks: list, observations: dict[int, list]) -> list:
+    """The landmarks with their observations, as the graph holds them."""
+    return [SimpleNamespace(**vars(lm), observations=observations.get(lm.id, [])) for lm in landmarks]
+
+
 def test_chairs_all_seen_from_the_front_stay_as_deep_as_they_look() -> None:
     rng = np.random.default_rng(3)
     chairs = [np.array([2.0 * i, 0.0, 0.0]) for i in range(4)]
@@ -38,7 +43,7 @@ def test_chairs_all_seen_from_the_front_stay_as_deep_as_they_look() -> None:
         landmarks.append(SimpleNamespace(id=j, class_name="chair"))
         observations[j] = obs
     landmarks.append(SimpleNamespace(id=9, class_name="chair"))  # a landmark without points
-    boxes = fitted_boxes(landmarks, observations, values, camera_mount(), twin_margin=0.2).boxes
+    boxes = fitted_boxes(report(landmarks, observations), values, camera_mount(), twin_margin=0.2).boxes
     assert set(boxes) == {0, 1, 2, 3}
     for j, lo in enumerate(chairs):
         centre = lo + CHAIR / 2
@@ -69,7 +74,7 @@ def test_a_class_seen_whole_completes_its_partial_views() -> None:
             key += 1
         landmarks.append(SimpleNamespace(id=j, class_name="chair"))
         observations[j] = obs
-    boxes = fitted_boxes(landmarks, observations, values, camera_mount(), twin_margin=0.2).boxes
+    boxes = fitted_boxes(report(landmarks, observations), values, camera_mount(), twin_margin=0.2).boxes
     centre = np.array([6.0, 0.0, 0.0]) + CHAIR / 2
     # the fourth chair's box is put behind its front face at the class's depth: its centre is the
     # chair's, where the middle of what the camera saw is half a chair towards the camera
@@ -135,11 +140,11 @@ def test_one_chair_mapped_twice_is_reported_once_and_neighbours_stay_apart() -> 
     seen(8, row[2], -2.5, np.pi / 2)
     landmarks = [SimpleNamespace(id=j, class_name="chair") for j in (0, 1, 2, 7)]
     landmarks.append(SimpleNamespace(id=8, class_name="table"))
-    reported = fitted_boxes(landmarks, observations, values, camera_mount(), twin_margin=0.2)
+    reported = fitted_boxes(report(landmarks, observations), values, camera_mount(), twin_margin=0.2)
     assert reported.folded == {7: 1}  # the twin joins the chair seen more, not the row
     assert set(reported.boxes) == {0, 1, 2, 8}
     # two landmarks seen from one key pose are two objects, however their boxes overlap
     k = seen(9, row[0], -2.5, np.pi / 2)
     seen(10, row[0], -2.5, np.pi / 2, shared_key=k)
     apart = [SimpleNamespace(id=j, class_name="chair") for j in (9, 10)]
-    assert fitted_boxes(apart, observations, values, camera_mount(), twin_margin=0.2).folded == {}
+    assert fitted_boxes(report(apart, observations), values, camera_mount(), twin_margin=0.2).folded == {}
