@@ -36,6 +36,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from amslam.errors import AmslamError
 from amslam.geometry import yaw_matrix
 from amslam.interfaces import RunContext
 from amslam.lib.class_colours import class_colour
@@ -43,12 +44,14 @@ from amslam.lib.viewing import viewing_angle
 from amslam.plugins.pams.uncertainty import COMPONENTS, UncertaintyModels, fit_models, plot_models
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.detector import SimDetector
+from amslam.plugins.sim.procedural import FURNITURE_CLASSES, furniture_boxes
 from amslam.plugins.sim.world import (
     MeshPart,
     World,
     WorldObject,
     WorldSpec,
     box_mesh,
+    boxes_mesh,
     prism_mesh,
 )
 from amslam.types import CameraModel, Frame, WorldSummary
@@ -68,6 +71,20 @@ class TargetSpec(BaseModel):
     )
     yaw: float = Field(0.3, description="heading of the specimen's forward axis, rad")
     range_max: float | None = Field(None, gt=0.0, description="this class's spiral radius limit, m")
+    specimen: Literal["solid", "furniture"] = Field(
+        "solid",
+        description="solid: a box or prism of ``size``; furniture: the procedural buildings' piece of"
+        " the class (legs, seat, backrest, shelves: what the camera sees of real furniture), its"
+        " size drawn as theirs (``size`` unused)",
+    )
+
+
+#: The specimens ``amslam characterise --classes`` knows: outdoor solids and indoor furniture.
+SPECIMENS: dict[str, TargetSpec] = {
+    "car": TargetSpec(class_name="car", model="cuboid", size=(4.6, 1.9, 1.5)),
+    "pole": TargetSpec(class_name="pole", model="cylinder", size=(0.15, 0.15, 4.0)),
+    **{c: TargetSpec(class_name=c, model="cuboid", yaw=0.3, specimen="furniture") for c in FURNITURE_CLASSES},
+}
 
 
 class CharacteriseConfig(BaseModel):
@@ -77,9 +94,9 @@ class CharacteriseConfig(BaseModel):
 
     targets: list[TargetSpec] = Field(
         default_factory=lambda: [
-            TargetSpec(class_name="car", model="cuboid", size=(4.6, 1.9, 1.5)),
-            TargetSpec(class_name="pole", model="cylinder", size=(0.15, 0.15, 4.0)),
-            TargetSpec(class_name="chair", model="cuboid", size=(0.5, 0.5, 0.9), yaw=0.0, range_max=8.0),
+            SPECIMENS["car"],
+            SPECIMENS["pole"],
+            SPECIMENS["chair"].model_copy(update={"range_max": 8.0}),
         ]
     )
     range_min: float = Field(2.0, gt=0.0, description="horizontal radius where a spiral starts, m")
@@ -179,15 +196,35 @@ class Samples:
 # -- the specimen world ------------------------------------------------------------------------
 
 
-def specimen_world(target: TargetSpec, extent: float) -> tuple[World, WorldSummary, dict]:
+def specimen_world(
+    target: TargetSpec, extent: float, rng: np.random.Generator | None = None
+) -> tuple[World, WorldSummary, dict]:
     """The object alone at the origin on a ground slab ``2·extent`` wide, and its ground truth.
+
+    A furniture specimen's size is drawn with ``rng``; its true shape is the box bounding its
+    parts, the box the simulator's metrics score a fitted landmark against.
 
     Returns:
         (world, summary with the object's position, class and shape, the true shape dict).
     """
     ground_v, ground_t = box_mesh(np.array([-extent, -extent, -0.2]), np.array([extent, extent, 0.0]))
     parts = [MeshPart.uniform("ground", ground_v, ground_t, 0, class_colour("floor"))]
-    if target.model == "cuboid":
+    if target.specimen == "furniture":
+        boxes = furniture_boxes(target.class_name, rng if rng is not None else np.random.default_rng(0))
+        lo_b = np.min([b[0] for b in boxes], axis=0)
+        hi_b = np.max([b[1] for b in boxes], axis=0)
+        # centred on the origin like a solid specimen, standing on the ground
+        shift = np.array([-(lo_b[0] + hi_b[0]) / 2, -(lo_b[1] + hi_b[1]) / 2, 0.0])
+        v, t = boxes_mesh([(np.asarray(lo) + shift, np.asarray(hi) + shift) for lo, hi in boxes])
+        v = v @ yaw_matrix(target.yaw).T
+        height = float(hi_b[2])
+        shape = {
+            "model": "cuboid",
+            "center": [0.0, 0.0, height / 2],
+            "dims": (hi_b - lo_b).tolist(),
+            "yaw": target.yaw,
+        }
+    elif target.model == "cuboid":
         length, width, height = target.size
         v, t = box_mesh(np.array([-length / 2, -width / 2, 0.0]), np.array([length / 2, width / 2, height]))
         v = v @ yaw_matrix(target.yaw).T
@@ -307,7 +344,12 @@ def collect(config: CharacteriseConfig, log: Callable[[str], None] = lambda s: N
     parts = []
     extent = config.range_max + 6.0
     for target in config.targets:
-        world, summary, truth = specimen_world(target, extent)
+        world, summary, truth = specimen_world(target, extent, rng)
+        # the models' angle and x / y errors are from the box's longer horizontal axis, as the
+        # SLAM backend reads them (a shelf's and a sofa's length is across their own x)
+        forward = target.yaw
+        if target.model == "cuboid" and truth["dims"][0] < truth["dims"][1]:
+            forward += math.pi / 2
         det = SimDetector()
         det.configure(
             config.detector,
@@ -331,12 +373,12 @@ def collect(config: CharacteriseConfig, log: Callable[[str], None] = lambda s: N
             dets = [d for d in det.detect(frame) if d.class_name == target.class_name]
             cam = T_wc[:3, 3]
             rng_m = float(np.linalg.norm(cam - centre))
-            angle = viewing_angle(centre, target.yaw, cam) if target.model == "cuboid" else 0.0
+            angle = viewing_angle(centre, forward, cam) if target.model == "cuboid" else 0.0
             err = np.full(len(COMPONENTS), np.nan)
             if dets:
                 d = max(dets, key=lambda x: len(x.points_cam))
                 c_world = T_wc[:3, :3] @ d.centroid_cam + T_wc[:3, 3]
-                R_obj = yaw_matrix(target.yaw if target.model == "cuboid" else 0.0)
+                R_obj = yaw_matrix(forward if target.model == "cuboid" else 0.0)
                 e = R_obj.T @ (c_world - centre)
                 err[0], err[1] = e[0], e[1]
                 fit = fitters.get(target.model)
@@ -386,6 +428,10 @@ def characterise(
     poses_per_spiral: int | None = None,
     seed: int = 0,
     samples_in: Path | None = None,
+    classes: list[str] | None = None,
+    heights: list[float] | None = None,
+    range_min: float | None = None,
+    keep: Path | None = None,
     log=print,
 ) -> UncertaintyModels:
     """``amslam characterise``: fly the spirals, fit the models, write models, samples and a plot.
@@ -399,16 +445,34 @@ def characterise(
         poses_per_spiral: frames per spiral (default: the characterisation default).
         seed: seed of the rendering and detector noise and of the MLP.
         samples_in: refit samples saved by an earlier call instead of flying again.
+        classes: the classes to characterise, from :data:`SPECIMENS` (default: car, pole and
+            chair, those the mission's detector reports).
+        heights: the spirals' heights above the ground, m (indoors: the heights the robot flies).
+        range_min: the spirals' starting radius, m (indoors: as close as the robot comes).
+        keep: a models file whose classes not characterised now are written out as they are
+            (one file for the outdoor classes, fitted with the outdoor camera, and the indoor
+            ones); its header is kept under ``meta["kept"]``.
     """
     out = Path(out)
     config = CharacteriseConfig(seed=seed)
+    if classes is not None:
+        unknown = [c for c in classes if c not in SPECIMENS]
+        if unknown:
+            raise AmslamError(
+                f"characterise --classes: no specimen for {', '.join(unknown)}; known: {', '.join(SPECIMENS)}"
+            )
+        config.targets = [SPECIMENS[c] for c in classes]
+    if heights is not None:
+        config.heights = list(heights)
+    if range_min is not None:
+        config.range_min = range_min
     if mission is not None:
         platform, detector = mission.backends.get("platform"), mission.backends.get("detector")
         if platform is not None and hasattr(platform.params, "camera"):
             config.camera = platform.params.camera.model_copy(update={"rgb": False})
         if detector is not None and detector.plugin == "sim":
             config.detector = detector.params.model_copy(update={"false_positive_rate": 0.0})
-            if config.detector.classes is not None:  # only what the mission's detector reports
+            if classes is None and config.detector.classes is not None:  # what the detector reports
                 config.targets = [t for t in config.targets if t.class_name in config.detector.classes]
         # the mission's sensor as it is: spirals reach a little beyond what it can detect
         reach = min(config.camera.max_range, config.detector.max_range)
@@ -426,13 +490,24 @@ def characterise(
         )
         samples = collect(config, log)
         samples.save(out.with_name(out.stem + "-samples.npz"))
+    kept = None
+    if keep is not None:  # a bad file fails before the fitting, not after
+        try:
+            kept = UncertaintyModels.load(keep)
+        except (OSError, ValueError, KeyError) as e:
+            raise AmslamError(f"characterise --keep {keep}: not a readable models file ({e})") from e
     models = fit_models(samples, seed=seed)
     models.meta.update(
         {"samples": len(samples), "seed": seed, "camera": config.camera.model_dump(mode="json")}
     )
+    if kept is not None:
+        names = [n for n in kept.classes if n not in models.classes]
+        models.classes.update({n: kept.classes[n] for n in names})
+        models.meta["kept"] = {"from": Path(keep).name, "classes": names, "meta": kept.meta}
     out.parent.mkdir(parents=True, exist_ok=True)
     models.save(out)
-    plot_models(models, out.with_suffix(".png"), samples)
+    fitted = {n: m for n, m in models.classes.items() if n in samples.models}  # kept ones have no samples
+    plot_models(UncertaintyModels(fitted, models.meta), out.with_suffix(".png"), samples)
     for name, m in models.classes.items():
         log(
             f"  {name}: {m.samples} samples, components {m.components}, range {m.range_bounds[0]:.1f}–"

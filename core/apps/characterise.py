@@ -8,6 +8,7 @@ command needs (issue #20).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import amslam
@@ -21,6 +22,40 @@ def _arguments(parser) -> None:
     )
     parser.add_argument("--poses", type=int, help="frames per spiral (default 240)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--classes",
+        type=_names,
+        help="classes to characterise, comma-separated (car, pole: solid specimens; chair, table, shelf,"
+        " sofa: the procedural buildings' furniture); default car, pole, chair",
+    )
+    parser.add_argument(
+        "--heights",
+        type=_numbers,
+        help="spiral heights above the ground, comma-separated, m (default 1.5,3,5)",
+    )
+    parser.add_argument("--range-min", type=float, help="radius where the spirals start, m (default 2)")
+    parser.add_argument(
+        "--keep",
+        help="models file whose other classes go into --out unchanged (e.g. the packaged"
+        " core/lib/models/default.npz when adding indoor classes)",
+    )
+
+
+def _names(text: str) -> list[str]:
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("expected one or more class names, comma-separated")
+    return names
+
+
+def _numbers(text: str) -> list[float]:
+    try:
+        values = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers, comma-separated, got {text!r}") from None
+    if not values or any(not v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected positive numbers, comma-separated, got {text!r}")
+    return values
 
 
 def _run(args, registry) -> int:
@@ -31,7 +66,16 @@ def _run(args, registry) -> int:
         from amslam.apps.commands import load_with_registry
 
         mission = load_with_registry(args, registry)[0]
-    characterise(Path(args.out), mission=mission, poses_per_spiral=args.poses, seed=args.seed)
+    characterise(
+        Path(args.out),
+        mission=mission,
+        poses_per_spiral=args.poses,
+        seed=args.seed,
+        classes=args.classes,
+        heights=args.heights,
+        range_min=args.range_min,
+        keep=Path(args.keep) if args.keep else None,
+    )
     return 0
 
 

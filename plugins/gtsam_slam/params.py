@@ -106,6 +106,12 @@ class ShapeParams(BaseModel):
         " the window variance is the harmonic mean over its cameras; classes without a model (nor one"
         " of their shape) are not scaled",
     )
+    model_sigmas: bool = Field(
+        False,
+        description="a class with a characterised model is measured with its best look's translation and"
+        " dimension std (the model's 5th-percentile look) in place of sigma_translation / sigma_dims, so"
+        " that with view_noise a window's noise is the model's own at its views (paper 2: Σ = f^g(x, ℓ))",
+    )
     uncertainty_models: Path | None = Field(
         None, description="models file (`amslam characterise`); None: the packaged defaults"
     )

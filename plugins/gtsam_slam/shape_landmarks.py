@@ -88,8 +88,9 @@ class ShapeLandmarks:
         self.rng = rng
         self.recs: dict[int, _ShapeRec] = {}
         self._ground: list[tuple[float, np.ndarray]] = []
-        self._uncertainty = _load_models(params.uncertainty_models) if params.view_noise else None
-        self._best_variance: dict[str, float] = {}
+        wanted = params.view_noise or params.model_sigmas
+        self._uncertainty = _load_models(params.uncertainty_models) if wanted else None
+        self._best_variance: dict[str, tuple[float, float | None]] = {}
 
     def model(self, class_name: str) -> str:
         """The landmark model of a class: its own entry, else the ``"*"`` entry, else ``centroid``."""
@@ -247,7 +248,7 @@ class ShapeLandmarks:
         ``decorrelate``'s), relative to the class's best looks (5th percentile over the model's
         domain), never below 1. ``shape`` and ``cameras`` (N × 3) are in one frame.
         """
-        cm = self.class_model(class_name, shape["model"])
+        cm = self.class_model(class_name, shape["model"]) if self.p.view_noise else None
         cams = np.asarray(cameras, float).reshape(-1, 3)
         if cm is None or not len(cams):
             return 1.0
@@ -262,16 +263,44 @@ class ShapeLandmarks:
             centre = np.asarray(shape["root"], float) + half * np.asarray(shape["axis"], float)
             angles = np.zeros(len(cams))
         position = [i for i, c in enumerate(cm.components) if c in POSITION_COMPONENTS]
-        var = cm.variances(np.linalg.norm(cams - centre, axis=1), angles)[:, position].mean(axis=1)
+        ranges = np.linalg.norm(cams - centre, axis=1)
+        var = cm.variances(ranges, angles)[:, position].mean(axis=1)
+        if shape["model"] == "cuboid":
+            # a fitted box is the same after a half turn: its front may be the object's back, so
+            # a look is as good as the mean of the two (a chair seen from the front or behind)
+            var = 0.5 * (var + cm.variances(ranges, math.pi - angles)[:, position].mean(axis=1))
         window = len(var) / float(np.sum(1.0 / var))
+        best = self._best_variances(cm)[0] ** 2
+        return float(np.sqrt(max(window / best, 1.0)))
+
+    def _best_variances(self, cm: ClassModel) -> tuple[float, float | None]:
+        """The std of a class's best looks: position (mean over x / y) and, for a model with them,
+        dimensions (mean over length / width); the 5th percentile over the model's domain."""
         best = self._best_variance.get(cm.class_name)
         if best is None:
             r, a = np.meshgrid(np.linspace(*cm.range_bounds, 40), np.linspace(*cm.angle_bounds, 37))
+            var = cm.variances(r.ravel(), a.ravel())
+            position = [i for i, c in enumerate(cm.components) if c in POSITION_COMPONENTS]
+            dims = [i for i, c in enumerate(cm.components) if c in ("length", "width")]
             # the 5th percentile, not the minimum: the spline's corners (few samples) dip lower
             # (the packaged car model: 0.03 m at 9 m behind the car, 0.13 m at the 5th percentile)
-            best = float(np.percentile(cm.variances(r.ravel(), a.ravel())[:, position].mean(axis=1), 5))
+            best = (
+                float(np.sqrt(np.percentile(var[:, position].mean(axis=1), 5))),
+                float(np.sqrt(np.percentile(var[:, dims].mean(axis=1), 5))) if dims else None,
+            )
             self._best_variance[cm.class_name] = best
-        return float(np.sqrt(max(window / best, 1.0)))
+        return best
+
+    def base_sigmas(self, class_name: str, model: str) -> tuple[float, float]:
+        """Translation and dimension std of a measurement from the best views (before its views
+        and ``decorrelate`` scale it): ``sigma_translation`` / ``sigma_dims``, or with
+        ``model_sigmas`` the class's characterised best look (paper 2's Σ = f^g(x, ℓ): the
+        window's noise is then the model's own at its views)."""
+        cm = self.class_model(class_name, model) if self.p.model_sigmas else None
+        if cm is None:
+            return self.p.sigma_translation, self.p.sigma_dims
+        position, dims = self._best_variances(cm)
+        return position, self.p.sigma_dims if dims is None else dims
 
     def size_prior(self, rec: _ShapeRec) -> tuple[np.ndarray, np.ndarray] | None:
         """The typical box (length ≥ width, height) of a landmark's class and its spread, if known.
@@ -529,21 +558,24 @@ class ShapeLandmarks:
         slack: np.ndarray | None = None,
         loose_dims: np.ndarray | None = None,
         scale: float = 1.0,
+        base: tuple[float, float] | None = None,
     ) -> gtsam.noiseModel.Base:
         """Eq. 1 / eq. 2 noise; a cuboid's translation and dims widened by the measurement's slack.
 
         ``loose_dims`` (per box axis) replaces ``2·slack`` for the dims where it is larger: a
         dimension completed with the size prior is the prior's, not a measurement. ``scale``
-        multiplies every sigma (``decorrelate``).
+        multiplies every sigma (``decorrelate``). ``base``: translation and dimension std of the
+        class's best look (:meth:`base_sigmas`; default ``sigma_translation``, ``sigma_dims``).
         """
         p = self.p
+        translation, dims = (p.sigma_translation, p.sigma_dims) if base is None else base
         if model == "cuboid":
             sl = np.zeros(3) if slack is None else np.asarray(slack, float)
             ld = 2 * sl if loose_dims is None else np.maximum(2 * sl, loose_dims)
             # eq. 1's translation error is expressed along the measured box axes, like the slack
-            s = [p.sigma_rotation] * 3 + list(p.sigma_translation + sl) + list(p.sigma_dims + ld)
+            s = [p.sigma_rotation] * 3 + list(translation + sl) + list(dims + ld)
         else:
-            s = [p.sigma_translation] * 3 + [p.sigma_axis] * 3 + [p.sigma_radius]
+            s = [translation] * 3 + [p.sigma_axis] * 3 + [p.sigma_radius]
         return gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(s))
 
     def initial_values(self, lm_id: int, shape_world: dict, values: gtsam.Values) -> None:
@@ -603,9 +635,11 @@ class ShapeLandmarks:
                     ref = np.maximum(ref, typ)
                 slack = np.maximum(ref - dims, 0.0) / 2.0
                 slack = np.where(loose_d > 0, np.maximum(slack, loose_c), slack)
-            noise = self.noise("cuboid", slack, loose_d, rec.scale.get(kp_id, 1.0))
+            base = self.base_sigmas(rec.cls, "cuboid")
+            noise = self.noise("cuboid", slack, loose_d, rec.scale.get(kp_id, 1.0), base)
             return cuboid_factor(pose_key, o, d, Z, dims, robust(noise))
-        noise = robust(self.noise(shape_body["model"], scale=rec.scale.get(kp_id, 1.0)))
+        base = self.base_sigmas(rec.cls, shape_body["model"])
+        noise = robust(self.noise(shape_body["model"], scale=rec.scale.get(kp_id, 1.0), base=base))
         b, n, r = cylinder_keys(on)
         return cylinder_factor(
             pose_key, b, n, r, shape_body["root"], shape_body["axis"], shape_body["radius"], noise

@@ -181,6 +181,25 @@ def _sofa(rng: np.random.Generator):
     return b, d, L
 
 
+#: The furniture models by class: each draws one piece's boxes ``(lo, hi)`` in its own frame.
+_FURNITURE = {
+    "chair": _chair,
+    "table": lambda rng: _table(rng)[0],
+    "shelf": lambda rng: _shelf(rng)[0],
+    "sofa": lambda rng: _sofa(rng)[0],
+}
+FURNITURE_CLASSES = tuple(_FURNITURE)
+
+
+def furniture_boxes(class_name: str, rng: np.random.Generator) -> list[tuple[list[float], list[float]]]:
+    """One furniture piece of a class as the buildings make it: boxes ``(lo, hi)`` in its own frame
+    (x forward, origin at the floor centre), its size drawn like the buildings'; legs, seat and
+    backrest apart, not a solid box (what a depth camera sees of it, for ``amslam characterise``)."""
+    if class_name not in _FURNITURE:
+        raise ValueError(f"no furniture model of class {class_name!r}; known: {', '.join(FURNITURE_CLASSES)}")
+    return _FURNITURE[class_name](rng)
+
+
 class _Builder:
     """Accumulates structure boxes and furniture instances of one building."""
 
@@ -468,4 +487,10 @@ def generate_building(params: ProceduralWorldParams, rng: np.random.Generator) -
     return _Builder(params, rng).build()
 
 
-__all__ = ["ProceduralWorldParams", "generate_building", "merge_meshes"]
+__all__ = [
+    "FURNITURE_CLASSES",
+    "ProceduralWorldParams",
+    "furniture_boxes",
+    "generate_building",
+    "merge_meshes",
+]

@@ -64,3 +64,51 @@ def test_collect_records_range_angle_confidence_and_errors(tmp_path):
     np.testing.assert_array_equal(back.range, s.range)
     np.testing.assert_array_equal(back.errors, s.errors)
     assert back.models == s.models and list(back.class_name) == list(s.class_name)
+
+
+def test_furniture_specimens_are_the_buildings_pieces_scored_against_their_bounding_box():
+    from amslam.apps.characterisation import SPECIMENS, specimen_world
+
+    world, summary, truth = specimen_world(SPECIMENS["shelf"], 6.0, np.random.default_rng(3))
+    # made of its parts (two sides, a back, five boards), not one solid box of twelve triangles
+    part = next(p for p in world.spec.parts if p.name == "shelf_1")
+    assert len(part.triangles) == 8 * 12
+    length, width, height = truth["dims"]
+    assert 0.3 < length < 0.5 and 0.8 <= width <= 1.2 and 1.6 <= height <= 2.0
+    assert truth["center"] == pytest.approx([0.0, 0.0, height / 2])
+    # the mesh stands on the ground inside its true box, centred on the origin
+    v = part.vertices @ np.array([[np.cos(0.3), -np.sin(0.3), 0], [np.sin(0.3), np.cos(0.3), 0], [0, 0, 1]])
+    assert v.min(axis=0) == pytest.approx([-length / 2, -width / 2, 0.0], abs=1e-9)
+    assert v.max(axis=0) == pytest.approx([length / 2, width / 2, height], abs=1e-9)
+
+
+def test_furniture_angles_and_errors_are_taken_from_the_longer_axis():
+    """A sofa's length is across its own x: viewed along its length is angle 0, and the x error
+    is along the length, as the SLAM backend reads a fitted box."""
+    from amslam.apps.characterisation import SPECIMENS
+
+    cfg = _config().model_copy(
+        update={
+            "targets": [SPECIMENS["sofa"].model_copy(update={"yaw": 0.0})],
+            "range_min": 2.0,
+            "range_max": 4.0,
+            "heights": [1.5],
+            "poses_per_spiral": 24,
+        }
+    )
+    s = collect(cfg)
+    assert s.models == {"sofa": "cuboid"} and len(s) >= 12
+    # the spiral starts on the +x side (bearing 0): beside the sofa's length, angle ≈ 90°
+    assert s.angle[0] == pytest.approx(np.pi / 2, abs=0.3)
+    det = s.detected & np.isfinite(s.errors[:, 2])
+    assert det.sum() >= 6
+    # length error (the longer side: about 1.6-2.2 m) stays within a metre of the truth
+    assert np.all(np.abs(s.errors[det, 2]) < 1.0)
+
+
+def test_characterise_rejects_a_class_without_specimen(tmp_path):
+    from amslam.apps.characterisation import characterise
+    from amslam.errors import AmslamError
+
+    with pytest.raises(AmslamError, match="no specimen for bicycle; known: car, pole, chair"):
+        characterise(tmp_path / "m.npz", classes=["chair", "bicycle"], log=lambda s: None)

@@ -348,3 +348,27 @@ def test_view_noise_grows_with_range_and_towards_head_on_views() -> None:
     assert sh.view_scale("tree_trunk", pole, at(8.0, 0.0)) == pytest.approx(far)
     off = ShapeLandmarks(models, ShapeParams(view_noise=False), None)
     assert off.view_scale("car", car, at(5.0, 0.0)) == 1.0
+
+
+def test_model_sigmas_measure_a_characterised_class_with_its_best_look() -> None:
+    """With ``model_sigmas`` a chair's box is measured with the packaged chair model's best-look std
+    (paper 2: Σ = f^g), not the 0.3 m default; a class without a model keeps the configured sigmas."""
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    models = {"*": "cuboid"}
+    plain = ShapeLandmarks(models, ShapeParams(), None)
+    assert plain.base_sigmas("chair", "cuboid") == (0.3, 0.3)
+    own = ShapeLandmarks(models, ShapeParams(model_sigmas=True), None)
+    translation, dims = own.base_sigmas("chair", "cuboid")
+    assert 0.005 < translation < 0.1 and 0.005 < dims < 0.2  # a chair is measured to centimetres
+    assert own.base_sigmas("table", "cuboid") != (translation, dims)  # each class its own
+    # several cuboid classes are characterised: a bed has no model of its own nor a stand-in
+    assert own.base_sigmas("bed", "cuboid") == (0.3, 0.3)
+    sigmas = own.noise("cuboid", scale=2.0, base=(translation, dims)).sigmas()
+    np.testing.assert_allclose(sigmas[3:6], 2.0 * translation)
+    np.testing.assert_allclose(sigmas[6:9], 2.0 * dims)
+    # a window of far views of a chair is noisier than one of near views (the chair model's range trend)
+    chair = S.cuboid_shape(np.eye(3), [0.0, 0.0, 0.45], [0.5, 0.46, 0.9])
+    near = own.view_scale("chair", chair, np.array([[1.5, 1.5, 1.4]]))
+    far = own.view_scale("chair", chair, np.array([[4.0, 3.5, 1.4]]))
+    assert far > near >= 1.0
