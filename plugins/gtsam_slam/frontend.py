@@ -213,6 +213,7 @@ class FrontEnd:
                         lm_id,
                         points,
                         d.confidence,
+                        _horizontal_spread(d.points_cam, T_kp_cam),
                     ),
                     pw,
                 )
@@ -419,3 +420,13 @@ class FrontEnd:
             return self.T_world_odom_start.copy()
         kp = self.kps[-1]
         return self.graph.pose(kp.key) @ invert(kp.T_odom_body)
+
+
+def _horizontal_spread(points_cam: np.ndarray | None, T_kp_cam: np.ndarray) -> float:
+    """Horizontal RMS spread (m) of a detection's points about their centroid, in the key pose's
+    body frame (z up); 0 without points."""
+    pts = np.asarray(points_cam if points_cam is not None else np.zeros((0, 3)), float).reshape(-1, 3)
+    if len(pts) < 2:
+        return 0.0
+    xy = pts @ T_kp_cam[:2, :3].T
+    return float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1))))

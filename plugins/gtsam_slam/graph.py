@@ -169,6 +169,9 @@ class Observation:
     landmark: int  # the landmark the front end associated it with
     points: np.ndarray | None = None  # the object's points, body frame (kept at the base only)
     confidence: float = 1.0  # the detector's score of ``class_name``
+    #: horizontal RMS spread of the detection's points about their centroid, m: how far the
+    #: visible part's centroid may sit from the object's centre (``graph.spread_slack``)
+    spread: float = 0.0
 
 
 @dataclass
@@ -366,13 +369,20 @@ class SlamGraph:
         return lm.var_sum / max(lm.count, 1) ** 2
 
     def bearing_range(
-        self, pose_key: int, lm_id: int, p_body: np.ndarray, robust: bool = True
+        self, pose_key: int, lm_id: int, p_body: np.ndarray, robust: bool = True, spread: float = 0.0
     ) -> gtsam.NonlinearFactor:
-        """A range-bearing factor from a key pose to a landmark's position (:meth:`position_key`)."""
+        """A range-bearing factor from a key pose to a landmark's position (:meth:`position_key`).
+
+        ``spread``: the detection's horizontal point spread (:attr:`Observation.spread`). A point
+        landmark is the centroid of the part in view, which moves with the viewpoint by about the
+        object's size (a table's 0.45 m mean, a chair's 0.21 m); ``graph.spread_slack`` × spread
+        widens the measurement by that much, so that re-observing a large object from another side
+        does not bend the trajectory to make the two centroids one point."""
         rng = float(np.linalg.norm(p_body))
-        noise = self.noise.bearing_range(
-            rng, self.shapes.point_slack(lm_id, pose_key), self.shapes.point_scale(lm_id, pose_key), robust
-        )
+        slack = self.shapes.point_slack(lm_id, pose_key)
+        if self.shape_model(lm_id) is None:
+            slack = max(slack, self.p.spread_slack * spread)
+        noise = self.noise.bearing_range(rng, slack, self.shapes.point_scale(lm_id, pose_key), robust)
         if self.shape_model(lm_id) == "cuboid":  # to the box pose's translation, its centre
             return gtsam.BearingRangeFactorPose3(
                 pose_key, self.position_key(lm_id), gtsam.Unit3(p_body), rng, noise
@@ -396,7 +406,7 @@ class SlamGraph:
         lm.var_sum += self.noise.detection_variance(ob.p_body)
         lm.seen_by(ob.robot, ob.keypose, ob.distance)
         if lm.in_graph and self.measured_as_point(lm):
-            self.add_factor(self.bearing_range(ob.pose_key, lm.id, ob.p_body))
+            self.add_factor(self.bearing_range(ob.pose_key, lm.id, ob.p_body, spread=ob.spread))
 
     def admit(self, lm: LandmarkRec) -> None:
         """Put a tentative landmark into the graph with all its buffered observations (a shape
@@ -406,7 +416,7 @@ class SlamGraph:
             self.new_values.insert(L(lm.id), lm.sum_world / lm.count)
         if self.measured_as_point(lm):
             for o in lm.observations:
-                self.add_factor(self.bearing_range(o.pose_key, lm.id, o.p_body))
+                self.add_factor(self.bearing_range(o.pose_key, lm.id, o.p_body, spread=o.spread))
 
     def observe_shape(self, lm: LandmarkRec, pose_key: int, shape_body: dict) -> None:
         """Queue or add the eq. 1 / eq. 2 factor of one shape measurement (body frame) of ``lm``."""
@@ -472,7 +482,7 @@ class SlamGraph:
         else:
             for o in dup.observations:
                 if o.pose_key not in skip:
-                    self.add_factor(self.bearing_range(o.pose_key, target.id, o.p_body))
+                    self.add_factor(self.bearing_range(o.pose_key, target.id, o.p_body, spread=o.spread))
         target.observations.extend(dup.observations)
         target.var_sum += dup.var_sum
         for c, (logits, n) in dup.class_evidence.items():

@@ -233,6 +233,14 @@ class GraphParams(BaseModel):
     bearing_sigma: float = Field(0.05, gt=0, le=math.pi, description="bearing std of an object's point, rad")
     range_sigma: float = Field(0.05, gt=0, le=100, description="range std at zero range, m")
     range_sigma_per_m: float = Field(0.03, ge=0, le=10, description="range std growth per metre")
+    spread_slack: float = Field(
+        0.0,
+        ge=0,
+        le=10,
+        description="a point landmark's detection is as uncertain as this times its points' horizontal"
+        " RMS spread (m) more, in range and across: the visible part's centroid moves with the view by"
+        " about the object's size",
+    )
     robust: Literal["huber", "cauchy", "none"] = Field("huber", description="robust kernel")
     robust_k: float = Field(1.345, gt=0, le=100, description="robust kernel width (whitened units)")
     fusion_sigma: float = Field(

@@ -392,3 +392,34 @@ def test_pose_uncertainty_is_the_latest_key_poses_position_marginal_in_the_world
     # the translation walk alone over 20 m bounds it from below (σ = 0.05 m/√m · √20 m)
     assert pose.position_std >= 0.05 * np.sqrt(20.0) - 1e-6
     assert pose.odometry == slam._graph.noise.odometry_noise()
+
+
+def test_spread_slack_loosens_a_wide_objects_centroid_not_a_compact_ones() -> None:
+    """A detection's point landmark is the centroid of the part in view: with ``graph.spread_slack``
+    a table's (points spread 0.4 m) is measured looser than a chair's (0.1 m), in range and across,
+    and by nothing when the slack is off."""
+    from amslam.plugins.gtsam_slam.frontend import _horizontal_spread
+    from amslam.plugins.gtsam_slam.graph import LandmarkRec
+
+    rng = np.random.default_rng(0)
+    T_kp_cam = np.eye(4)
+    T_kp_cam[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # camera z forward = body x
+    wide = rng.normal(0.0, [0.4, 0.05, 0.05], (400, 3)) + [0, 0, 3.0]  # across the view (camera x)
+    compact = rng.normal(0.0, [0.1, 0.1, 0.05], (400, 3)) + [0, 0, 3.0]  # camera y is down
+    high = rng.normal(0.0, [0.05, 0.6, 0.05], (400, 3)) + [0, 0, 3.0]  # a tall, thin object: vertical
+    assert _horizontal_spread(wide, T_kp_cam) == pytest.approx(0.4, abs=0.04)
+    assert _horizontal_spread(compact, T_kp_cam) == pytest.approx(np.hypot(0.1, 0.05), abs=0.02)
+    assert _horizontal_spread(high, T_kp_cam) < 0.1
+    assert _horizontal_spread(np.zeros((0, 3)), T_kp_cam) == 0.0
+
+    def sigmas(slack: float, spread: float) -> np.ndarray:
+        slam = configured(graph={"spread_slack": slack})
+        g = slam._graph
+        g.landmarks[0] = LandmarkRec(0, "table", 0, 0.0, np.zeros(3))
+        factor = g.bearing_range(0, 0, np.array([3.0, 0.0, 0.0]), robust=False, spread=spread)
+        return factor.noiseModel().sigmas()
+
+    off, table, chair = sigmas(0.0, 0.4), sigmas(1.0, 0.4), sigmas(1.0, 0.1)
+    np.testing.assert_allclose(off, sigmas(0.0, 0.0))
+    assert table[2] == pytest.approx(off[2] + 0.4) and table[0] == pytest.approx(off[0] + 0.4 / 3.0)
+    assert off[2] < chair[2] < table[2]
