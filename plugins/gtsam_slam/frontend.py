@@ -182,13 +182,12 @@ class FrontEnd:
         if dets:
             p_world = p_body @ T_world_kp[:3, :3].T + T_world_kp[:3, 3]
             p_odom = p_body @ T_odom_kp[:3, :3].T + T_odom_kp[:3, 3]
-            spreads = np.array([_horizontal_spread(d.points_cam, T_kp_cam) for d in dets])
-            assoc = self.associate([d.class_name for d in dets], p_world, p_body, rec.distance, spreads)
+            assoc = self.associate([d.class_name for d in dets], p_world, p_body, rec.distance)
             for i, lm_id in self._shape_assoc.items():
                 assoc[i] = lm_id
             g = self.graph
-            for k, (d, pb, pw, po, lm_id, spread) in enumerate(
-                zip(dets, p_body, p_world, p_odom, assoc, spreads, strict=True)
+            for k, (d, pb, pw, po, lm_id) in enumerate(
+                zip(dets, p_body, p_world, p_odom, assoc, strict=True)
             ):
                 if lm_id < 0:
                     lm_id = g.new_landmark_id()
@@ -214,7 +213,7 @@ class FrontEnd:
                         lm_id,
                         points,
                         d.confidence,
-                        float(spread),
+                        _horizontal_spread(d.points_cam, T_kp_cam),
                     ),
                     pw,
                 )
@@ -260,12 +259,7 @@ class FrontEnd:
     # ---------------------------------------------------------------- association
 
     def associate(
-        self,
-        classes: list[str],
-        p_world: np.ndarray,
-        p_body: np.ndarray,
-        distance: float,
-        spreads: np.ndarray | None = None,
+        self, classes: list[str], p_world: np.ndarray, p_body: np.ndarray, distance: float
     ) -> list[int]:
         """Per class, one-to-one (Hungarian) on Mahalanobis distance, tracked landmarks first.
 
@@ -281,12 +275,8 @@ class FrontEnd:
 
         Landmarks seen within the last ``track_distance`` metres of travel are matched first
         (tracking: drift is negligible, the gate is tight); only detections none of them explains
-        are matched against older landmarks. With ``graph.spread_slack``, a detection's centroid
-        is as uncertain as its factor says (``spreads``: its points' horizontal spread, m): the
-        innovation variance and the metric gate grow by that slack, so that a table seen from its
-        other side joins its landmark instead of starting a duplicate. A detection that two
-        candidates explain nearly equally well (χ² within ``ambiguity``) is not matched to either:
-        it starts a new tentative
+        are matched against older landmarks. A detection that two candidates explain nearly
+        equally well (χ² within ``ambiguity``) is not matched to either: it starts a new tentative
         landmark, which a later fusion (loop closure, or the base's) joins to its twin. A duplicate
         costs little; a wrong association corrupts the map.
 
@@ -311,9 +301,8 @@ class FrontEnd:
             cands = [lm for lm, keep in zip(live, stage, strict=True) if keep]
             if not todo or not cands:
                 continue
-            slack = np.zeros(len(todo)) if spreads is None else self.graph.p.spread_slack * spreads[todo]
             m2, gated = self._innovations(
-                [classes[i] for i in todo], p_world[todo], p_body[todo], cands, travel[stage], slack
+                [classes[i] for i in todo], p_world[todo], p_body[todo], cands, travel[stage]
             )
             if not gated.any():
                 continue
@@ -332,10 +321,8 @@ class FrontEnd:
         p_body: np.ndarray,
         cands: list[LandmarkRec],
         travel: np.ndarray,
-        slack: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Squared Mahalanobis distances detections × landmarks, and which pairs pass the gates
-        (``slack``: each detection's centroid slack, m, added to its std and to the metric gate)."""
+        """Squared Mahalanobis distances detections × landmarks, and which pairs pass the gates."""
         p = self.p
         g = self.graph
         pos = np.array([g.landmark_position(lm) for lm in cands])
@@ -343,14 +330,13 @@ class FrontEnd:
         det_var = np.array([g.noise.detection_variance(pb) for pb in p_body])
         drift_var = g.noise.drift_variance(travel, np.linalg.norm(p_body, axis=1))
         d2 = np.sum((p_world[:, None, :] - pos[None, :, :]) ** 2, axis=2)
-        slack = np.zeros(len(p_body)) if slack is None else np.asarray(slack, float)
-        m2 = d2 / (det_var[:, None] + slack[:, None] ** 2 + p.object_sigma**2 + lm_var[None, :] + drift_var)
+        m2 = d2 / (det_var[:, None] + p.object_sigma**2 + lm_var[None, :] + drift_var)
         if p.class_gate is None:
             same_class = np.array(classes)[:, None] == np.array([lm.class_name for lm in cands])[None, :]
         else:  # a landmark whose class posterior clearly disagrees (below the gate) is not a candidate
             post = [g.class_probabilities(lm, classes) for lm in cands]
             same_class = np.array([[q.get(c, 0.0) >= p.class_gate for q in post] for c in classes])
-        gated = same_class & (d2 <= (p.gate + slack[:, None]) ** 2) & (m2 <= p.chi2)
+        gated = same_class & (d2 <= p.gate**2) & (m2 <= p.chi2)
         return m2, gated
 
     # ---------------------------------------------------------------- shape classes (paper 2)
