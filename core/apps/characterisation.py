@@ -454,6 +454,15 @@ def characterise(
             ones); its header is kept under ``meta["kept"]``.
     """
     out = Path(out)
+    kept = None
+    if keep is not None:  # a bad file fails before the flying, not after
+        try:
+            kept = UncertaintyModels.load(keep)
+        except (OSError, ValueError, KeyError) as e:
+            raise AmslamError(
+                f"characterise --keep {keep}: not a models file written by amslam characterise"
+                f" ({type(e).__name__})"
+            ) from e
     config = CharacteriseConfig(seed=seed)
     if classes is not None:
         unknown = [c for c in classes if c not in SPECIMENS]
@@ -490,12 +499,6 @@ def characterise(
         )
         samples = collect(config, log)
         samples.save(out.with_name(out.stem + "-samples.npz"))
-    kept = None
-    if keep is not None:  # a bad file fails before the fitting, not after
-        try:
-            kept = UncertaintyModels.load(keep)
-        except (OSError, ValueError, KeyError) as e:
-            raise AmslamError(f"characterise --keep {keep}: not a readable models file ({e})") from e
     models = fit_models(samples, seed=seed)
     models.meta.update(
         {"samples": len(samples), "seed": seed, "camera": config.camera.model_dump(mode="json")}

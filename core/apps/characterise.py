@@ -9,10 +9,11 @@ command needs (issue #20).
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import amslam
-from amslam.cli import Command
+from amslam.cli import Command, whole_number
 
 
 def _arguments(parser) -> None:
@@ -20,7 +21,7 @@ def _arguments(parser) -> None:
     parser.add_argument(
         "--out", required=True, help="models file to write (.npz; samples and plot beside it)"
     )
-    parser.add_argument("--poses", type=int, help="frames per spiral (default 240)")
+    parser.add_argument("--poses", type=whole_number(4), help="frames per spiral (default 240)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--classes",
@@ -33,7 +34,7 @@ def _arguments(parser) -> None:
         type=_numbers,
         help="spiral heights above the ground, comma-separated, m (default 1.5,3,5)",
     )
-    parser.add_argument("--range-min", type=float, help="radius where the spirals start, m (default 2)")
+    parser.add_argument("--range-min", type=_positive, help="radius where the spirals start, m (default 2)")
     parser.add_argument(
         "--keep",
         help="models file whose other classes go into --out unchanged (e.g. the packaged"
@@ -48,14 +49,26 @@ def _names(text: str) -> list[str]:
     return names
 
 
-def _numbers(text: str) -> list[float]:
+def _positive(text: str) -> float:
     try:
-        values = [float(t) for t in text.split(",") if t.strip()]
+        value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected numbers, comma-separated, got {text!r}") from None
-    if not values or any(not v > 0 for v in values):
+        value = math.nan
+    if not value > 0 or math.isinf(value):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def _numbers(text: str) -> list[float]:
+    values = [t.strip() for t in text.split(",") if t.strip()]
+    if not values:
         raise argparse.ArgumentTypeError(f"expected positive numbers, comma-separated, got {text!r}")
-    return values
+    try:
+        return [_positive(v) for v in values]
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"expected positive numbers, comma-separated, got {text!r}"
+        ) from None
 
 
 def _run(args, registry) -> int:

@@ -112,3 +112,33 @@ def test_characterise_rejects_a_class_without_specimen(tmp_path):
 
     with pytest.raises(AmslamError, match="no specimen for bicycle; known: car, pole, chair"):
         characterise(tmp_path / "m.npz", classes=["chair", "bicycle"], log=lambda s: None)
+
+
+def test_keep_carries_the_other_classes_and_a_bad_file_fails_before_flying(tmp_path):
+    from amslam.apps.characterisation import SPECIMENS, characterise
+    from amslam.errors import AmslamError
+    from amslam.lib.uncertainty import DEFAULT_MODELS_PATH, UncertaintyModels
+
+    cfg = _config().model_copy(
+        update={
+            "targets": [SPECIMENS["chair"]],
+            "range_min": 1.0,
+            "range_max": 5.0,
+            "heights": [0.9, 1.5],
+            "poses_per_spiral": 60,
+        }
+    )
+    samples = tmp_path / "chair-samples.npz"
+    collect(cfg).save(samples)
+    out = tmp_path / "models.npz"
+    models = characterise(out, samples_in=samples, keep=DEFAULT_MODELS_PATH, log=lambda s: None)
+    packaged = UncertaintyModels.load(DEFAULT_MODELS_PATH)
+    back = UncertaintyModels.load(out)
+    assert set(back.classes) == set(packaged.classes) == set(models.classes)
+    assert back.meta["kept"]["classes"] == [c for c in packaged.classes if c != "chair"]
+    # the chair is the new fit, the car the packaged one
+    assert back["chair"].samples == len(Samples.load(samples)) != packaged["chair"].samples
+    assert back["car"].samples == packaged["car"].samples
+    # a file that is not a models file is refused before anything is flown or read
+    with pytest.raises(AmslamError, match="--keep .*not a models file"):
+        characterise(out, samples_in=tmp_path / "missing.npz", keep=samples, log=lambda s: None)
