@@ -23,6 +23,7 @@ from amslam.registry import build_plugin_manager
 from amslam.runner import Runner, started_platform
 from amslam.types import Landmark, WorldSummary
 from tests.tiny_mission import tiny_mission_file, tiny_mission_text
+from tests.world_summaries import objects_world
 
 
 @pytest.fixture(scope="module")
@@ -128,21 +129,9 @@ def test_earlier_flights_are_found_by_what_they_fly(registry, tmp_path: Path) ->
 
 
 def world_summary() -> WorldSummary:
-    return WorldSummary(
-        name="w",
-        bounds_lo=np.zeros(3),
-        bounds_hi=np.ones(3) * 10,
-        reachable_free_volume=1.0,
-        floor_heights=(0.0,),
-        reachable_free_volume_per_floor=(1.0,),
-        objects_by_class={"car": 2, "pole": 1},
-        object_positions={
-            "a": np.array([1.0, 1.0, 0.7]),
-            "b": np.array([5.0, 1.0, 0.7]),
-            "c": np.array([3, 3, 0.0]),
-        },
-        object_classes={"a": "car", "b": "car", "c": "pole"},
-        object_shapes={
+    return objects_world(
+        {"a": ("car", [1.0, 1.0, 0.7]), "b": ("car", [5.0, 1.0, 0.7]), "c": ("pole", [3, 3, 0.0])},
+        {
             "a": {"model": "cuboid", "center": [1.0, 1.0, 0.7], "yaw": 0.0, "dims": [4.0, 2.0, 1.4]},
             "b": {"model": "cuboid", "center": [5.0, 1.0, 0.7], "yaw": 0.0, "dims": [4.0, 2.0, 1.4]},
         },

@@ -9,21 +9,8 @@ import pytest
 
 from amslam.apps.report import landmark_accuracy, object_accuracy
 from amslam.lib import shapes
-from amslam.types import Landmark, WorldSummary
-
-
-def _world(positions: dict[str, tuple[str, list[float]]]) -> WorldSummary:
-    return WorldSummary(
-        name="w",
-        bounds_lo=np.zeros(3),
-        bounds_hi=np.ones(3) * 10,
-        reachable_free_volume=1.0,
-        floor_heights=(0.0,),
-        reachable_free_volume_per_floor=(1.0,),
-        objects_by_class={},
-        object_positions={k: np.array(p, float) for k, (_, p) in positions.items()},
-        object_classes={k: c for k, (c, _) in positions.items()},
-    )
+from amslam.types import Landmark
+from tests.world_summaries import objects_world
 
 
 def _lm(i: int, cls: str, p: list[float]) -> Landmark:
@@ -31,7 +18,7 @@ def _lm(i: int, cls: str, p: list[float]) -> Landmark:
 
 
 def test_landmark_accuracy_tells_the_maps_shift_from_the_landmarks_own_error() -> None:
-    world = _world({f"c{i}": ("chair", [2.0 * i, 0, 0]) for i in range(4)})
+    world = objects_world({f"c{i}": ("chair", [2.0 * i, 0, 0]) for i in range(4)})
     shift = np.array([0.3, -0.1, 0.0])
     own = [[0.05, 0, 0], [-0.05, 0, 0], [0, 0.05, 0], [0, -0.05, 0]]  # about the shift, mean zero
     lms = [_lm(i, "chair", list(np.array([2.0 * i, 0, 0]) + shift + own[i])) for i in range(4)]
@@ -43,7 +30,9 @@ def test_landmark_accuracy_tells_the_maps_shift_from_the_landmarks_own_error() -
 
 
 def test_landmark_accuracy_pairs_by_class_and_counts_duplicates_and_spurious() -> None:
-    world = _world({"a": ("chair", [0, 0, 0]), "b": ("chair", [0.75, 0, 0]), "c": ("table", [5, 5, 0])})
+    world = objects_world(
+        {"a": ("chair", [0, 0, 0]), "b": ("chair", [0.75, 0, 0]), "c": ("table", [5, 5, 0])}
+    )
     lms = [
         _lm(0, "chair", [0.1, 0, 0]),  # chair a, 0.1 m off
         _lm(1, "chair", [0.75, 0.6, 0]),  # chair b, 0.6 m off
@@ -94,7 +83,7 @@ def test_object_accuracy_fig9_error_is_length_and_width_of_vehicles_only() -> No
     car_a = shapes.cuboid_shape(R, [0, 0, 0.75], [4.6, 1.8, 1.5])
     car_b = shapes.cuboid_shape(R, [0, 5, 0.75], [4.2, 1.7, 1.4])
     pole = shapes.cylinder_shape(np.array([8.0, 0, 0]), np.array([0, 0, 1.0]), 0.15, 6.0)
-    world = _world({"a": ("car", [0, 0, 0.75]), "b": ("car", [0, 5, 0.75]), "p": ("pole", [8, 0, 0])})
+    world = objects_world({"a": ("car", [0, 0, 0.75]), "b": ("car", [0, 5, 0.75]), "p": ("pole", [8, 0, 0])})
     world = dataclasses.replace(world, object_shapes={"a": car_a, "b": car_b, "p": pole})
     # car a: length 0.2 m short, height 0.5 m too tall; seen a quarter turn off (l and w swapped)
     est_a = shapes.cuboid_shape(
@@ -145,7 +134,9 @@ def test_top_view_shows_slam_classes_and_floors_sized_to_the_building(tmp_path):
     from amslam.apps.report import top_view_figure
     from amslam.types import KeyPose, RunSummary
 
-    world = dataclasses.replace(_world({}), bounds_hi=np.array([14.0, 10.0, 6.0]), floor_heights=(0.0, 3.0))
+    world = dataclasses.replace(
+        objects_world({}), bounds_hi=np.array([14.0, 10.0, 6.0]), floor_heights=(0.0, 3.0)
+    )
     # a short flight: a few metres along the first floor, nothing seen upstairs but one wall
     path = [(1.0 + 0.1 * i, 5.0, 1.2) for i in range(40)]
     wall = np.array([[x, 4.0, 1.0] for x in np.arange(0.125, 5, 0.25)] + [[13.0, 9.0, 4.0]])

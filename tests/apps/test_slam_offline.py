@@ -12,9 +12,9 @@ from amslam.measurements import LoggedDetection, RobotMeasurements, read_measure
 from amslam.mission import load_mission
 from amslam.registry import build_plugin_manager
 from amslam.runner import Runner
-from amslam.types import WorldSummary
 from tests.apps.benchmark_script import load_benchmark
 from tests.tiny_mission import tiny_mission_file
+from tests.world_summaries import objects_world
 
 
 @pytest.fixture(scope="module")
@@ -78,18 +78,7 @@ def _log_with_one_detection(points_body: np.ndarray) -> RobotMeasurements:
 def test_points_move_onto_the_true_box_and_odometry_becomes_the_truth() -> None:
     b = load_benchmark("slam_offline")
     box = {"model": "cuboid", "center": [3.0, 0.0, 0.5], "yaw": 0.3, "dims": [0.5, 0.4, 1.0]}
-    world = WorldSummary(
-        name="w",
-        bounds_lo=np.zeros(3),
-        bounds_hi=np.ones(3) * 10,
-        reachable_free_volume=1.0,
-        floor_heights=(0.0,),
-        reachable_free_volume_per_floor=(1.0,),
-        objects_by_class={"chair": 1},
-        object_positions={"chair_1": np.array(box["center"])},
-        object_classes={"chair_1": "chair"},
-        object_shapes={"chair_1": box},
-    )
+    world = objects_world({"chair_1": ("chair", box["center"])}, {"chair_1": box})
     rng = np.random.default_rng(0)
     noisy = np.array(box["center"]) + rng.normal(0, 0.3, (50, 3))
     log = _log_with_one_detection(noisy)
