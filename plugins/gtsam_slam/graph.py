@@ -368,22 +368,23 @@ class SlamGraph:
         """Isotropic variance of a landmark's position as the mean of its observations, m²."""
         return lm.var_sum / max(lm.count, 1) ** 2
 
-    def bearing_range(
-        self, pose_key: int, lm_id: int, p_body: np.ndarray, robust: bool = True, spread: float = 0.0
-    ) -> gtsam.NonlinearFactor:
-        """A range-bearing factor from a key pose to a landmark's position (:meth:`position_key`).
+    def bearing_range(self, ob: Observation, lm_id: int, robust: bool = True) -> gtsam.NonlinearFactor:
+        """The range-bearing factor of an observation, from its key pose to landmark ``lm_id``'s
+        position (:meth:`position_key`; the observation's own landmark or the one it was fused into).
 
-        ``spread``: the detection's horizontal point spread (:attr:`Observation.spread`). A point
-        landmark is the centroid of the part in view, which moves with the viewpoint by about the
-        object's size (a table's 0.45 m mean, a chair's 0.21 m); ``graph.spread_slack`` × spread
-        widens the measurement by that much, so that re-observing a large object from another side
-        does not bend the trajectory to make the two centroids one point."""
+        A point landmark is the centroid of the part in view, which moves with the viewpoint by
+        about the object's size (a table's 0.45 m mean, a chair's 0.21 m): ``graph.spread_slack``
+        × the detection's point spread (:attr:`Observation.spread`) widens the measurement by that
+        much, so that re-observing a large object from another side does not bend the trajectory
+        to make the two centroids one point."""
+        pose_key, p_body = ob.pose_key, ob.p_body
         rng = float(np.linalg.norm(p_body))
+        model = self.shape_model(lm_id)
         slack = self.shapes.point_slack(lm_id, pose_key)
-        if self.shape_model(lm_id) is None:
-            slack = max(slack, self.p.spread_slack * spread)
+        if model is None:
+            slack = max(slack, self.p.spread_slack * ob.spread)
         noise = self.noise.bearing_range(rng, slack, self.shapes.point_scale(lm_id, pose_key), robust)
-        if self.shape_model(lm_id) == "cuboid":  # to the box pose's translation, its centre
+        if model == "cuboid":  # to the box pose's translation, its centre
             return gtsam.BearingRangeFactorPose3(
                 pose_key, self.position_key(lm_id), gtsam.Unit3(p_body), rng, noise
             )
@@ -406,7 +407,7 @@ class SlamGraph:
         lm.var_sum += self.noise.detection_variance(ob.p_body)
         lm.seen_by(ob.robot, ob.keypose, ob.distance)
         if lm.in_graph and self.measured_as_point(lm):
-            self.add_factor(self.bearing_range(ob.pose_key, lm.id, ob.p_body, spread=ob.spread))
+            self.add_factor(self.bearing_range(ob, lm.id))
 
     def admit(self, lm: LandmarkRec) -> None:
         """Put a tentative landmark into the graph with all its buffered observations (a shape
@@ -416,7 +417,7 @@ class SlamGraph:
             self.new_values.insert(L(lm.id), lm.sum_world / lm.count)
         if self.measured_as_point(lm):
             for o in lm.observations:
-                self.add_factor(self.bearing_range(o.pose_key, lm.id, o.p_body, spread=o.spread))
+                self.add_factor(self.bearing_range(o, lm.id))
 
     def observe_shape(self, lm: LandmarkRec, pose_key: int, shape_body: dict) -> None:
         """Queue or add the eq. 1 / eq. 2 factor of one shape measurement (body frame) of ``lm``."""
@@ -482,7 +483,7 @@ class SlamGraph:
         else:
             for o in dup.observations:
                 if o.pose_key not in skip:
-                    self.add_factor(self.bearing_range(o.pose_key, target.id, o.p_body, spread=o.spread))
+                    self.add_factor(self.bearing_range(o, target.id))
         target.observations.extend(dup.observations)
         target.var_sum += dup.var_sum
         for c, (logits, n) in dup.class_evidence.items():

@@ -206,7 +206,7 @@ class LoopCloser:
                 # measured again as a point.
                 if not g.measured_as_point(target) and g.live_id(o.landmark) == target.id:
                     continue
-                g.add_factor(g.bearing_range(o.pose_key, target.id, o.p_body, spread=o.spread))
+                g.add_factor(g.bearing_range(o, target.id))
             # The robot is tied to this landmark again: the front end may track it with a tight gate.
             latest = max(group, key=lambda o: o.distance)
             target.seen_by(latest.robot, latest.keypose, latest.distance)

@@ -412,7 +412,7 @@ class _Merger:
                     for f in sh.anchor(lm.id, shape):
                         out.add(f)
                 for o in lm.observations:
-                    out.add(g.bearing_range(o.pose_key, lm.id, o.p_body, spread=o.spread))
+                    out.add(g.bearing_range(o, lm.id))
                 continue
             for owner, k, shape_body in sh.recs[lm.id].measured:
                 T_world_body = start.atPose3(k).matrix()

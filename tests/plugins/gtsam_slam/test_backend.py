@@ -399,7 +399,7 @@ def test_spread_slack_loosens_a_wide_objects_centroid_not_a_compact_ones() -> No
     a table's (points spread 0.4 m) is measured looser than a chair's (0.1 m), in range and across,
     and by nothing when the slack is off."""
     from amslam.plugins.gtsam_slam.frontend import _horizontal_spread
-    from amslam.plugins.gtsam_slam.graph import LandmarkRec
+    from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation
 
     rng = np.random.default_rng(0)
     T_kp_cam = np.eye(4)
@@ -416,7 +416,9 @@ def test_spread_slack_loosens_a_wide_objects_centroid_not_a_compact_ones() -> No
         slam = configured(graph={"spread_slack": slack})
         g = slam._graph
         g.landmarks[0] = LandmarkRec(0, "table", 0, 0.0, np.zeros(3))
-        factor = g.bearing_range(0, 0, np.array([3.0, 0.0, 0.0]), robust=False, spread=spread)
+        p = np.array([3.0, 0.0, 0.0])
+        ob = Observation(0, 0, 0, 0.0, 0.0, "table", p, p, 0, spread=spread)
+        factor = g.bearing_range(ob, 0, robust=False)
         return factor.noiseModel().sigmas()
 
     off, table, chair = sigmas(0.0, 0.4), sigmas(1.0, 0.4), sigmas(1.0, 0.1)
