@@ -200,6 +200,21 @@ def furniture_boxes(class_name: str, rng: np.random.Generator) -> list[tuple[lis
     return _FURNITURE[class_name](rng)
 
 
+def piece_shape(boxes: list, position: np.ndarray, yaw: float) -> dict:
+    """The true cuboid of a piece (paper 2): the bounds of its boxes ``(lo, hi)`` in its own frame,
+    placed at ``position`` (the origin of its frame) turned by ``yaw``."""
+    blo = np.min([b[0] for b in boxes], axis=0)
+    bhi = np.max([b[1] for b in boxes], axis=0)
+    R = yaw_matrix(yaw)
+    return {
+        "model": "cuboid",
+        "center": (R @ ((blo + bhi) / 2.0) + np.asarray(position, float)).tolist(),
+        "yaw": float(np.arctan2(R[1, 0], R[0, 0])),
+        "dims": (bhi - blo).tolist(),
+        "rotation": R.tolist(),
+    }
+
+
 class _Builder:
     """Accumulates structure boxes and furniture instances of one building."""
 
@@ -223,18 +238,7 @@ class _Builder:
         albedo = np.clip(class_colour(cls) * self.rng.uniform(0.8, 1.15) + self.rng.normal(0, 0.03, 3), 0, 1)
         self.parts.append(MeshPart.uniform(name, v, t, inst, albedo))
         lo, hi = v.min(axis=0), v.max(axis=0)
-        # the true cuboid (paper 2): the bounds of the boxes in the object's own frame
-        blo = np.min([b[0] for b in boxes], axis=0)
-        bhi = np.max([b[1] for b in boxes], axis=0)
-        R = yaw_matrix(yaw)
-        centre = R @ ((blo + bhi) / 2.0) + np.array([x, y, z])
-        shape = {
-            "model": "cuboid",
-            "center": centre.tolist(),
-            "yaw": float(np.arctan2(R[1, 0], R[0, 0])),
-            "dims": (bhi - blo).tolist(),
-            "rotation": R.tolist(),
-        }
+        shape = piece_shape(boxes, np.array([x, y, z]), yaw)
         self.objects.append(WorldObject(name, cls, inst, (lo + hi) / 2.0, lo, hi, shape))
 
     def furnish(self, room: _Rect, z: float, keep_out: list[_Rect]) -> None:
@@ -491,6 +495,7 @@ __all__ = [
     "FURNITURE_CLASSES",
     "ProceduralWorldParams",
     "furniture_boxes",
+    "piece_shape",
     "generate_building",
     "merge_meshes",
 ]
