@@ -44,7 +44,7 @@ from amslam.lib.viewing import viewing_angle
 from amslam.plugins.pams.uncertainty import COMPONENTS, UncertaintyModels, fit_models, plot_models
 from amslam.plugins.sim.camera import CameraParams, Renderer
 from amslam.plugins.sim.detector import SimDetector
-from amslam.plugins.sim.procedural import FURNITURE_CLASSES, furniture_boxes
+from amslam.plugins.sim.procedural import FURNITURE_CLASSES, furniture_boxes, piece_shape
 from amslam.plugins.sim.world import (
     MeshPart,
     World,
@@ -211,19 +211,13 @@ def specimen_world(
     parts = [MeshPart.uniform("ground", ground_v, ground_t, 0, class_colour("floor"))]
     if target.specimen == "furniture":
         boxes = furniture_boxes(target.class_name, rng if rng is not None else np.random.default_rng(0))
-        lo_b = np.min([b[0] for b in boxes], axis=0)
-        hi_b = np.max([b[1] for b in boxes], axis=0)
+        shape = piece_shape(boxes, np.zeros(3), target.yaw)
         # centred on the origin like a solid specimen, standing on the ground
-        shift = np.array([-(lo_b[0] + hi_b[0]) / 2, -(lo_b[1] + hi_b[1]) / 2, 0.0])
-        v, t = boxes_mesh([(np.asarray(lo) + shift, np.asarray(hi) + shift) for lo, hi in boxes])
-        v = v @ yaw_matrix(target.yaw).T
-        height = float(hi_b[2])
-        shape = {
-            "model": "cuboid",
-            "center": [0.0, 0.0, height / 2],
-            "dims": (hi_b - lo_b).tolist(),
-            "yaw": target.yaw,
-        }
+        offset = -np.array([shape["center"][0], shape["center"][1], 0.0])
+        v, t = boxes_mesh(boxes)
+        v = v @ yaw_matrix(target.yaw).T + offset
+        height = float(shape["dims"][2])
+        shape["center"] = [0.0, 0.0, height / 2]
     elif target.model == "cuboid":
         length, width, height = target.size
         v, t = box_mesh(np.array([-length / 2, -width / 2, 0.0]), np.array([length / 2, width / 2, height]))
@@ -421,6 +415,57 @@ def angle_degrees(angle: np.ndarray | float) -> np.ndarray | float:
     return np.asarray(angle) * (180.0 / math.pi)
 
 
+def _kept_models(keep: Path | None) -> UncertaintyModels | None:
+    """``--keep``'s models, read before anything is flown (a bad file fails then, not after)."""
+    if keep is None:
+        return None
+    try:
+        return UncertaintyModels.load(keep)
+    except (OSError, ValueError, KeyError) as e:
+        raise AmslamError(
+            f"characterise --keep {keep}: not a models file written by amslam characterise"
+            f" ({type(e).__name__})"
+        ) from e
+
+
+def _config(
+    mission,
+    classes: list[str] | None,
+    heights: list[float] | None,
+    range_min: float | None,
+    poses_per_spiral: int | None,
+    seed: int,
+) -> CharacteriseConfig:
+    """The spirals, targets, camera and detector of a characterisation (see :func:`characterise`)."""
+    config = CharacteriseConfig(seed=seed)
+    if classes is not None:
+        unknown = [c for c in classes if c not in SPECIMENS]
+        if unknown:
+            raise AmslamError(
+                f"characterise --classes: no specimen for {', '.join(unknown)}; known: {', '.join(SPECIMENS)}"
+            )
+        config.targets = [SPECIMENS[c] for c in classes]
+    if heights is not None:
+        config.heights = list(heights)
+    if range_min is not None:
+        config.range_min = range_min
+    if mission is not None:
+        platform, detector = mission.backends.get("platform"), mission.backends.get("detector")
+        if platform is not None and hasattr(platform.params, "camera"):
+            config.camera = platform.params.camera.model_copy(update={"rgb": False})
+        if detector is not None and detector.plugin == "sim":
+            config.detector = detector.params.model_copy(update={"false_positive_rate": 0.0})
+            if classes is None and config.detector.classes is not None:  # what the detector reports
+                config.targets = [t for t in config.targets if t.class_name in config.detector.classes]
+        # the mission's sensor as it is: spirals reach a little beyond what it can detect
+        reach = min(config.camera.max_range, config.detector.max_range)
+        config.range_max = min(config.range_max, reach + 1.0)
+        config.targets = [t.model_copy(update={"range_max": None}) for t in config.targets]
+    if poses_per_spiral is not None:
+        config.poses_per_spiral = poses_per_spiral
+    return config
+
+
 def characterise(
     out: Path,
     *,
@@ -454,41 +499,9 @@ def characterise(
             ones); its header is kept under ``meta["kept"]``.
     """
     out = Path(out)
-    kept = None
-    if keep is not None:  # a bad file fails before the flying, not after
-        try:
-            kept = UncertaintyModels.load(keep)
-        except (OSError, ValueError, KeyError) as e:
-            raise AmslamError(
-                f"characterise --keep {keep}: not a models file written by amslam characterise"
-                f" ({type(e).__name__})"
-            ) from e
-    config = CharacteriseConfig(seed=seed)
-    if classes is not None:
-        unknown = [c for c in classes if c not in SPECIMENS]
-        if unknown:
-            raise AmslamError(
-                f"characterise --classes: no specimen for {', '.join(unknown)}; known: {', '.join(SPECIMENS)}"
-            )
-        config.targets = [SPECIMENS[c] for c in classes]
-    if heights is not None:
-        config.heights = list(heights)
-    if range_min is not None:
-        config.range_min = range_min
-    if mission is not None:
-        platform, detector = mission.backends.get("platform"), mission.backends.get("detector")
-        if platform is not None and hasattr(platform.params, "camera"):
-            config.camera = platform.params.camera.model_copy(update={"rgb": False})
-        if detector is not None and detector.plugin == "sim":
-            config.detector = detector.params.model_copy(update={"false_positive_rate": 0.0})
-            if classes is None and config.detector.classes is not None:  # what the detector reports
-                config.targets = [t for t in config.targets if t.class_name in config.detector.classes]
-        # the mission's sensor as it is: spirals reach a little beyond what it can detect
-        reach = min(config.camera.max_range, config.detector.max_range)
-        config.range_max = min(config.range_max, reach + 1.0)
-        config.targets = [t.model_copy(update={"range_max": None}) for t in config.targets]
-    if poses_per_spiral is not None:
-        config.poses_per_spiral = poses_per_spiral
+    kept = _kept_models(keep)
+    config = _config(mission, classes, heights, range_min, poses_per_spiral, seed)
+    out.parent.mkdir(parents=True, exist_ok=True)  # the samples are written there first
     if samples_in is not None:
         samples = Samples.load(samples_in)
         log(f"samples: {len(samples)} from {samples_in}")
@@ -507,7 +520,6 @@ def characterise(
         names = [n for n in kept.classes if n not in models.classes]
         models.classes.update({n: kept.classes[n] for n in names})
         models.meta["kept"] = {"from": Path(keep).name, "classes": names, "meta": kept.meta}
-    out.parent.mkdir(parents=True, exist_ok=True)
     models.save(out)
     fitted = {n: m for n, m in models.classes.items() if n in samples.models}  # kept ones have no samples
     plot_models(UncertaintyModels(fitted, models.meta), out.with_suffix(".png"), samples)
