@@ -54,21 +54,19 @@ def _positive(text: str) -> float:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not value > 0 or math.isinf(value):
+    if not 0 < value < math.inf:
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return value
 
 
 def _numbers(text: str) -> list[float]:
-    values = [t.strip() for t in text.split(",") if t.strip()]
+    try:
+        values = [_positive(t) for t in text.split(",") if t.strip()]
+    except argparse.ArgumentTypeError:
+        values = []
     if not values:
         raise argparse.ArgumentTypeError(f"expected positive numbers, comma-separated, got {text!r}")
-    try:
-        return [_positive(v) for v in values]
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(
-            f"expected positive numbers, comma-separated, got {text!r}"
-        ) from None
+    return values
 
 
 def _run(args, registry) -> int:

@@ -90,7 +90,7 @@ class ShapeLandmarks:
         self._ground: list[tuple[float, np.ndarray]] = []
         wanted = params.view_noise or params.model_sigmas
         self._uncertainty = _load_models(params.uncertainty_models) if wanted else None
-        self._best_variance: dict[str, tuple[float, float | None]] = {}
+        self._best_stds_cache: dict[str, tuple[float, float | None]] = {}
 
     def model(self, class_name: str) -> str:
         """The landmark model of a class: its own entry, else the ``"*"`` entry, else ``centroid``."""
@@ -270,13 +270,13 @@ class ShapeLandmarks:
             # a look is as good as the mean of the two (a chair seen from the front or behind)
             var = 0.5 * (var + cm.variances(ranges, math.pi - angles)[:, position].mean(axis=1))
         window = len(var) / float(np.sum(1.0 / var))
-        best = self._best_variances(cm)[0] ** 2
+        best = self._best_stds(cm)[0] ** 2
         return float(np.sqrt(max(window / best, 1.0)))
 
-    def _best_variances(self, cm: ClassModel) -> tuple[float, float | None]:
+    def _best_stds(self, cm: ClassModel) -> tuple[float, float | None]:
         """The std of a class's best looks: position (mean over x / y) and, for a model with them,
         dimensions (mean over length / width); the 5th percentile over the model's domain."""
-        best = self._best_variance.get(cm.class_name)
+        best = self._best_stds_cache.get(cm.class_name)
         if best is None:
             r, a = np.meshgrid(np.linspace(*cm.range_bounds, 40), np.linspace(*cm.angle_bounds, 37))
             var = cm.variances(r.ravel(), a.ravel())
@@ -288,7 +288,7 @@ class ShapeLandmarks:
                 float(np.sqrt(np.percentile(var[:, position].mean(axis=1), 5))),
                 float(np.sqrt(np.percentile(var[:, dims].mean(axis=1), 5))) if dims else None,
             )
-            self._best_variance[cm.class_name] = best
+            self._best_stds_cache[cm.class_name] = best
         return best
 
     def base_sigmas(self, class_name: str, model: str) -> tuple[float, float]:
@@ -299,7 +299,7 @@ class ShapeLandmarks:
         cm = self.class_model(class_name, model) if self.p.model_sigmas else None
         if cm is None:
             return self.p.sigma_translation, self.p.sigma_dims
-        position, dims = self._best_variances(cm)
+        position, dims = self._best_stds(cm)
         return position, self.p.sigma_dims if dims is None else dims
 
     def size_prior(self, rec: _ShapeRec) -> tuple[np.ndarray, np.ndarray] | None:
