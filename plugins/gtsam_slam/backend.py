@@ -135,6 +135,15 @@ class GtsamSlam(Slam):
             " never seen from one key pose, are one object (object_map: boxes); 0.2 m halved the"
             " duplicates left on 5 seeds x 3 buildings (docs/objects.md)",
         )
+        object_twin_share: float | None = Field(
+            0.6,
+            gt=0,
+            le=1,
+            description="a reported box of a class seen from fewer key poses is a part of another's object"
+            " (a table's top or one face mapped again after the drift) when this share of its points lies"
+            " inside the other's box inflated by object_twin_margin, never seen from one key pose with it;"
+            " null: only the centres' rule (object_map: boxes; docs/objects.md)",
+        )
 
         @model_validator(mode="before")
         @classmethod
@@ -291,7 +300,11 @@ class GtsamSlam(Slam):
         g = self._graph
         plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
         reported = fitted_boxes(
-            plain, g.estimate, self._T_body_cam, twin_margin=self.params.object_twin_margin
+            plain,
+            g.estimate,
+            self._T_body_cam,
+            twin_margin=self.params.object_twin_margin,
+            twin_share=self.params.object_twin_share,
         )
         boxes = reported.boxes
         return [

@@ -140,11 +140,51 @@ def test_one_chair_mapped_twice_is_reported_once_and_neighbours_stay_apart() -> 
     seen(8, row[2], -2.5, np.pi / 2)
     landmarks = [SimpleNamespace(id=j, class_name="chair") for j in (0, 1, 2, 7)]
     landmarks.append(SimpleNamespace(id=8, class_name="table"))
-    reported = fitted_boxes(report(landmarks, observations), values, camera_mount(), twin_margin=0.2)
-    assert reported.folded == {7: 1}  # the twin joins the chair seen more, not the row
+    for share in (None, 0.6):  # a neighbour's points are not inside a chair's box either
+        reported = fitted_boxes(
+            report(landmarks, observations), values, camera_mount(), twin_margin=0.2, twin_share=share
+        )
+        assert reported.folded == {7: 1}  # the twin joins the chair seen more, not the row
     assert set(reported.boxes) == {0, 1, 2, 8}
     # two landmarks seen from one key pose are two objects, however their boxes overlap
     k = seen(9, row[0], -2.5, np.pi / 2)
     seen(10, row[0], -2.5, np.pi / 2, shared_key=k)
     apart = [SimpleNamespace(id=j, class_name="chair") for j in (9, 10)]
     assert fitted_boxes(report(apart, observations), values, camera_mount(), twin_margin=0.2).folded == {}
+
+
+def test_a_part_of_a_table_mapped_again_alone_joins_the_table() -> None:
+    rng = np.random.default_rng(6)
+    table = np.array([1.6, 0.9, 0.74])
+    values = gtsam.Values()
+    observations: dict[int, list] = {}
+    key = 0
+
+    def seen(j: int, pts: np.ndarray, camera: np.ndarray, yaw: float) -> None:
+        nonlocal key
+        T = pose_from(camera, yaw)
+        values.insert(key, gtsam.Pose3(T))
+        key += 1
+        body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
+        observations.setdefault(j, []).append(SimpleNamespace(pose_key=key - 1, points=body))
+
+    def side(y: float) -> np.ndarray:
+        pts = rng.uniform(0, 1, (150, 3)) * table
+        pts[:, 1] = y + rng.normal(0.0, 0.01, 150)
+        return pts
+
+    top = rng.uniform(0, 1, (150, 3)) * np.array([1.6, 0.45, 0.0])  # the near half of the top alone
+    top[:, 2] = table[2] + rng.normal(0.0, 0.01, 150)
+    for _ in range(3):  # landmark 0: the table from both long sides
+        seen(0, side(0.0), np.array([0.8, -2.5, 1.2]), np.pi / 2)
+        seen(0, side(table[1]), np.array([0.8, 3.4, 1.2]), -np.pi / 2)
+    seen(1, top, np.array([0.8, -1.5, 2.0]), np.pi / 2)  # landmark 1: its top, seen once from above
+    landmarks = [SimpleNamespace(id=j, class_name="table") for j in (0, 1)]
+    for share, folded in ((None, {}), (0.6, {1: 0})):  # the top's box holds no other centre
+        reported = fitted_boxes(
+            report(landmarks, observations), values, camera_mount(), twin_margin=0.2, twin_share=share
+        )
+        assert reported.folded == folded
+    assert set(reported.boxes) == {0}
+    centre = np.asarray(reported.boxes[0]["center"])
+    np.testing.assert_allclose(centre[:2], table[:2] / 2, atol=0.1)
