@@ -144,6 +144,15 @@ class GtsamSlam(Slam):
             " inside the other's box inflated by object_twin_margin, never seen from one key pose with it;"
             " null: only the centres' rule (object_map: boxes; docs/objects.md)",
         )
+        object_trim_spreads: float | None = Field(
+            2.5,
+            gt=0,
+            le=100,
+            description="a detection whose points' middle lies farther than this many of its landmark's"
+            " median detection spreads from the middle of the landmark's detections is left out of the"
+            " reported box (a neighbour's detection the association took under drift); null: all count"
+            " (object_map: boxes; docs/objects.md)",
+        )
 
         @model_validator(mode="before")
         @classmethod
@@ -305,6 +314,7 @@ class GtsamSlam(Slam):
             self._T_body_cam,
             twin_margin=self.params.object_twin_margin,
             twin_share=self.params.object_twin_share,
+            trim_spreads=self.params.object_trim_spreads,
         )
         boxes = reported.boxes
         return [

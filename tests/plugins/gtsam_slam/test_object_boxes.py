@@ -188,3 +188,29 @@ def test_a_part_of_a_table_mapped_again_alone_joins_the_table() -> None:
     assert set(reported.boxes) == {0}
     centre = np.asarray(reported.boxes[0]["center"])
     np.testing.assert_allclose(centre[:2], table[:2] / 2, atol=0.1)
+
+
+def test_a_neighbours_detection_given_to_a_chair_is_left_out_of_its_box() -> None:
+    rng = np.random.default_rng(7)
+    values = gtsam.Values()
+    observations: dict[int, list] = {}
+    row = [np.array([0.75 * i, 0.0, 0.0]) for i in range(2)]  # two chairs 0.75 m apart
+    for key in range(8):
+        chair = row[1] if key == 7 else row[0]  # the last view of landmark 0 is the neighbour's
+        camera = np.array([0.25 + 0.3 * (key % 3), -2.5, 1.2])
+        T = pose_from(camera, np.pi / 2)
+        values.insert(key, gtsam.Pose3(T))
+        pts = face(chair, chair[1], rng)
+        body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
+        xy = pts[:, :2] - pts[:, :2].mean(axis=0)
+        spread = float(np.sqrt(np.mean(np.sum(xy**2, axis=1))))
+        observations.setdefault(0, []).append(SimpleNamespace(pose_key=key, points=body, spread=spread))
+    landmarks = [SimpleNamespace(id=0, class_name="chair")]
+    centre = row[0] + CHAIR / 2
+    errors = {}
+    for trim in (None, 2.5):
+        box = fitted_boxes(
+            report(landmarks, observations), values, camera_mount(), twin_margin=0.2, trim_spreads=trim
+        ).boxes[0]
+        errors[trim] = abs(box["center"][0] - centre[0])
+    assert errors[2.5] < 0.05 < errors[None]  # the neighbour's points widened the box towards it
