@@ -220,6 +220,9 @@ class DenseGrid:
         self.model = model
         self.value = np.zeros(self.shape, dtype=np.float32)
         self.known = np.zeros(self.shape, dtype=bool)
+        #: frames integrated so far, and per voxel the frame that last updated it (:meth:`forget`)
+        self.frame = 0
+        self.updated = np.zeros(self.shape, dtype=np.int64)
 
     @property
     def hi(self) -> np.ndarray:
@@ -243,7 +246,26 @@ class DenseGrid:
         v, k = self.value.reshape(-1), self.known.reshape(-1)
         v[flat] = self.model.update(v[flat], k[flat], is_hit)
         k[flat] = True
+        self.mark_updated(flat)
         return box_of_indices(index[inside], self.voxel)
+
+    def mark_updated(self, flat: np.ndarray) -> None:
+        """Count one more frame; the voxels at flat (C-order) indices were updated by it."""
+        self.frame += 1
+        self.updated.reshape(-1)[flat] = self.frame
+
+    def forget(self, frames: int) -> int:
+        """Make voxels no frame updated in the last ``frames`` frames UNKNOWN again; return how many.
+
+        A window that follows the camera keeps what it saw for as long as it stays inside the
+        window — minutes, in a building the window spans — in the frame the odometry had then:
+        VIO's drift since then moves it against what is seen now (a demo flight: the free air
+        of the floor above, seen 200 s earlier, lay 0.15 m lower than the slab now overhead and
+        cleared it in the local map, and the vehicle climbed into it; docs/mapping.md)."""
+        stale = self.known & (self.frame - self.updated >= frames)
+        self.known[stale] = False
+        self.value[stale] = 0.0
+        return int(stale.sum())
 
     def states_at_index(self, index: np.ndarray) -> np.ndarray:
         """int8 VoxelState of voxel indices (N×3); UNKNOWN outside the block."""
@@ -275,6 +297,7 @@ class DenseGrid:
             return
         value = np.zeros(self.shape, dtype=np.float32)
         known = np.zeros(self.shape, dtype=bool)
+        updated = np.zeros(self.shape, dtype=np.int64)
         a = np.maximum(lo, self.lo)
         b = np.minimum(lo + np.array(self.shape), self.hi)
         if np.all(b > a):
@@ -282,7 +305,8 @@ class DenseGrid:
             dst = tuple(slice(int(x), int(y)) for x, y in zip(a - lo, b - lo, strict=True))
             value[dst] = self.value[src]
             known[dst] = self.known[src]
-        self.value, self.known, self.lo = value, known, lo
+            updated[dst] = self.updated[src]
+        self.value, self.known, self.updated, self.lo = value, known, updated, lo
 
     # ------------------------------------------------------------------ storage API used by backends
     def integrate_depth(
@@ -317,3 +341,4 @@ class DenseGrid:
         flat, inside = self._flat(arrays["index"])
         self.value.reshape(-1)[flat] = arrays["logodds"][inside]
         self.known.reshape(-1)[flat] = True
+        self.updated[:] = self.frame  # what a saved map holds counts as seen now

@@ -140,6 +140,14 @@ class VoxelMapParams(BackendParams):
     local_size: tuple[_Window, _Window, _Window] = Field(
         (10.0, 10.0, 5.0), description="Size (x, y, z) in metres of the ego-centric local window."
     )
+    local_memory_frames: int = Field(
+        300,
+        ge=0,
+        le=1_000_000,
+        description="A local voxel no depth frame updated in this many frames becomes unknown again (300:"
+        " a minute at 5 Hz): the window keeps what it saw in the odometry frame of then, which VIO's"
+        " drift since moves against what is there now; 0: kept while inside the window",
+    )
     local_recentre: float = Field(
         1.0,
         ge=0,
@@ -429,6 +437,7 @@ class VoxelStorage(Protocol):
     def to_arrays(self) -> dict[str, np.ndarray]: ...
     def from_arrays(self, arrays: dict[str, np.ndarray]) -> None: ...
     def shift_to(self, lo: np.ndarray) -> None: ...
+    def forget(self, frames: int) -> int: ...  # the local window's: voxels no recent frame updated
 
 
 class VoxelMapBase(Mapping):
@@ -588,7 +597,10 @@ class VoxelMapBase(Mapping):
             self.local_map.shift_to(to_index(cam[None], p.local_voxel)[0] - shape // 2)
             self._local_centre = cam.copy()
         stride = p.local_stride or auto_stride(K, p.local_voxel, p.max_range)
-        return self.local_map.integrate_depth(depth, K, T_odom_cam, stride, p.max_range)
+        box = self.local_map.integrate_depth(depth, K, T_odom_cam, stride, p.max_range)
+        if p.local_memory_frames:
+            self.local_map.forget(p.local_memory_frames)
+        return box
 
     def _local_shape(self) -> tuple[int, int, int]:
         return tuple(int(np.ceil(s / self.params.local_voxel)) for s in self.params.local_size)

@@ -66,7 +66,9 @@ class WindowGrid(DenseGrid):
         """One log-odds update per voxel a frame touched inside the window; return their box."""
         from amslam.plugins.voxel_open3d.projective import fold_into_dense
 
-        return fold_into_dense(frame, self.value, self.known, self.lo, self.model)
+        box = fold_into_dense(frame, self.value, self.known, self.lo, self.model)
+        self.mark_updated(self._flat(frame.indices())[0])
+        return box
 
 
 class Open3dVoxelMap(VoxelMapBase):

@@ -28,3 +28,36 @@ def test_a_shift_keeps_what_is_inside_and_forgets_what_left(jump):
     np.testing.assert_array_equal(grid.lo, new)
     # what enters the window is unknown until seen
     assert grid.known.sum() == inside.sum()
+
+
+@pytest.mark.parametrize("window", ["dense", "projective"])
+def test_the_window_forgets_what_no_recent_frame_updated(window):
+    """A wall seen once and then not again for ``frames`` frames is unknown again; one seen in
+    every frame stays (the window keeps voxels for as long as they are inside it, in the odometry
+    frame of when they were seen)."""
+    from amslam.lib.voxel_grid import DenseGrid
+
+    model = LogOddsModel(0.7, 0.4, 0.8, 0.12, 0.97)
+    grid = (DenseGrid if window == "dense" else WindowGrid)(0.1, np.zeros(3, np.int64), (40, 40, 20), model)
+    K = np.array([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]])
+
+    def camera(z_axis: list[float], x_axis: list[float]) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = np.column_stack([x_axis, [0.0, 0.0, -1.0], z_axis])  # image rows downwards
+        T[:3, 3] = [0.5, 2.0, 1.0]
+        return T
+
+    towards_wall, away = camera([1.0, 0.0, 0.0], [0.0, -1.0, 0.0]), camera([0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
+    wall, near = np.full((20, 20), 2.0, np.float32), np.full((20, 20), 0.5, np.float32)
+    wall_voxel = np.array([[25, 20, 10]])  # 2 m ahead of the camera at x = 0.5 m
+
+    def look(T: np.ndarray, depth: np.ndarray, frames: int) -> int:
+        for _ in range(frames):
+            grid.integrate_depth(depth, K, T, 1, 5.0)
+            grid.forget(10)
+        return int(grid.states_at_index(wall_voxel)[0])
+
+    assert look(towards_wall, wall, 1) == 1  # OCCUPIED
+    assert look(away, near, 8) == 1  # 8 frames without it: kept
+    assert look(away, near, 2) == -1  # 10: unknown again
+    assert look(towards_wall, wall, 15) == 1  # seen in every frame: kept
