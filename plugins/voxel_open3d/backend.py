@@ -66,9 +66,8 @@ class WindowGrid(DenseGrid):
         """One log-odds update per voxel a frame touched inside the window; return their box."""
         from amslam.plugins.voxel_open3d.projective import fold_into_dense
 
-        box = fold_into_dense(frame, self.value, self.known, self.lo, self.model)
-        self.mark_updated(self._flat(frame.indices())[0])
-        return box
+        self.frame += 1
+        return fold_into_dense(frame, self.value, self.known, self.lo, self.model, self.updated, self.frame)
 
 
 class Open3dVoxelMap(VoxelMapBase):

@@ -194,10 +194,17 @@ def log_odds_constants(model: LogOddsModel) -> tuple[np.float32, ...]:
 
 
 def fold_into_dense(
-    frame: FrameUpdate, value: np.ndarray, known: np.ndarray, lo: np.ndarray, model: LogOddsModel
+    frame: FrameUpdate,
+    value: np.ndarray,
+    known: np.ndarray,
+    lo: np.ndarray,
+    model: LogOddsModel,
+    updated: np.ndarray,
+    stamp: int,
 ) -> BoundingBox:
     """Apply a frame's update to a dense log-odds block (indices ``[lo, lo + value.shape)``; voxels
-    outside it are dropped); return the box of the voxels updated."""
+    outside it are dropped), writing ``stamp`` into ``updated`` (same shape) at every voxel it
+    updates; return the box of the voxels updated."""
     box = np.empty(6, dtype=np.int64)
     n = _fold_dense(
         frame.status.reshape(-1),
@@ -206,6 +213,8 @@ def fold_into_dense(
         np.array(frame.status.shape, np.int64),
         value.reshape(-1),
         known.reshape(-1),
+        updated.reshape(-1),
+        np.int64(stamp),
         np.asarray(lo, np.int64),
         np.array(value.shape, np.int64),
         *log_odds_constants(model),
@@ -289,7 +298,22 @@ def _grow(box, n, i, j, k):  # pragma: no cover - compiled
 
 @numba.njit(nogil=True, cache=True)
 def _fold_dense(
-    status, touched, frame_lo, frame_shape, value, known, lo, shape, l_occ, l_hit, l_miss, l_min, l_max, box
+    status,
+    touched,
+    frame_lo,
+    frame_shape,
+    value,
+    known,
+    updated,
+    stamp,
+    lo,
+    shape,
+    l_occ,
+    l_hit,
+    l_miss,
+    l_min,
+    l_max,
+    box,
 ):  # pragma: no cover - compiled
     n = 0
     for f in touched:
@@ -300,6 +324,7 @@ def _fold_dense(
             continue
         g = (r0 * shape[1] + r1) * shape[2] + r2
         _update(value, known, g, status[f] == HIT, l_occ, l_hit, l_miss, l_min, l_max)
+        updated[g] = stamp
         _grow(box, n, i, j, k)
         n += 1
     return n
