@@ -255,14 +255,18 @@ class DenseGrid:
         self.updated.reshape(-1)[flat] = self.frame
 
     def forget(self, frames: int) -> int:
-        """Make voxels no frame updated in the last ``frames`` frames UNKNOWN again; return how many.
+        """Make free voxels no frame updated in the last ``frames`` frames UNKNOWN again; return
+        how many.
 
         A window that follows the camera keeps what it saw for as long as it stays inside the
         window — minutes, in a building the window spans — in the frame the odometry had then:
-        VIO's drift since then moves it against what is seen now (a demo flight: the free air
-        of the floor above, seen 200 s earlier, lay 0.15 m lower than the slab now overhead and
-        cleared it in the local map, and the vehicle climbed into it; docs/mapping.md)."""
-        stale = self.known & (self.frame - self.updated >= frames)
+        VIO's drift since then moves it against what is seen now (a demo flight: the free air of
+        the floor above, seen 200 s earlier, lay 0.15 m lower than the slab now overhead, cleared
+        it in the local map, and the vehicle climbed into it; docs/mapping.md). Stale free space
+        is what is dangerous: it can stand where something now is. A stale obstacle only keeps the
+        vehicle away, and the guards count unknown space as free anyway, so occupied voxels stay
+        (forgetting them too changed every one-floor flight's path)."""
+        stale = self.known & (self.value <= self.model.l_occ) & (self.frame - self.updated >= frames)
         self.known[stale] = False
         self.value[stale] = 0.0
         return int(stale.sum())

@@ -144,9 +144,9 @@ class VoxelMapParams(BackendParams):
         300,
         ge=0,
         le=1_000_000,
-        description="A local voxel no depth frame updated in this many frames becomes unknown again (300:"
-        " a minute at 5 Hz): the window keeps what it saw in the odometry frame of then, which VIO's"
-        " drift since moves against what is there now; 0: kept while inside the window",
+        description="A free local voxel no depth frame updated in this many frames becomes unknown again"
+        " (300: a minute at 5 Hz): the window keeps what it saw in the odometry frame of then, which"
+        " VIO's drift since moves against what is there now; 0: kept while inside the window",
     )
     local_recentre: float = Field(
         1.0,

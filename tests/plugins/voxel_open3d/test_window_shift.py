@@ -31,10 +31,11 @@ def test_a_shift_keeps_what_is_inside_and_forgets_what_left(jump):
 
 
 @pytest.mark.parametrize("window", ["dense", "projective"])
-def test_the_window_forgets_what_no_recent_frame_updated(window):
-    """A wall seen once and then not again for ``frames`` frames is unknown again; one seen in
-    every frame stays (the window keeps voxels for as long as they are inside it, in the odometry
-    frame of when they were seen)."""
+def test_the_window_forgets_free_space_no_recent_frame_updated(window):
+    """Free space seen once and then not again for ``frames`` frames is unknown again, free space
+    seen in every frame stays, and an obstacle stays however old (the window keeps voxels for as
+    long as they are inside it, in the odometry frame of when they were seen: stale free space can
+    stand where something now is, a stale obstacle only keeps the vehicle away)."""
     from amslam.lib.voxel_grid import DenseGrid
 
     model = LogOddsModel(0.7, 0.4, 0.8, 0.12, 0.97)
@@ -49,15 +50,16 @@ def test_the_window_forgets_what_no_recent_frame_updated(window):
 
     towards_wall, away = camera([1.0, 0.0, 0.0], [0.0, -1.0, 0.0]), camera([0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
     wall, near = np.full((20, 20), 2.0, np.float32), np.full((20, 20), 0.5, np.float32)
-    wall_voxel = np.array([[25, 20, 10]])  # 2 m ahead of the camera at x = 0.5 m
+    # 1 m and 2 m ahead of the camera at x = 0.5 m: air, then the wall
+    air_and_wall = np.array([[15, 20, 10], [25, 20, 10]])
 
-    def look(T: np.ndarray, depth: np.ndarray, frames: int) -> int:
+    def look(T: np.ndarray, depth: np.ndarray, frames: int) -> list[int]:
         for _ in range(frames):
             grid.integrate_depth(depth, K, T, 1, 5.0)
             grid.forget(10)
-        return int(grid.states_at_index(wall_voxel)[0])
+        return grid.states_at_index(air_and_wall).tolist()
 
-    assert look(towards_wall, wall, 1) == 1  # OCCUPIED
-    assert look(away, near, 8) == 1  # 8 frames without it: kept
-    assert look(away, near, 2) == -1  # 10: unknown again
-    assert look(towards_wall, wall, 15) == 1  # seen in every frame: kept
+    assert look(towards_wall, wall, 1) == [0, 1]  # FREE, OCCUPIED
+    assert look(away, near, 8) == [0, 1]  # 8 frames without them: kept
+    assert look(away, near, 2) == [-1, 1]  # 10: the air is unknown again, the wall stays
+    assert look(towards_wall, wall, 15) == [0, 1]  # seen in every frame: kept
