@@ -167,7 +167,7 @@ def main() -> None:
 
     forgetting, keeping = best_ms(run_local(300)), best_ms(run_local(0))
     print(
-        f"\nlocal window (0.1 m, every pixel, open3d): {forgetting:.1f} ms per frame forgetting stale"
+        f"\nlocal window (0.1 m, every pixel, open3d): {forgetting:.1f} ms per frame forgetting stale free"
         f" voxels (local_memory_frames 300), {keeping:.1f} ms keeping them (0): x{forgetting / keeping:.2f}"
     )
 
