@@ -220,9 +220,10 @@ class DenseGrid:
         self.model = model
         self.value = np.zeros(self.shape, dtype=np.float32)
         self.known = np.zeros(self.shape, dtype=bool)
-        #: frames integrated so far, and per voxel the frame that last updated it (:meth:`forget`)
+        #: frames integrated so far, and per voxel the frame that last updated it, kept from the
+        #: first :meth:`forget` on (a local window's; a global grid does not pay for the array)
         self.frame = 0
-        self.updated = np.zeros(self.shape, dtype=np.int64)
+        self.updated: np.ndarray | None = None
 
     @property
     def hi(self) -> np.ndarray:
@@ -252,7 +253,8 @@ class DenseGrid:
     def mark_updated(self, flat: np.ndarray) -> None:
         """Count one more frame; the voxels at flat (C-order) indices were updated by it."""
         self.frame += 1
-        self.updated.reshape(-1)[flat] = self.frame
+        if self.updated is not None:
+            self.updated.reshape(-1)[flat] = self.frame
 
     def forget(self, frames: int) -> int:
         """Make free voxels no frame updated in the last ``frames`` frames UNKNOWN again; return
@@ -266,6 +268,8 @@ class DenseGrid:
         is what is dangerous: it can stand where something now is. A stale obstacle only keeps the
         vehicle away, and the guards count unknown space as free anyway, so occupied voxels stay
         (forgetting them too changed every one-floor flight's path)."""
+        if self.updated is None:  # from now on: what the grid holds counts as seen now
+            self.updated = np.full(self.shape, self.frame, dtype=np.int64)
         stale = self.known & (self.value <= self.model.l_occ) & (self.frame - self.updated >= frames)
         self.known[stale] = False
         self.value[stale] = 0.0
@@ -301,7 +305,7 @@ class DenseGrid:
             return
         value = np.zeros(self.shape, dtype=np.float32)
         known = np.zeros(self.shape, dtype=bool)
-        updated = np.zeros(self.shape, dtype=np.int64)
+        updated = None if self.updated is None else np.zeros(self.shape, dtype=np.int64)
         a = np.maximum(lo, self.lo)
         b = np.minimum(lo + np.array(self.shape), self.hi)
         if np.all(b > a):
@@ -309,7 +313,8 @@ class DenseGrid:
             dst = tuple(slice(int(x), int(y)) for x, y in zip(a - lo, b - lo, strict=True))
             value[dst] = self.value[src]
             known[dst] = self.known[src]
-            updated[dst] = self.updated[src]
+            if updated is not None:
+                updated[dst] = self.updated[src]
         self.value, self.known, self.updated, self.lo = value, known, updated, lo
 
     # ------------------------------------------------------------------ storage API used by backends
@@ -345,4 +350,5 @@ class DenseGrid:
         flat, inside = self._flat(arrays["index"])
         self.value.reshape(-1)[flat] = arrays["logodds"][inside]
         self.known.reshape(-1)[flat] = True
-        self.updated[:] = self.frame  # what a saved map holds counts as seen now
+        if self.updated is not None:
+            self.updated[:] = self.frame  # what a saved map holds counts as seen now

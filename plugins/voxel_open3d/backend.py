@@ -52,7 +52,12 @@ class Open3dVoxelMapParams(VoxelMapParams):
 
 class WindowGrid(DenseGrid):
     """The local window: a dense log-odds block that follows the camera (``DenseGrid.shift_to``
-    keeps the overlap), updated by the projective kernel."""
+    keeps the overlap), updated by the projective kernel, which stamps the voxels it updates
+    (``DenseGrid.forget``)."""
+
+    def __init__(self, voxel: float, lo: np.ndarray, shape: tuple[int, int, int], model: LogOddsModel):
+        super().__init__(voxel, lo, shape, model)
+        self.updated = np.zeros(self.shape, dtype=np.int64)
 
     def integrate_depth(
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int, max_range: float
