@@ -172,10 +172,12 @@ def _twins(
         for b in ids[a_i + 1 :]:
             if b in into or seen[a].class_name != seen[b].class_name or seen[a].keys & seen[b].keys:
                 continue
-            inside_a = shapes.points_inside(fits[a], shapes.shape_center(fits[b])[None], margin)[0]
-            inside_b = shapes.points_inside(fits[b], shapes.shape_center(fits[a])[None], margin)[0]
-            mutual = inside_a and inside_b
-            part = share is not None and shapes.points_inside(fits[a], seen[b].points, margin).mean() >= share
-            if mutual or part:
-                into[b] = a
+            if _holds_centre(fits[a], fits[b], margin) and _holds_centre(fits[b], fits[a], margin):
+                into[b] = a  # each holds the other's centre
+            elif share is not None and shapes.points_inside(fits[a], seen[b].points, margin).mean() >= share:
+                into[b] = a  # b's points lie in a's box: a part of a seen alone
     return into
+
+
+def _holds_centre(box: dict, other: dict, margin: float) -> bool:
+    return bool(shapes.points_inside(box, shapes.shape_center(other)[None], margin)[0])
