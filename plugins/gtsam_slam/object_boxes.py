@@ -98,20 +98,7 @@ def fitted_boxes(
             out of its box (None: every detection counts).
         tolerance: a shortfall of the class's box up to this is noise, not a missing part (m).
     """
-    seen: dict[int, _Seen] = {}
-    for lm in landmarks:
-        obs = [o for o in lm.observations if o.points is not None and len(o.points)]
-        if not obs:
-            continue
-        poses = [values.atPose3(o.pose_key).matrix() for o in obs]
-        points = [transform_points(T, o.points) for T, o in zip(poses, obs, strict=True)]
-        kept = _consistent(points, obs, trim_spreads)
-        seen[lm.id] = _Seen(
-            lm.class_name,
-            np.vstack([points[i] for i in kept]),
-            np.array([(poses[i] @ T_body_cam)[:3, 3] for i in kept]),
-            {o.pose_key for o in obs},  # every view of it, for the twins' test
-        )
+    seen = {lm.id: v for lm in landmarks if (v := _seen(lm, values, T_body_cam, trim_spreads)) is not None}
     fits = {j: box for j, v in seen.items() if (box := _fit(v.points)) is not None}
     typical: dict[str, np.ndarray] = {}
     for cls in {seen[j].class_name for j in fits}:
@@ -138,6 +125,25 @@ def fitted_boxes(
     for k in folded:
         del out[k]
     return ObjectBoxes(out, folded)
+
+
+def _seen(
+    lm: LandmarkRec, values: gtsam.Values, T_body_cam: np.ndarray, trim_spreads: float | None
+) -> _Seen | None:
+    """What a landmark's detections with points saw, moved with the optimised key poses (the
+    detections :func:`_consistent` keeps); None without points."""
+    obs = [o for o in lm.observations if o.points is not None and len(o.points)]
+    if not obs:
+        return None
+    poses = [values.atPose3(o.pose_key).matrix() for o in obs]
+    points = [transform_points(T, o.points) for T, o in zip(poses, obs, strict=True)]
+    kept = _consistent(points, obs, trim_spreads)
+    return _Seen(
+        lm.class_name,
+        np.vstack([points[i] for i in kept]),
+        np.array([(poses[i] @ T_body_cam)[:3, 3] for i in kept]),
+        {o.pose_key for o in obs},  # every view of it, for the twins' test
+    )
 
 
 def _consistent(points: list[np.ndarray], observations: list, trim_spreads: float | None) -> list[int]:
