@@ -207,6 +207,42 @@ def traverse_rays(
     return free, hits
 
 
+def centres_in_front(
+    index: np.ndarray,
+    voxel: float,
+    depth: np.ndarray,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    max_range: float,
+) -> np.ndarray:
+    """Whether each voxel's centre lies in front of what the depth image measured at its pixel.
+
+    The free-space rule of the projective kernel (``open3d`` backend), for voxels a ray traversal
+    crossed: a voxel is free only if its centre projects into the image, no farther than
+    ``max_range``, and nearer than the range measured at that pixel (any range where the pixel has
+    no return). Exact traversal alone frees every voxel a ray crosses, including one it only
+    grazes on its way to a surface inside it: a level camera sees a ceiling at grazing angles,
+    its rays cross the bottom few centimetres of the ceiling's voxel layer before they end, and
+    the slab vanished from the map (a demo flight climbed into it, docs/mapping.md).
+    """
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    cam = (centres(index, voxel) - T[:3, 3]) @ T[:3, :3]  # centres in the camera frame
+    H, W = depth.shape
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    out = np.zeros(len(index), dtype=bool)
+    ahead = np.nonzero(cam[:, 2] > 0)[0]
+    x, y, z = cam[ahead].T
+    u, v = np.rint(fx * x / z + cx), np.rint(fy * y / z + cy)
+    seen = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    ahead, u, v = ahead[seen], u[seen].astype(np.int64), v[seen].astype(np.int64)
+    d = np.asarray(depth, dtype=np.float64)[v, u]
+    measured = d * np.sqrt(((u - cx) / fx) ** 2 + ((v - cy) / fy) ** 2 + 1.0)
+    measured = np.where(np.isfinite(d) & (d > 0) & (measured <= max_range), measured, np.inf)
+    rng = np.linalg.norm(cam[ahead], axis=1)
+    out[ahead] = (rng <= max_range) & (rng < measured)
+    return out
+
+
 class DenseGrid:
     """A dense block of log-odds voxels, indices ``[lo, lo + shape)`` of the shared lattice.
 
@@ -321,9 +357,12 @@ class DenseGrid:
     def integrate_depth(
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int, max_range: float
     ) -> BoundingBox:
-        """Ray-cast a depth image (reference kernel) and fuse it; return the touched box."""
+        """Ray-cast a depth image (reference kernel) and fuse it; return the touched box. Of the
+        voxels the rays cross, only those whose centre lies in front of the measured surface are
+        free (:func:`centres_in_front`)."""
         origin, dirs, lengths, hit = depth_rays(depth, K, T_world_cam, stride, max_range)
         free, hits = traverse_rays(origin, dirs, lengths, hit, self.voxel)
+        free = free[centres_in_front(decode(free), self.voxel, depth, K, T_world_cam, max_range)]
         return self.integrate_keys(free, hits)
 
     def voxels(self) -> tuple[np.ndarray, np.ndarray]:

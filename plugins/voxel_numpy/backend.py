@@ -1,6 +1,7 @@
 """The ``numpy`` mapping backend: :class:`~amslam.lib.voxel_map.VoxelMapBase` on
 :class:`~amslam.lib.voxel_grid.DenseGrid`, dense arrays bounded by the exploration area, updated by
-exact per-ray voxel traversal: the reference the other voxel backends are checked against.
+exact per-ray voxel traversal (free where a crossed voxel's centre lies in front of the measured
+surface): the reference the other voxel backends are checked against.
 """
 
 from __future__ import annotations
