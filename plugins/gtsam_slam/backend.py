@@ -30,6 +30,10 @@ from amslam.plugins.gtsam_slam.params import (
     GraphParams,
     KeyPoseParams,
     LoopClosureParams,
+    ObjectMap,
+    ObjectTrimSpreads,
+    ObjectTwinMargin,
+    ObjectTwinShare,
     ShapeParams,
 )
 from amslam.types import (
@@ -120,39 +124,10 @@ class GtsamSlam(Slam):
             " landmarks (eqs. 1-2); plane: ground points for the local ground planes, no landmarks",
         )
         shapes: ShapeParams = Field(default_factory=ShapeParams, description="shape landmark parameters")
-        object_map: Literal["boxes", "landmarks"] = Field(
-            "boxes",
-            description="the object map reported at the end (landmarks.json, the metrics): 'boxes', an"
-            " object of a centroid class at the box fitted to all its detections' points, moved with the"
-            " optimised key poses and completed with its class's median box (a visible part's middle"
-            " sits on the viewer's side); 'landmarks', the graph's points",
-        )
-        object_twin_margin: float = Field(
-            0.2,
-            ge=0,
-            le=10,
-            description="reported boxes of a class that hold each other's centres within this margin (m),"
-            " never seen from one key pose, are one object (object_map: boxes); 0.2 m halved the"
-            " duplicates left on 5 seeds x 3 buildings (docs/objects.md)",
-        )
-        object_twin_share: float | None = Field(
-            0.6,
-            gt=0,
-            le=1,
-            description="a reported box of a class seen from fewer key poses is a part of another's object"
-            " (a table's top or one face mapped again after the drift) when this share of its points lies"
-            " inside the other's box inflated by object_twin_margin, never seen from one key pose with it;"
-            " null: only the centres' rule (object_map: boxes; docs/objects.md)",
-        )
-        object_trim_spreads: float | None = Field(
-            2.5,
-            gt=0,
-            le=100,
-            description="a detection whose points' middle lies farther than this many of its landmark's"
-            " median detection spreads from the middle of the landmark's detections is left out of the"
-            " reported box (a neighbour's detection the association took under drift); null: all count"
-            " (object_map: boxes; docs/objects.md)",
-        )
+        object_map: ObjectMap = "boxes"
+        object_twin_margin: ObjectTwinMargin = 0.2
+        object_twin_share: ObjectTwinShare = 0.6
+        object_trim_spreads: ObjectTrimSpreads = 2.5
 
         @model_validator(mode="before")
         @classmethod
@@ -301,10 +276,7 @@ class GtsamSlam(Slam):
         out = self.landmarks()
         if self.params.object_map != "boxes" or self._T_body_cam is None:
             return out
-        from dataclasses import replace
-
-        from amslam.lib.shapes import shape_center
-        from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes
+        from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes, placed
 
         g = self._graph
         plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
@@ -316,12 +288,7 @@ class GtsamSlam(Slam):
             twin_share=self.params.object_twin_share,
             trim_spreads=self.params.object_trim_spreads,
         )
-        boxes = reported.boxes
-        return [
-            replace(lm, position=shape_center(boxes[lm.id]), shape=boxes[lm.id]) if lm.id in boxes else lm
-            for lm in out
-            if lm.id not in reported.folded
-        ]
+        return placed(out, reported)
 
     def uncertainty(self) -> tuple[float, float]:
         """(mean trace of the 6×6 pose marginals, mean trace of the landmarks' position marginals)."""

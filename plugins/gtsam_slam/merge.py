@@ -54,8 +54,10 @@ is written with :func:`write_landmarks` in the run folder's ``landmarks.json`` f
 landmark's shape is fitted to the points of all its detections moved into the world frame with
 the optimised key poses (by ``shape_fitter`` when given), a box then completed behind its visible
 faces with the class's size prior from the cameras of all its detections (the onboard window
-fits' rule); the graph's optimised shape is the fallback. The merge never reads the logs'
-``truth``.
+fits' rule); the graph's optimised shape is the fallback. A centroid-class object is reported
+as onboard (``object_map: boxes``, :mod:`.object_boxes`): at the box fitted to all its detections'
+points, every robot's, twins folded together — so a merged or re-solved map (``benchmarks/
+slam_offline.py``) is scored as the flight's own. The merge never reads the logs' ``truth``.
 """
 
 from __future__ import annotations
@@ -77,7 +79,16 @@ from amslam.lib.shape_factors import cuboid_keys, cylinder_keys
 from amslam.measurements import RobotMeasurements, read_measurements
 from amslam.plugins.gtsam_slam.frontend import FrontEnd
 from amslam.plugins.gtsam_slam.graph import LandmarkRec, PoseKeys, SlamGraph
-from amslam.plugins.gtsam_slam.params import AssociationParams, GraphParams, ShapeParams
+from amslam.plugins.gtsam_slam.object_boxes import ObjectBoxes, fitted_boxes, placed
+from amslam.plugins.gtsam_slam.params import (
+    AssociationParams,
+    GraphParams,
+    ObjectMap,
+    ObjectTrimSpreads,
+    ObjectTwinMargin,
+    ObjectTwinShare,
+    ShapeParams,
+)
 from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks
 from amslam.rundir import read_tum, write_landmarks
 from amslam.types import Detection, Landmark, Odometry
@@ -151,6 +162,11 @@ class MergeParams(BaseModel):
         20, ge=1, le=1_000_000, description="iSAM2 update at least every this many key poses"
     )
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the shape front end's point thinning")
+    # the reported object map: the onboard backend's rules and defaults (slam.object_*)
+    object_map: ObjectMap = "boxes"
+    object_twin_margin: ObjectTwinMargin = 0.2
+    object_twin_share: ObjectTwinShare = 0.6
+    object_trim_spreads: ObjectTrimSpreads = 2.5
 
 
 @dataclass
@@ -549,9 +565,40 @@ class _Merger:
                 )
             )
             contributors[new_id] = tuple(sorted({o.robot for o in lm.observations}))
+        out, contributors = self.reported_objects(lms, values, out, contributors)
         return MergeResult(
             out, trajectories, [log.robot for log in self.logs], contributors, fused, graph, values
         )
+
+    def reported_objects(
+        self,
+        lms: list[LandmarkRec],
+        values: gtsam.Values,
+        out: list[Landmark],
+        contributors: dict[int, tuple[int, ...]],
+    ) -> tuple[list[Landmark], dict[int, tuple[int, ...]]]:
+        """The object map as onboard reports it (``object_map: boxes``, :mod:`.object_boxes`):
+        each centroid-class object at the box fitted to all its points (every robot's), twins
+        folded into one; ``out`` and ``contributors`` are in the order of ``lms``."""
+        if self.p.object_map != "boxes":
+            return out, contributors
+        g = self.graph
+        reported = fitted_boxes(
+            [lm for lm in lms if g.shapes.model(lm.class_name) == "centroid"],
+            values,
+            {r: log.T_body_cam for r, log in enumerate(self.logs)},
+            twin_margin=self.p.object_twin_margin,
+            twin_share=self.p.object_twin_share,
+            trim_spreads=self.p.object_trim_spreads,
+        )
+        new_id = {lm.id: i for i, lm in enumerate(lms)}  # out's ids
+        reported = ObjectBoxes(
+            {new_id[j]: box for j, box in reported.boxes.items()},
+            {new_id[j]: new_id[into] for j, into in reported.folded.items()},
+        )
+        for gone, into in reported.folded.items():  # a folded twin's robots saw the survivor
+            contributors[into] = tuple(sorted({*contributors[into], *contributors.pop(gone)}))
+        return placed(out, reported), contributors
 
 
 def merge_measurements(

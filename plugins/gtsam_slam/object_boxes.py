@@ -15,15 +15,16 @@ their logs, the objects' mean error fell from 0.347 to 0.244 m, lower on every f
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
 
 from amslam.geometry import transform_points
 from amslam.lib import shapes
-from amslam.plugins.gtsam_slam.graph import LandmarkRec
+from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation
+from amslam.types import Landmark
 
 #: Fewest points a box is fitted to; fewer and the graph's point stays.
 MIN_POINTS = 20
@@ -55,7 +56,7 @@ class _Seen:
 def fitted_boxes(
     landmarks: Iterable[LandmarkRec],
     values: gtsam.Values,
-    T_body_cam: np.ndarray,
+    T_body_cam: np.ndarray | Mapping[int, np.ndarray],
     *,
     twin_margin: float,
     twin_share: float | None = None,
@@ -90,7 +91,8 @@ def fitted_boxes(
             ``points``, ``spread``; the graph's fusion has moved a fused twin's observations to its
             survivor).
         values: the optimised key poses.
-        T_body_cam: the camera mount (the cameras' positions tell which faces were seen).
+        T_body_cam: the camera mount (the cameras' positions tell which faces were seen), or each
+            robot's by :attr:`.Observation.robot` (the base's merge of several robots).
         twin_margin: each box is inflated by this for the twins' test (m).
         twin_share: the share of a landmark's points inside another's box that makes it a part of
             that object (None: only the centres' rule).
@@ -127,8 +129,22 @@ def fitted_boxes(
     return ObjectBoxes(out, folded)
 
 
+def placed(landmarks: Iterable[Landmark], reported: ObjectBoxes) -> list[Landmark]:
+    """The reported object map: ``landmarks`` at their boxes (:func:`fitted_boxes`, by
+    :attr:`Landmark.id`), those folded into a twin left out; a landmark without a box unchanged."""
+    boxes = reported.boxes
+    return [
+        replace(lm, position=shapes.shape_center(boxes[lm.id]), shape=boxes[lm.id]) if lm.id in boxes else lm
+        for lm in landmarks
+        if lm.id not in reported.folded
+    ]
+
+
 def _seen(
-    lm: LandmarkRec, values: gtsam.Values, T_body_cam: np.ndarray, trim_spreads: float | None
+    lm: LandmarkRec,
+    values: gtsam.Values,
+    T_body_cam: np.ndarray | Mapping[int, np.ndarray],
+    trim_spreads: float | None,
 ) -> _Seen | None:
     """What a landmark's detections with points saw, moved with the optimised key poses (the
     detections :func:`_consistent` keeps); None without points."""
@@ -141,9 +157,13 @@ def _seen(
     return _Seen(
         lm.class_name,
         np.vstack([points[i] for i in kept]),
-        np.array([(poses[i] @ T_body_cam)[:3, 3] for i in kept]),
+        np.array([(poses[i] @ _mount(T_body_cam, obs[i]))[:3, 3] for i in kept]),
         {o.pose_key for o in obs},  # every view of it, for the twins' test
     )
+
+
+def _mount(T_body_cam: np.ndarray | Mapping[int, np.ndarray], observation: Observation) -> np.ndarray:
+    return T_body_cam[observation.robot] if isinstance(T_body_cam, Mapping) else T_body_cam
 
 
 def _consistent(points: list[np.ndarray], observations: list, trim_spreads: float | None) -> list[int]:

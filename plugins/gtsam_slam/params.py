@@ -20,6 +20,10 @@ __all__ = [
     "GraphParams",
     "KeyPoseParams",
     "LoopClosureParams",
+    "ObjectMap",
+    "ObjectTrimSpreads",
+    "ObjectTwinMargin",
+    "ObjectTwinShare",
     "ShapeParams",
     "SizePrior",
 ]
@@ -27,6 +31,50 @@ __all__ = [
 
 #: a size or its spread, m: above zero and at most 100 m (no object is larger)
 _Size = Annotated[float, Field(gt=0, le=100)]
+
+# The reported object map's rules (:mod:`.object_boxes`), one definition for the onboard backend's
+# ``object_*`` parameters and the base merge's (``MergeParams``): both report objects alike.
+ObjectMap = Annotated[
+    Literal["boxes", "landmarks"],
+    Field(
+        description="the object map reported at the end (landmarks.json, the metrics): 'boxes', an"
+        " object of a centroid class at the box fitted to all its detections' points, moved with the"
+        " optimised key poses and completed with its class's median box (a visible part's middle"
+        " sits on the viewer's side); 'landmarks', the graph's points",
+    ),
+]
+ObjectTwinMargin = Annotated[
+    float,
+    Field(
+        ge=0,
+        le=10,
+        description="reported boxes of a class that hold each other's centres within this margin (m),"
+        " never seen from one key pose, are one object (object_map: boxes); 0.2 m halved the"
+        " duplicates left on 5 seeds x 3 buildings (docs/objects.md)",
+    ),
+]
+ObjectTwinShare = Annotated[
+    float | None,
+    Field(
+        gt=0,
+        le=1,
+        description="a reported box of a class seen from fewer key poses is a part of another's object"
+        " (a table's top or one face mapped again after the drift) when this share of its points lies"
+        " inside the other's box inflated by object_twin_margin, never seen from one key pose with it;"
+        " null: only the centres' rule (object_map: boxes; docs/objects.md)",
+    ),
+]
+ObjectTrimSpreads = Annotated[
+    float | None,
+    Field(
+        gt=0,
+        le=100,
+        description="a detection whose points' middle lies farther than this many of its landmark's"
+        " median detection spreads from the middle of the landmark's detections is left out of the"
+        " reported box (a neighbour's detection the association took under drift); null: all count"
+        " (object_map: boxes; docs/objects.md)",
+    ),
+]
 
 
 class SizePrior(BaseModel):

@@ -142,7 +142,9 @@ def test_merge_runs_writes_landmarks_json(two_robots: tuple[LoopWorld, Path, Pat
     def fit(class_name: str, points: np.ndarray) -> dict:
         return {"model": "blob", "center": points.mean(axis=0), "n": len(points)}
 
-    result = merge_runs([a, b], shape_fitter=fit)
+    # object_map "landmarks": the fitter's shapes for every class (with "boxes", centroid classes
+    # are reported at their fitted boxes, as onboard)
+    result = merge_runs([a, b], MergeParams(object_map="landmarks"), shape_fitter=fit)
     out = write_landmarks(tmp_path / "landmarks.json", result.landmarks)
     import json
 
@@ -155,6 +157,25 @@ def test_merge_runs_writes_landmarks_json(two_robots: tuple[LoopWorld, Path, Pat
     for rec, lm in zip(records, result.landmarks, strict=True):
         assert rec["shape"]["model"] == "blob" and rec["shape"]["n"] == 40 * lm.observations
         assert np.linalg.norm(np.array(rec["shape"]["center"]) - lm.position) < 0.1
+
+
+def test_merged_objects_are_reported_as_onboard(two_robots: tuple[LoopWorld, Path, Path]) -> None:
+    """``object_map: boxes`` (the default, onboard's rule): each centroid-class object at the box
+    fitted to all its detections' points, every robot's; ``landmarks``: the graph's points."""
+    world, a, b = two_robots
+    boxes = merge_runs([a, b])
+    points = merge_runs([a, b], MergeParams(object_map="landmarks"))
+    assert all(lm.shape is None for lm in points.landmarks)
+    assert all(lm.shape["model"] == "cuboid" for lm in boxes.landmarks)
+    for lm in boxes.landmarks:
+        np.testing.assert_allclose(lm.position, lm.shape["center"])
+    assert len(boxes.landmarks) <= len(points.landmarks)
+    assert set(boxes.contributors) == {lm.id for lm in boxes.landmarks}
+    assert boxes.shared() > 0  # both robots' detections went into the shared objects' boxes
+    truth, classes = truth_of(world)
+    err_boxes, _ = position_errors(boxes.landmarks, truth, classes)
+    err_points, _ = position_errors(points.landmarks, truth, classes)
+    assert np.mean(err_boxes) < np.mean(err_points) + 0.05
 
 
 def test_known_base_places_the_chain(two_robots: tuple[LoopWorld, Path, Path]) -> None:
@@ -230,9 +251,12 @@ def test_shape_classes_merge_by_shape_one_landmark_per_car(tmp_path: Path) -> No
     a = fly_past_cars(cars, -3.0, 1, 1, tmp_path / "a.jsonl")
     b = fly_past_cars(cars, CAR[1] + 3.0, -1, 2, tmp_path / "b.jsonl")
     logs = [read_measurements(a), read_measurements(b)]
-    by_centroid = merge_measurements(logs)
+    by_centroid = merge_measurements(logs, MergeParams(object_map="landmarks"))
     by_shape = merge_measurements(logs, MergeParams(landmark_models={"car": "cuboid"}))
-    assert len(by_centroid.landmarks) >= 2 * len(cars)  # each side its own landmark
+    assert len(by_centroid.landmarks) >= 2 * len(cars)  # each side its own landmark in the graph
+    # (the reported map folds the two sides' boxes into one car, as onboard: boxes after the fact)
+    reported = merge_measurements(logs)
+    assert len(reported.landmarks) == len(cars)
     assert len(by_shape.landmarks) == len(cars)  # one per car, neighbours not fused
     assert by_shape.shared() == len(cars)  # both robots' sides in each
     err, pairs = position_errors(by_shape.landmarks, truth, classes, gate=0.5)
