@@ -78,14 +78,12 @@ def team_overrides(
 # -- scoring ------------------------------------------------------------------------------------
 
 
-def class_models(world: WorldSummary) -> dict[str, str]:
-    """Which shape model each class uses in this world (from its true object shapes)."""
-    out: dict[str, str] = {}
-    for oid, shape in world.object_shapes.items():
-        cls = world.object_classes.get(oid)
-        if cls is not None and shape.get("model") in ("cuboid", "cylinder"):
-            out[cls] = shape["model"]
-    return out
+def class_models(mission: Mission) -> dict[str, str]:
+    """The shape model of each class the robots' SLAM used (``slam.landmark_models``, cuboid and
+    cylinder classes): the base merges as the robots mapped, not by the world's true shapes."""
+    slam = mission.backends.get("slam")
+    models = getattr(slam.params, "landmark_models", {}) if slam is not None else {}
+    return {cls: model for cls, model in models.items() if model in ("cuboid", "cylinder")}
 
 
 def shape_fitter(models: dict[str, str]) -> Callable[[str, np.ndarray], dict | None] | None:
@@ -229,7 +227,7 @@ def _fly(
         log(f"    {mission.name:<28} reused {done['run_dir']}")
         if done["world"] is None:
             done["world"] = run_world(done["run_dir"], registry)
-        return done
+        return {**done, "mission": mission}
     started = time.perf_counter()
     runner = Runner(mission, registry, runs)
     result = runner.run()
@@ -239,7 +237,7 @@ def _fly(
     flown = {"flags": flags, "run_dir": result.run_dir, "metrics": result.metrics, "world": world}
     if reuse is not None:
         reuse[key] = flown
-    return flown
+    return {**flown, "mission": mission}
 
 
 def fly_team(
@@ -279,7 +277,7 @@ def fly_team(
             raise RuntimeError(
                 f"robot run {f['run_dir']} did not fly in the same world as {flown[0]['run_dir']}"
             )
-    models = class_models(world)
+    models = class_models(flown[0]["mission"])
     fit = shape_fitter(models)
     params = MergeParams(landmark_models=models)  # shape classes merge by their shapes
     times = [float(f["metrics"].get("sim_duration_s") or 0.0) for f in flown]

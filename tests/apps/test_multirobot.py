@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from amslam.apps.multirobot import (
+    class_models,
     flight_key,
     fly_team,
     index_runs,
@@ -33,6 +34,16 @@ def registry():  # noqa: ANN201
 
 def mission_file(folder: Path, max_time: float = 400) -> Path:
     return tiny_mission_file(folder, max_time)
+
+
+def test_the_base_merges_shapes_as_the_robots_mapped_them(registry) -> None:  # noqa: ANN001
+    """The merge's shape classes are the robots' ``slam.landmark_models``, not the world's true
+    shapes (which no robot knows)."""
+    team = load_mission("lot_team", registry)
+    assert class_models(team) == {"car": "cuboid", "pole": "cylinder", "tree_trunk": "cylinder"}
+    as_points = load_mission("lot_team", registry, ["slam.landmark_models={car: centroid}"])
+    assert class_models(as_points) == {}
+    assert class_models(load_mission("one_floor", registry)) == {}  # odometry SLAM: no models
 
 
 def test_split_area_along_the_longer_side() -> None:
