@@ -156,6 +156,10 @@ def resolve(
             association=slam.association,
             landmark_models=parse_models(models),
             shapes=slam.shapes,
+            object_map=slam.object_map,  # the objects reported as the flight reported them
+            object_twin_margin=slam.object_twin_margin,
+            object_twin_share=slam.object_twin_share,
+            object_trim_spreads=slam.object_trim_spreads,
         )
     except ValueError as exc:
         raise OfflineError(f"--models {models!r}: {exc}") from exc
