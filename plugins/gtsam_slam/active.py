@@ -88,11 +88,11 @@ class ActiveSlam:
         """DBSCAN clusters of landmarks per floor → oldest key pose seeing the cluster → IG.
 
         A cluster needs ``cluster_min_landmarks`` landmarks (three fix position and yaw). Its
-        viewpoint is the oldest key pose near which enough of the cluster was observed within
-        ``sensing_range`` (:meth:`_viewpoint`). The candidate's information gain here uses the
-        straight-line distance from the current pose as the travel distance, a first estimate: the
-        planner re-scores each candidate with the map's path costs and the loop closures already in
-        its tour (:meth:`slc_gain_model`).
+        viewpoint is the oldest key pose from which any landmark of the cluster lies within
+        ``sensing_range``. The candidate's information gain here uses the straight-line distance
+        from the current pose as the travel distance, a first estimate: the planner re-scores
+        each candidate with the map's path costs and the loop closures already in its tour
+        (:meth:`slc_gain_model`).
         """
         from sklearn.cluster import DBSCAN
 
@@ -134,15 +134,13 @@ class ActiveSlam:
         kp_pos: np.ndarray,
         sensing_range: float,
     ) -> int | None:
-        """The oldest key pose a panorama from which would see enough of the cluster; None if none.
+        """The oldest key pose a panorama from which would see enough of the cluster.
 
         Paper 1 takes the oldest key pose within sensing range of a landmark of the cluster. An
-        SLC needs ``min_matches`` landmarks in one panorama, and range alone ignores walls: so take
-        the oldest key pose where the landmarks actually *observed* from key poses within
-        ``panorama_radius`` of it (what a panorama there would see) number enough — first with
-        ``viewpoint_margin`` to spare, then just enough. A cluster no key pose saw enough of gets no
-        viewpoint: the paper's range rule sent demo flights to their take-off spot, where nothing
-        had been detected, for panoramas that saw no object (session 44).
+        SLC needs ``min_matches`` landmarks in one panorama, and range alone ignores walls: so
+        prefer the oldest key pose where the landmarks actually *observed* from key poses within
+        ``panorama_radius`` of it (what a panorama there would see) number enough; fall back to
+        the paper's rule when no key pose qualifies.
         """
         need = min(self.min_matches, len(members))
         observed_from: dict[int, set[int]] = {}
@@ -150,16 +148,14 @@ class ActiveSlam:
             for obs in lms[j].observations:
                 if obs.robot == self.front.robot:
                     observed_from.setdefault(obs.keypose, set()).add(int(j))
-        if not observed_from:
-            return None
-        kps = np.array(sorted(observed_from))
-        near = np.linalg.norm(kp_pos[kps][:, None] - kp_pos[kps][None], axis=2) <= self.panorama_radius
-        counts = np.zeros(len(kps), dtype=int)
-        for row, k in enumerate(kps):
-            seen = set().union(*(observed_from[int(m)] for m in kps[near[row]]))
-            counts[row] = int(np.sum(np.linalg.norm(pos[list(seen)] - kp_pos[k], axis=1) <= sensing_range))
-        for enough in (need + self.p.viewpoint_margin, need):
-            rows = np.flatnonzero(counts >= enough)
-            if len(rows):
-                return int(kps[rows[0]])
-        return None
+        if observed_from:
+            kps = np.array(sorted(observed_from))
+            near = np.linalg.norm(kp_pos[kps][:, None] - kp_pos[kps][None], axis=2) <= self.panorama_radius
+            for row, k in enumerate(kps):
+                seen = set().union(*(observed_from[int(m)] for m in kps[near[row]]))
+                close = np.linalg.norm(pos[list(seen)] - kp_pos[k], axis=1) <= sensing_range
+                if close.sum() >= need:
+                    return int(k)
+        d = np.linalg.norm(kp_pos[:, None, :] - pos[members][None], axis=2)
+        seen_any = np.flatnonzero((d <= sensing_range).any(axis=1))
+        return int(seen_any[0]) if len(seen_any) else None

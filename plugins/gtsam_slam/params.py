@@ -365,15 +365,6 @@ class ActiveParams(BaseModel):
 
     dbscan_eps: float = Field(2.5, gt=0, le=1000, description="DBSCAN neighbourhood of landmark clusters, m")
     cluster_min_landmarks: int = Field(3, ge=1, le=10_000, description="fewest landmarks of an SLC cluster")
-    viewpoint_margin: int = Field(
-        1,
-        ge=0,
-        le=1000,
-        description="an SLC viewpoint is first looked for among key poses near which this many more"
-        " landmarks of the cluster than the loop closure's min_matches were observed (a panorama"
-        " there sees fewer: some were seen while climbing at take-off, or past a door), then among"
-        " those with min_matches",
-    )
     floor_height: float = Field(
         3.0, gt=0, le=100, description="height of a floor for per-floor clustering, m"
     )
