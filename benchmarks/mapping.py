@@ -171,6 +171,27 @@ def main() -> None:
         f" voxels (local_memory_frames 300), {keeping:.1f} ms keeping them (0): x{forgetting / keeping:.2f}"
     )
 
+    # the numpy reference's centre test (a crossed voxel is free only where its centre lies in front
+    # of the measured surface, lib.voxel_grid.centres_in_front) against plain traversal, which it
+    # replaced in session 44: the test switched off by replacing it for the timing
+    from amslam.lib import voxel_grid
+
+    def run_numpy(voxel: float):
+        m = backend(NumpyVoxelMap, voxel)
+        return lambda: m.integrate_global(depth, CAMERA.K, ROOM_POSE)
+
+    centre_test = voxel_grid.centres_in_front
+    for voxel in (0.1, 0.25):
+        times = {}
+        for on in (True, False):
+            voxel_grid.centres_in_front = centre_test if on else (lambda index, *_: np.ones(len(index), bool))
+            times[on] = best_ms(lambda voxel=voxel: run_numpy(voxel), repeats=3)
+        voxel_grid.centres_in_front = centre_test
+        print(
+            f"numpy reference, {voxel} m strided: {times[True]:.1f} ms with the centre test,"
+            f" {times[False]:.1f} ms plain traversal: x{times[True] / times[False]:.2f}"
+        )
+
     # incremental frontier update after one more frame vs a full recompute, 0.25 m global map
     second = camera_pose((6.0, 4.5, 1.2), np.radians(-150.0))
     depth2 = render_depth(scene, CAMERA, second)
