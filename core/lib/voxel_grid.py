@@ -286,11 +286,16 @@ class DenseGrid:
         self.mark_updated(flat)
         return box_of_indices(index[inside], self.voxel)
 
+    def next_frame(self) -> int:
+        """Count one more frame; return its stamp (what :attr:`updated` holds for its voxels)."""
+        self.frame += 1
+        return self.frame
+
     def mark_updated(self, flat: np.ndarray) -> None:
         """Count one more frame; the voxels at flat (C-order) indices were updated by it."""
-        self.frame += 1
+        stamp = self.next_frame()
         if self.updated is not None:
-            self.updated.reshape(-1)[flat] = self.frame
+            self.updated.reshape(-1)[flat] = stamp
 
     def forget(self, frames: int) -> int:
         """Make free voxels no frame updated in the last ``frames`` frames UNKNOWN again; return

@@ -276,18 +276,9 @@ class GtsamSlam(Slam):
         out = self.landmarks()
         if self.params.object_map != "boxes" or self._T_body_cam is None:
             return out
-        from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes, placed
+        from amslam.plugins.gtsam_slam.object_boxes import placed, reported_boxes
 
-        g = self._graph
-        plain = [lm for lm in g.graph_landmarks() if g.shapes.model(lm.class_name) == "centroid"]
-        reported = fitted_boxes(
-            plain,
-            g.estimate,
-            self._T_body_cam,
-            twin_margin=self.params.object_twin_margin,
-            twin_share=self.params.object_twin_share,
-            trim_spreads=self.params.object_trim_spreads,
-        )
+        reported = reported_boxes(self._graph, self._graph.estimate, self._T_body_cam, self.params)
         return placed(out, reported)
 
     def uncertainty(self) -> tuple[float, float]:

@@ -79,7 +79,7 @@ from amslam.lib.shape_factors import cuboid_keys, cylinder_keys
 from amslam.measurements import RobotMeasurements, read_measurements
 from amslam.plugins.gtsam_slam.frontend import FrontEnd
 from amslam.plugins.gtsam_slam.graph import LandmarkRec, PoseKeys, SlamGraph
-from amslam.plugins.gtsam_slam.object_boxes import ObjectBoxes, fitted_boxes, placed
+from amslam.plugins.gtsam_slam.object_boxes import ObjectBoxes, placed, reported_boxes
 from amslam.plugins.gtsam_slam.params import (
     AssociationParams,
     GraphParams,
@@ -582,15 +582,8 @@ class _Merger:
         folded into one; ``out`` and ``contributors`` are in the order of ``lms``."""
         if self.p.object_map != "boxes":
             return out, contributors
-        g = self.graph
-        reported = fitted_boxes(
-            [lm for lm in lms if g.shapes.model(lm.class_name) == "centroid"],
-            values,
-            {r: log.T_body_cam for r, log in enumerate(self.logs)},
-            twin_margin=self.p.object_twin_margin,
-            twin_share=self.p.object_twin_share,
-            trim_spreads=self.p.object_trim_spreads,
-        )
+        mounts = {r: log.T_body_cam for r, log in enumerate(self.logs)}
+        reported = reported_boxes(self.graph, values, mounts, self.p)
         new_id = {lm.id: i for i, lm in enumerate(lms)}  # out's ids
         reported = ObjectBoxes(
             {new_id[j]: box for j, box in reported.boxes.items()},

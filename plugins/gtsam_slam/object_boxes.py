@@ -17,13 +17,14 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 import gtsam
 import numpy as np
 
 from amslam.geometry import transform_points
 from amslam.lib import shapes
-from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation
+from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation, SlamGraph
 from amslam.types import Landmark
 
 #: Fewest points a box is fitted to; fewer and the graph's point stays.
@@ -127,6 +128,21 @@ def fitted_boxes(
     for k in folded:
         del out[k]
     return ObjectBoxes(out, folded)
+
+
+def reported_boxes(
+    graph: SlamGraph, values: gtsam.Values, T_body_cam: np.ndarray | Mapping[int, np.ndarray], rules: Any
+) -> ObjectBoxes:
+    """:func:`fitted_boxes` of the graph's centroid-class landmarks under the ``object_*`` rules of
+    ``rules`` (the backend's ``Params`` or the base merge's ``MergeParams``, which share them)."""
+    return fitted_boxes(
+        [lm for lm in graph.graph_landmarks() if graph.shapes.model(lm.class_name) == "centroid"],
+        values,
+        T_body_cam,
+        twin_margin=rules.object_twin_margin,
+        twin_share=rules.object_twin_share,
+        trim_spreads=rules.object_trim_spreads,
+    )
 
 
 def placed(landmarks: Iterable[Landmark], reported: ObjectBoxes) -> list[Landmark]:

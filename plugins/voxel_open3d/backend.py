@@ -71,8 +71,8 @@ class WindowGrid(DenseGrid):
         """One log-odds update per voxel a frame touched inside the window; return their box."""
         from amslam.plugins.voxel_open3d.projective import fold_into_dense
 
-        self.frame += 1
-        return fold_into_dense(frame, self.value, self.known, self.lo, self.model, self.updated, self.frame)
+        stamp = self.next_frame()
+        return fold_into_dense(frame, self.value, self.known, self.lo, self.model, self.updated, stamp)
 
 
 class Open3dVoxelMap(VoxelMapBase):
