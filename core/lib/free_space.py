@@ -200,11 +200,14 @@ def obstacles(
     *,
     slab: np.ndarray | None = None,
     ceiling_reach: float = 0.0,
+    slab_history: np.ndarray | None = None,
 ) -> np.ndarray:
     """Voxels the robot must keep its radius from: occupied ones, :func:`unseen_surface` and (with
     ``slab_opening``, on a block holding whole free regions, e.g. the path graph's) the
     :func:`narrow_slab_gaps`; with ``ceiling_reach`` (the fine local map's rule) also
-    :func:`unseen_ceiling`.
+    :func:`unseen_ceiling`; with ``slab_history`` (the global map's voxels taken for a slab at
+    some earlier time) those as well, whatever their state now: a slab the map carved away from
+    drifted poses is still there.
 
     ``slab``: the :func:`slabs` of the block, when the caller has them. They are the one rule that
     is not local (a surface is a slab by the size of its whole component): a caller working on a
@@ -218,6 +221,8 @@ def obstacles(
         occ |= unseen_ceiling(states, voxel, ceiling_reach, surface)
     if slab_opening > 0:
         occ |= narrow_slab_gaps(states, voxel, slab_opening, unseen_reach, slab=slab)
+    if slab_history is not None:
+        occ |= slab_history
     return occ
 
 

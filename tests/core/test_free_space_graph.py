@@ -75,8 +75,10 @@ AREA = BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([10.0, 8.0, 6.0]))
 SIZE = (40, 32, 24)  # the area in 0.25 m voxels
 
 
-def put(mapping, states: np.ndarray, lo: np.ndarray, path) -> None:
-    """Replace the mapping's global map by ``states`` (int8, index ``lo`` first), through ``load``."""
+def put(mapping, states: np.ndarray, lo: np.ndarray, path, slab_history: np.ndarray | None = None) -> None:
+    """Replace the mapping's global map by ``states`` (int8, index ``lo`` first), through ``load``,
+    with ``slab_history`` (global indices; by default the mapping's own, as a flight keeps it)."""
+    history = mapping.slab_history() if slab_history is None else slab_history
     idx = np.argwhere(states != UNKNOWN)
     logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
     np.savez_compressed(
@@ -88,6 +90,7 @@ def put(mapping, states: np.ndarray, lo: np.ndarray, path) -> None:
         local_index=np.zeros((0, 3), np.int64),
         local_logodds=np.zeros(0, np.float32),
         local_voxel=np.array(0.1),
+        global_slab_history=history,
     )
     mapping.load(path)
 
@@ -154,7 +157,10 @@ def block_graph(mapping) -> FreeSpaceGraph:
         lo, hi = np.minimum(lo, a), np.maximum(hi, b)
     shape = tuple(int(s) for s in hi - lo)
     states = store.dense_states(lo, shape)
-    occ = obstacles(states, VOXEL, p.unseen_surface_reach, p.floor_change_opening)
+    history = np.zeros(shape, dtype=bool)
+    rel = mapping.slab_history() - lo
+    history[tuple(rel[np.all((rel >= 0) & (rel < np.array(shape)), axis=1)].T)] = True
+    occ = obstacles(states, VOXEL, p.unseen_surface_reach, p.floor_change_opening, slab_history=history)
     near = inflate(occ, mapping.robot_radius, VOXEL)
     base = (states != OCCUPIED) if p.plan_through_unknown else (states == FREE)
     passable, roomy = base & ~near, base & ~inflate(occ, mapping.segment_radius, VOXEL)
@@ -225,7 +231,7 @@ def test_the_graph_updated_near_changes_is_the_graph_built_from_scratch(params, 
         got = graph_arrays(followed)
         updated_in_place += before is not None and followed._rules is before
         scratch = configured()
-        put(scratch, states, lo, tmp_path / f"scratch{k}.npz")
+        put(scratch, states, lo, tmp_path / f"scratch{k}.npz", followed.slab_history())
         want = graph_arrays(scratch)
         # and the graph of every rule computed on the extent's block, as the graph was built before
         # (the rules agree there: the voxels round the extent are unknown, like those beyond it)

@@ -120,6 +120,7 @@ def test_a_saved_map_reads_back_with_its_occupied_voxels(tmp_path: Path):
     assert saved.local_map is None and saved.global_map.voxel == 0.5
     assert saved.global_map.centres()[saved.global_map.occupied()].tolist() == [[0.25, 0.25, 0.25]]
     assert saved.global_map.occupied(p_occ=0.75).tolist() == [True, True]
+    assert saved.slab_history.shape == (0, 3)  # a map saved without one
 
 
 @pytest.mark.parametrize(
@@ -131,6 +132,15 @@ def test_a_saved_map_reads_back_with_its_occupied_voxels(tmp_path: Path):
         (
             {"global_index": np.zeros((2, 3)), "global_logodds": np.zeros(3), "global_voxel": np.array(0.1)},
             r"map.npz: the global map's index, log-odds and voxel size do not agree",
+        ),
+        (
+            {
+                "global_index": np.zeros((2, 3)),
+                "global_logodds": np.zeros(2),
+                "global_voxel": np.array(0.1),
+                "global_slab_history": np.full((2, 3), 0.5),
+            },
+            r"map.npz: the global map's slab history is not N×3 voxel indices",
         ),
     ],
 )

@@ -51,3 +51,19 @@ def load_states(
     )
     m.load(path)
     return m
+
+
+def replace_states(mapping, tmp_path, states: np.ndarray) -> None:
+    """Put ``states`` into ``mapping``'s global map as a flight's later map, through ``load``: the
+    slab history its plans kept goes with it, as it does with a saved map."""
+    idx, logodds = _known(states)
+    path = tmp_path / "later.npz"
+    np.savez_compressed(
+        path,
+        format=np.array("amslam-voxels-1"),
+        global_index=idx,
+        global_logodds=logodds,
+        global_voxel=np.array(mapping.global_map.voxel),
+        global_slab_history=mapping.slab_history(),
+    )
+    mapping.load(path)

@@ -19,7 +19,7 @@ from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import make_context
 from amslam.types import BoundingBox
 
-from .global_maps import load_states
+from .global_maps import load_states, replace_states
 
 V = 0.25
 N = (24, 24, 24)  # 6 × 6 × 6 m
@@ -121,6 +121,36 @@ def test_a_carved_hole_seen_all_round_is_too_narrow_for_a_floor_change(cls, tmp_
     assert np.isfinite(
         load(cls, tmp_path, shaft, **exact).path_costs(BELOW[None], [[4.375, 4.375, 2.875]])[0, 0]
     )
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_a_slab_the_map_carved_after_a_plan_stays_an_obstacle(cls, tmp_path) -> None:
+    # Later in a flight the global map holds a 2 m strip of the slab free, its rim seen occupied
+    # and the air round it observed (a slab seen from below and from above by poses whose heights
+    # disagree, each side's rays carving the other's voxels): on the map alone it is an opening
+    # wide enough for a floor change.
+    carved = building()
+    carved[6:14, :, SLAB] = 0  # x 1.5–3.5 m, the whole width
+    assert load(cls, tmp_path, carved).plan_path(BELOW, ABOVE) is not None, "the scene must expose the defect"
+    # A flight whose plans saw the slab whole keeps it as an obstacle, whatever the map says now ...
+    m = load(cls, tmp_path, building())
+    assert m.plan_path(BELOW, ABOVE) is None
+    assert len(m.slab_history()) == N[0] * N[1] * 3  # floor, slab and ceiling, every voxel
+    replace_states(m, tmp_path, carved)
+    assert m.plan_path(BELOW, ABOVE) is None
+    assert np.isinf(m.path_costs(BELOW[None], ABOVE[None])[0, 0])
+    # ... and so does the map it saves, loaded by a later mission
+    m.save(tmp_path / "saved.npz")
+    later = load(cls, tmp_path, building())
+    later.load(tmp_path / "saved.npz")
+    assert later.plan_path(BELOW, ABOVE) is None
+    # A shaft its plans saw open from the start stays a way up.
+    shaft = building()
+    shaft[13:23, 13:23, SLAB] = 0
+    m = load(cls, tmp_path, shaft)
+    assert m.plan_path(BELOW, ABOVE) is not None
+    replace_states(m, tmp_path, np.where(carved == 0, carved, shaft))
+    assert m.plan_path(BELOW, ABOVE) is not None
 
 
 @pytest.mark.parametrize("cls", BACKENDS)
