@@ -116,6 +116,52 @@ def landmark_accuracy(landmarks: list, world: WorldSummary, gate: float = 1.0) -
     return out
 
 
+def in_amslam_classes(landmarks: list, world: WorldSummary) -> tuple[list, WorldSummary] | None:
+    """The landmarks and the world's objects with their classes put through the world importer's
+    packaged class map (``amslam world class-map``), or None when it renames no object's class.
+
+    A mesh world made by others names its objects after its models (the shared house's
+    ``kitchen_table``, ``reading_desk``, ``shoe_rack``); the ``sim`` detector reports those names,
+    an image detector the classes it was trained on (``table``, ``shelf``), so by the world's own
+    names an image detector's table never matches the house's tables. Here both sides speak
+    amslam's classes: every table a ``table``, night stands and wardrobes ``cabinet``; objects and
+    landmarks the map makes building structure (pictures) are left out; a class no rule names
+    keeps its own (the procedural worlds' classes, ``car``, a house's ``carpet``).
+    """
+    from dataclasses import replace
+
+    from amslam.apps.worlds.classmap import SKIP, STRUCTURE, load_class_map
+
+    class_map = load_class_map()
+    memo: dict[str, str] = {}
+
+    def amslam_class(name: str) -> str:
+        if name not in memo:
+            hit = class_map.classify(name)
+            memo[name] = hit[0] if hit else name
+        return memo[name]
+
+    if all(amslam_class(c) == c for c in set(world.object_classes.values())):
+        return None
+    dropped = (STRUCTURE, SKIP)
+    classes = {i: amslam_class(c) for i, c in world.object_classes.items() if amslam_class(c) not in dropped}
+    counts: dict[str, int] = {}
+    for c in classes.values():
+        counts[c] = counts.get(c, 0) + 1
+    objects = replace(
+        world,
+        objects_by_class=counts,
+        object_positions={i: q for i, q in world.object_positions.items() if i in classes},
+        object_classes=classes,
+    )
+    mapped = [
+        replace(lm, class_name=amslam_class(lm.class_name))
+        for lm in landmarks
+        if amslam_class(lm.class_name) not in dropped
+    ]
+    return mapped, objects
+
+
 def _shape_ref(shape: dict) -> np.ndarray:
     return np.asarray(shape["center"] if shape["model"] == "cuboid" else shape["root"], float)
 
@@ -364,6 +410,9 @@ def _slam_metrics(summary: RunSummary) -> dict[str, Any]:
         out["landmarks"]["objects_in_world"] = dict(world.objects_by_class)
         if world.object_positions:
             out["landmarks"]["accuracy"] = landmark_accuracy(landmarks, world)
+            renamed = in_amslam_classes(landmarks, world)
+            if renamed is not None:  # a mesh world's own class names (see in_amslam_classes)
+                out["landmarks"]["accuracy_amslam_classes"] = landmark_accuracy(*renamed)
         if world.object_shapes and any(lm.shape for lm in landmarks):
             out["objects"] = object_accuracy(landmarks, world)
     out["keyposes"] = len(summary.keyposes)

@@ -46,6 +46,16 @@ def test_figures_and_tables_of_two_seeds():
     assert "| demo | sim | 1 of 1 (1 not completed) |" in b.tables([{**rows[0], "figures": early}])
 
 
+def test_a_mesh_world_is_scored_in_amslams_classes():
+    b = _benchmark()
+    metrics = _metrics(1, 10, 0, 9, 0.2, 0.5, 0.1)  # by the house's own class names
+    metrics["landmarks"]["accuracy_amslam_classes"] = _metrics(8, 9, 0, 2, 0.3, 0.5, 0.1)["landmarks"][
+        "accuracy"
+    ]
+    figures = b.flight_figures(metrics)
+    assert figures["mapped_pct"] == 100.0 * 8 / 9 and figures["mean_error_m"] == 0.3
+
+
 def test_unknown_building_is_one_error_line(capsys):
     assert _benchmark().main(["--buildings", "castle"]) == 2
     assert (

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from amslam.apps.report import landmark_accuracy, object_accuracy
+from amslam.apps.report import in_amslam_classes, landmark_accuracy, object_accuracy
 from amslam.lib import shapes
 from amslam.types import Landmark
 from tests.world_summaries import objects_world
@@ -74,6 +74,44 @@ def test_landmark_accuracy_pairs_by_class_and_counts_duplicates_and_spurious() -
         1,
     )
     assert np.isclose(table["mean_error_m"], 0.2, atol=1e-6) and chair["off_by_more_than_0_5_m"] == 1
+
+
+def test_a_mesh_worlds_own_class_names_are_scored_in_amslams_classes_too() -> None:
+    # The shared house names its tables after its models; an image detector says "table".
+    world = objects_world(
+        {
+            "k": ("kitchen_table", [0, 0, 0]),
+            "r": ("reading_desk", [4, 0, 0]),
+            "s": ("shoe_rack", [8, 0, 0]),
+            "c": ("chair", [0, 4, 0]),
+            "p": ("desk_portrait", [4, 4, 0]),  # a picture: building structure to the class map
+            "w": ("room_window", [8, 4, 0]),  # no rule names it: it keeps its own class
+        }
+    )
+    image_detector = [
+        _lm(0, "table", [0.1, 0, 0]),
+        _lm(1, "table", [4, 0.1, 0]),
+        _lm(2, "shelf", [8, 0, 0.1]),
+        _lm(3, "chair", [0, 4.1, 0]),
+    ]
+    assert landmark_accuracy(image_detector, world)["matched"] == 1  # by the world's names: the chair
+    lms, objects = in_amslam_classes(image_detector, world)
+    acc = landmark_accuracy(lms, objects)
+    assert acc["objects"] == 5 and acc["matched"] == 4 and acc["spurious"] == 0
+    assert acc["by_class"]["table"]["objects"] == 2 and acc["by_class"]["table"]["matched"] == 2
+    assert acc["by_class"]["shelf"]["matched"] == 1 and acc["by_class"]["room_window"]["matched"] == 0
+    # the simulator's detector reports the world's names: the same objects, now in amslam's classes
+    sim_detector = [
+        _lm(i, world.object_classes[k], world.object_positions[k]) for i, k in enumerate("krscpw")
+    ]
+    lms, objects = in_amslam_classes(sim_detector, world)
+    assert sorted(lm.class_name for lm in lms) == ["chair", "room_window", "shelf", "table", "table"]
+    assert landmark_accuracy(lms, objects)["matched"] == 5
+    # a world already in amslam's classes (procedural buildings, car parks) gets no second score
+    assert (
+        in_amslam_classes(image_detector, objects_world({"a": ("chair", [0, 0, 0]), "b": ("car", [5, 0, 0])}))
+        is None
+    )
 
 
 def test_object_accuracy_fig9_error_is_length_and_width_of_vehicles_only() -> None:
