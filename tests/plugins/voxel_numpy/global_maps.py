@@ -16,6 +16,19 @@ def _known(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return idx, np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
 
 
+def _save_global(path, states: np.ndarray, voxel: float, **arrays: np.ndarray) -> None:
+    """A saved map (``map.npz``) whose global map holds ``states``, with further ``arrays``."""
+    idx, logodds = _known(states)
+    np.savez_compressed(
+        path,
+        format=np.array("amslam-voxels-1"),
+        global_index=idx,
+        global_logodds=logodds,
+        global_voxel=np.array(voxel),
+        **arrays,
+    )
+
+
 def load_states(
     mapping_cls,
     tmp_path,
@@ -33,37 +46,24 @@ def load_states(
     centred on the origin; None: empty)."""
     m = mapping_cls()
     m.configure(mapping_cls.Params(**params), make_context(tmp_path, area=area))
-    idx, logodds = _known(states)
     local_idx, local_logodds = (
         _known(local) if local is not None else (np.zeros((0, 3), np.int64), np.zeros(0))
     )
-    local_idx = local_idx + np.asarray(local_origin, dtype=np.int64)
-    path = tmp_path / "map.npz"
-    np.savez_compressed(
-        path,
-        format=np.array("amslam-voxels-1"),
-        global_index=idx,
-        global_logodds=logodds,
-        global_voxel=np.array(voxel),
-        local_index=local_idx,
+    _save_global(
+        tmp_path / "map.npz",
+        states,
+        voxel,
+        local_index=local_idx + np.asarray(local_origin, dtype=np.int64),
         local_logodds=local_logodds.astype(np.float32),
         local_voxel=np.array(m.params.local_voxel),
     )
-    m.load(path)
+    m.load(tmp_path / "map.npz")
     return m
 
 
 def replace_states(mapping, tmp_path, states: np.ndarray) -> None:
     """Put ``states`` into ``mapping``'s global map as a flight's later map, through ``load``: the
     slab history its plans kept goes with it, as it does with a saved map."""
-    idx, logodds = _known(states)
     path = tmp_path / "later.npz"
-    np.savez_compressed(
-        path,
-        format=np.array("amslam-voxels-1"),
-        global_index=idx,
-        global_logodds=logodds,
-        global_voxel=np.array(mapping.global_map.voxel),
-        global_slab_history=mapping.slab_history(),
-    )
+    _save_global(path, states, mapping.global_map.voxel, global_slab_history=mapping.slab_history())
     mapping.load(path)
