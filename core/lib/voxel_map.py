@@ -735,14 +735,13 @@ class VoxelMapBase(Mapping):
         history over that block. ``before``: the history over the same block at the last build,
         still true unless a map was loaded since (then, and for a new block, it is read back from
         the keys: ~5 ms on the demo's block, against ~0.3 ms for the update)."""
-        if before is not None and not self._slab_history_loaded:
-            new = slab & ~before
-            if new.any():
-                self._slab_history = np.union1d(self._slab_history, encode(np.argwhere(new) + lo))
+        still = before is not None and not self._slab_history_loaded
+        new = slab & ~before if still else slab
+        if new.any():
+            self._slab_history = np.union1d(self._slab_history, encode(np.argwhere(new) + lo))
+        if still:
             return before | slab
         self._slab_history_loaded = False
-        if slab.any():
-            self._slab_history = np.union1d(self._slab_history, encode(np.argwhere(slab) + lo))
         out = np.zeros(slab.shape, dtype=bool)
         if len(self._slab_history):
             rel = decode(self._slab_history) - lo
