@@ -8,7 +8,9 @@ call holds or lets go of the interpreter lock. Such a test mostly waits on the c
 exploration uses under a third of a core), so the other tests fill the cores meanwhile; the
 scheduler hands the cores to a realtime test whenever it wants them, so their load is not its
 load. They are marked here by file, so that a new test in one of these files runs at normal
-priority too; a test elsewhere that needs it takes ``@pytest.mark.realtime``.
+priority too; a test elsewhere that needs it takes ``@pytest.mark.realtime``. One that failed
+while the cores were loaded (by the other part, or by other users of a shared machine) runs once
+more, alone, after the other part is done; a test failing both times fails ``make test``.
 """
 
 from __future__ import annotations
