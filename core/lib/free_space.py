@@ -258,6 +258,9 @@ def vertical_ok(
     opening: float = 0.0,
     unseen_reach: float = 0.0,
     slab: np.ndarray | None = None,
+    seen_through: np.ndarray | None = None,
+    through_reach: float = 0.0,
+    slab_history: np.ndarray | None = None,
 ) -> np.ndarray:
     """Voxels where a path may move vertically (climb, descend) near slabs, floors and ceilings.
 
@@ -274,6 +277,15 @@ def vertical_ok(
       continuation, :func:`unseen_surface`), a vertical move only ``opening`` metres from it:
       floors are changed through wide openings (a shaft, a stairwell), not through a patch the map
       carved into a slab, which is only as wide as the pose error that carved it allows.
+    * ``seen_through`` (voxels a ray crossed on its way to a point well above or below,
+      :func:`~amslam.lib.voxel_grid.seen_through`): within ``through_reach`` horizontally of a
+      slab, floor or ceiling (or of a voxel of ``slab_history``) in the voxel's z layer or the
+      layers next to it, a vertical move only through such air. A slab seen from above and below
+      by poses whose heights disagree sits in two layers in two places, and the rays of each
+      side carve the other's layer: a three-floor flight's map had a free strip 2 m wide and 7 m
+      long through both layers of a slab, more than the opening rule's distance from either,
+      and climbed into it. Rays cross a real opening (the camera sees the floor above or below
+      through it); those that carved the strip ended on the slab.
 
     Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles). ``slab``: the
     block's :func:`slabs`, when the caller has them (see :func:`obstacles`).
@@ -296,9 +308,16 @@ def vertical_ok(
                 near_slab = ndimage.binary_dilation(near_slab, structure=segment)
             ok &= seen_around | ~near_slab
     big = slabs(states, voxel) if slab is None else slab.copy()
-    if opening > 0 and big.any():
+    if big.any() and (opening > 0 or seen_through is not None):
         big |= unseen_surface(states, voxel, unseen_reach) & ndimage.binary_dilation(big, structure=_CROSS)
+    if opening > 0 and big.any():
         ok &= ~ndimage.binary_dilation(big, structure=_disc(opening, voxel))
+    if seen_through is not None and through_reach > 0:
+        floors = big | slab_history if slab_history is not None else big
+        if floors.any():
+            # the disc over three layers: the slab's own and the two its two sides were seen in
+            band = np.repeat(_disc(through_reach, voxel), 3, axis=2)
+            ok &= seen_through | ~ndimage.binary_dilation(floors, structure=band)
     return ok
 
 
@@ -311,7 +330,11 @@ def _reach(structure: np.ndarray) -> np.ndarray:
 
 
 def graph_rules_reach(
-    voxel: float, radii: tuple[float, ...], unseen_reach: float = 0.0, slab_opening: float = 0.0
+    voxel: float,
+    radii: tuple[float, ...],
+    unseen_reach: float = 0.0,
+    slab_opening: float = 0.0,
+    through_reach: float = 0.0,
 ) -> np.ndarray:
     """Per axis, how far (voxels) the path graph's rules look from a voxel: its passability, its
     clearance penalty and whether it allows vertical moves depend only on the states within this
@@ -329,8 +352,10 @@ def graph_rules_reach(
     obstacle = np.maximum(unseen, narrow)
     inflated = [obstacle + _reach(clearance_kernel(r, voxel)) for r in radii]
     m = int(np.ceil(radii[0] / voxel)) + 1  # vertical_ok's box round horizontal surfaces
+    # the slabs, their unseen continuation and the slab history widened by the seen-through band
+    band = _reach(_disc(through_reach, voxel)) + np.array([0, 0, 1]) if through_reach > 0 else 0
     vertical = np.maximum.reduce(
-        [_reach(clearance_kernel(radii[0], voxel)), np.full(3, 1 + m), unseen + disc]
+        [_reach(clearance_kernel(radii[0], voxel)), np.full(3, 1 + m), unseen + disc, unseen + band]
     )
     return np.maximum.reduce([*inflated, vertical]).astype(np.int64)
 

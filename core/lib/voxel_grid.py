@@ -144,6 +144,42 @@ def depth_rays(
     return np.asarray(T_world_cam)[:3, 3].astype(np.float64), dirs, lengths, hit
 
 
+def seen_through(
+    depth: np.ndarray,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    stride: int,
+    max_range: float,
+    voxel: float,
+    rise: float,
+) -> np.ndarray:
+    """Keys of the voxels a ray of the depth image crossed on its way to a point at least ``rise``
+    metres higher or lower than the voxel: air the camera saw *through*, vertically.
+
+    A slab is opaque: no ray crosses it. So the air of a slab's layer that a ray crossed to end a
+    floor above or below (or at ``max_range`` beyond, when it met nothing) is an opening, and the
+    air rays carved into a slab's layer from poses a few centimetres off in z is not: those rays
+    ended on the slab itself, within its thickness of the voxels they carved. Samples every half
+    voxel along a ray, up to a voxel before its end (the voxels in front of the surface).
+    """
+    origin, dirs, lengths, _ = depth_rays(depth, K, T_world_cam, stride, max_range)
+    # a sample t metres along a ray is |dz| (length - t) below (or above) its end: ``rise`` away
+    # up to length - rise / |dz|, and a voxel in front of the end up to length - voxel
+    dz = np.abs(dirs[:, 2])
+    with np.errstate(divide="ignore"):
+        reach = np.minimum(lengths - rise / dz, lengths - voxel)
+    ok = reach >= 0
+    if not ok.any():
+        return np.zeros(0, dtype=np.int64)
+    dirs, reach = dirs[ok], reach[ok]
+    step = voxel / 2
+    count = np.floor(reach / step).astype(np.int64) + 1
+    ray = np.repeat(np.arange(len(count)), count)
+    t = (np.arange(len(ray)) - np.repeat(np.cumsum(count) - count, count)) * step
+    points = origin + dirs[ray] * t[:, None]
+    return np.unique(encode(to_index(points, voxel)))
+
+
 def traverse_rays(
     origin: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, hit: np.ndarray, voxel: float
 ) -> tuple[np.ndarray, np.ndarray]:

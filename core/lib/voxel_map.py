@@ -50,6 +50,7 @@ from amslam.lib.voxel_grid import (
     encode,
     index_box,
     logit,
+    seen_through,
     to_index,
     union,
 )
@@ -96,6 +97,9 @@ class SavedMap:
     #: global voxel indices (N×3) the flight's path rules took for a slab at some plan
     #: (:meth:`VoxelMapBase.slab_history`); empty in a map saved without them
     slab_history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    #: global voxel indices (N×3) the flight's rays saw through vertically
+    #: (:meth:`VoxelMapBase.seen_through`); None in a map saved without that record
+    seen_through: np.ndarray | None = None
 
 
 def read_saved_map(path: Path) -> SavedMap:
@@ -130,12 +134,21 @@ def read_saved_map(path: Path) -> SavedMap:
         if len(index) != len(logodds) or not voxel > 0:
             raise RunFileError(f"{path}: the {name} map's index, log-odds and voxel size do not agree")
         grids[name] = SavedGrid(index, logodds, voxel)
-    raw = np.asarray(arrays.get("global_slab_history", np.zeros((0, 3), np.int64)))
-    # voxel indices: whole numbers, within the range a key packs (voxel_grid.encode)
+    none = np.zeros((0, 3), np.int64)
+    history = _saved_indices(path, arrays.get("global_slab_history", none), "slab history")
+    through = arrays.get("global_seen_through")
+    if through is not None:
+        through = _saved_indices(path, through, "seen-through record")
+    return SavedMap(grids["global"], grids["local"], history, through)  # type: ignore[arg-type]
+
+
+def _saved_indices(path: Path, raw: np.ndarray, what: str) -> np.ndarray:
+    """A saved map's record of global voxels as N×3 indices, checked: whole numbers, within the
+    range a key packs (voxel_grid.encode)."""
+    raw = np.asarray(raw)
     if raw.size % 3 or raw.dtype.kind not in "iu" or (raw.size and np.abs(raw).max() >= 2**20):
-        raise RunFileError(f"{path}: the global map's slab history is not N×3 voxel indices")
-    history = raw.astype(np.int64).reshape(-1, 3)
-    return SavedMap(grids["global"], grids["local"], history)  # type: ignore[arg-type]
+        raise RunFileError(f"{path}: the global map's {what} is not N×3 voxel indices")
+    return raw.astype(np.int64).reshape(-1, 3)
 
 
 class VoxelMapParams(BackendParams):
@@ -295,6 +308,24 @@ class VoxelMapParams(BackendParams):
         " horizontally from it: floors are changed through wide openings (a shaft, a stairwell), not"
         " through a hole the global map carved into a slab from drifted poses; 0: no such rule.",
     )
+    seen_through_rise: float = Field(
+        1.0,
+        ge=0,
+        le=100,
+        description="A global voxel counts as seen through (an opening between floors) where a ray"
+        " crossed it to end at least this much higher or lower (m): a slab stops rays, so the rays"
+        " that carve a slab's voxels from poses a few centimetres off in z end on it; 0: no"
+        " seen-through rule.",
+    )
+    seen_through_reach: float = Field(
+        1.5,
+        ge=0,
+        le=100,
+        description="Within this distance (m) horizontally of a slab, floor or ceiling, in its z layer"
+        " or the next, paths move vertically only through voxels seen through (seen_through_rise):"
+        " a floor is changed where the camera saw the other floor, not through a strip the map"
+        " carved into a slab seen from above and below by poses that disagreed in z; 0: no such rule.",
+    )
     contract_costs_above: int = Field(
         100_000,
         ge=0,
@@ -423,6 +454,7 @@ class _GraphRules:
     states: np.ndarray
     slab: np.ndarray  # the one non-local rule, over the whole block (see free_space.obstacles)
     slab_history: np.ndarray  # voxels some plan's rules took for a slab (VoxelMapBase.slab_history)
+    seen_through: np.ndarray  # voxels rays crossed vertically (VoxelMapBase.seen_through)
     passable: np.ndarray
     roomy: np.ndarray  # passable at the full clearance margin (no penalty)
     near: np.ndarray  # within the robot radius of an obstacle
@@ -431,6 +463,49 @@ class _GraphRules:
     @property
     def hi(self) -> np.ndarray:
         return self.lo + np.array(self.states.shape)
+
+
+class _GrowingKeys:
+    """A set of global voxels (sorted int64 keys) that grows by additions, and its dense copy over
+    a block kept up to date by ORing in what was added since the last copy (a dense read of every
+    key is ~5 ms on the demo's block, an update a fraction of that)."""
+
+    def __init__(self) -> None:
+        self.keys = np.zeros(0, np.int64)
+        self._unfolded: list[np.ndarray] = []  # added, not yet in keys
+        self._since_copy: list[np.ndarray] | None = []  # added since the last dense copy; None: replaced
+
+    def add(self, keys: np.ndarray) -> None:
+        if len(keys):
+            self._unfolded.append(keys)
+            if self._since_copy is not None:
+                self._since_copy.append(keys)
+
+    def replace(self, keys: np.ndarray) -> None:
+        self.keys, self._unfolded, self._since_copy = np.unique(keys), [], None
+
+    def merged(self) -> np.ndarray:
+        """Every key, additions folded in."""
+        if self._unfolded:
+            self.keys = np.union1d(self.keys, np.concatenate(self._unfolded))
+            self._unfolded = []
+        return self.keys
+
+    def over(self, lo: np.ndarray, shape: tuple[int, ...], before: np.ndarray | None) -> np.ndarray:
+        """The set as a dense mask over the block ``[lo, lo + shape)``; ``before``: the mask this
+        gave for the same block last time (None for a new block)."""
+        every = self.merged()
+        if before is not None and self._since_copy is not None:
+            out = before.copy()
+            keys = np.concatenate(self._since_copy) if self._since_copy else np.zeros(0, np.int64)
+        else:
+            out, keys = np.zeros(shape, dtype=bool), every
+        self._since_copy = []
+        if len(keys):
+            rel = decode(keys) - lo
+            inside = np.all((rel >= 0) & (rel < np.array(shape)), axis=1)
+            out[tuple(rel[inside].T)] = True
+        return out
 
 
 class VoxelStorage(Protocol):
@@ -476,6 +551,9 @@ class VoxelMapBase(Mapping):
         self._rules: _GraphRules | None = None
         self._slab_history = np.zeros(0, np.int64)  # encode()d keys, sorted (see slab_history)
         self._slab_history_loaded = False  # replaced by a load since the rules' last build
+        self._seen_through = _GrowingKeys()  # see seen_through
+        self._prior_seen_through = np.zeros(0, np.int64)  # a loaded map's, the base of a rebuild
+        self._seen_through_known = True  # False after loading a map saved without the record
 
     # ------------------------------------------------------------------ lifecycle
     @abc.abstractmethod
@@ -573,6 +651,7 @@ class VoxelMapBase(Mapping):
         p = self.params
         stride = p.global_stride or auto_stride(K, p.global_voxel, p.max_range)
         box = self.global_map.integrate_depth(depth, K, T_world_cam, stride, p.max_range)
+        self._seen_through.add(self._through(depth, K, T_world_cam, stride))
         if not box.empty:
             self._pending = union(self._pending, box)
             self._version += 1
@@ -592,10 +671,13 @@ class VoxelMapBase(Mapping):
         if self._prior_global is not None:
             store.from_arrays(self._prior_global)
         p = self.params
+        through = [self._prior_seen_through]
         for depth, K, T_world_cam in frames:
             stride = p.global_stride or auto_stride(K, p.global_voxel, p.max_range)
             store.integrate_depth(depth, K, T_world_cam, stride, p.max_range)
+            through.append(self._through(depth, K, T_world_cam, stride))
         self.global_map = store
+        self._seen_through.replace(np.concatenate(through))
         self._version += 1
         self._graph = None
         self.recompute_frontiers()
@@ -615,6 +697,20 @@ class VoxelMapBase(Mapping):
         if p.local_memory_frames:
             self.local_map.forget(p.local_memory_frames)
         return box
+
+    def _through(self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int) -> np.ndarray:
+        """Keys of the global voxels a frame saw through vertically (:meth:`seen_through`)."""
+        p = self.params
+        if p.seen_through_rise <= 0:
+            return np.zeros(0, np.int64)
+        return seen_through(depth, K, T_world_cam, stride, p.max_range, p.global_voxel, p.seen_through_rise)
+
+    def seen_through(self) -> np.ndarray:
+        """Global voxel indices (N×3) a ray crossed on its way to a point at least
+        ``seen_through_rise`` higher or lower (:func:`~amslam.lib.voxel_grid.seen_through`): air
+        between floors the camera saw through, vertically — an opening, where a path may change
+        floors (:func:`~amslam.lib.free_space.vertical_ok`). Rebuilt with the global map."""
+        return decode(self._seen_through.merged())
 
     def _local_shape(self) -> tuple[int, int, int]:
         return tuple(int(np.ceil(s / self.params.local_voxel)) for s in self.params.local_size)
@@ -676,7 +772,9 @@ class VoxelMapBase(Mapping):
         """How far (voxels, per axis) the graph's rules look from a voxel (free_space.graph_rules_reach)."""
         p = self.params
         radii = (self.robot_radius, self.segment_radius)
-        return graph_rules_reach(p.global_voxel, radii, p.unseen_surface_reach, p.floor_change_opening)
+        return graph_rules_reach(
+            p.global_voxel, radii, p.unseen_surface_reach, p.floor_change_opening, p.seen_through_reach
+        )
 
     def _rules_for(self, lo: np.ndarray, hi: np.ndarray) -> _GraphRules:
         """The graph's rules over a block holding ``[lo, hi)``, updated to the map's voxels.
@@ -706,28 +804,38 @@ class VoxelMapBase(Mapping):
             states = store.dense_states(block_lo, tuple(int(s) for s in block_hi - block_lo))
             slab = self._slabs(states)
             history = self._remember_slabs(slab, block_lo, None)
+            through = self._seen_through.over(block_lo, states.shape, None)
             self._rules = _GraphRules(
-                block_lo, states, slab, history, *self._graph_rules(states, block_lo, slab, history)
+                block_lo,
+                states,
+                slab,
+                history,
+                through,
+                *self._graph_rules(states, block_lo, slab, history, through),
             )
             return self._rules
         states = store.dense_states(rules.lo, rules.states.shape)
         slab = self._slabs(states)
         history = self._remember_slabs(slab, rules.lo, rules.slab_history)
+        through = self._seen_through.over(rules.lo, states.shape, rules.seen_through)
         changed = (states != rules.states) | (slab != rules.slab) | (history != rules.slab_history)
+        changed |= through != rules.seen_through
         shape = np.array(states.shape)
         for box_lo, box_hi in _changed_regions(changed, pad):
             # computed on the region widened by the reach (and a voxel, for the horizontal
             # surfaces at its edge), clipped to the block
             c_lo, c_hi = np.maximum(box_lo - pad, 0), np.minimum(box_hi + pad, shape)
             part = tuple(slice(int(i), int(j)) for i, j in zip(c_lo, c_hi, strict=True))
-            layers = self._graph_rules(states[part], rules.lo + c_lo, slab[part], history[part])
+            layers = self._graph_rules(
+                states[part], rules.lo + c_lo, slab[part], history[part], through[part]
+            )
             inner = tuple(slice(int(i), int(j)) for i, j in zip(box_lo - c_lo, box_hi - c_lo, strict=True))
             region = tuple(slice(int(i), int(j)) for i, j in zip(box_lo, box_hi, strict=True))
             for mine, fresh in zip(
                 (rules.passable, rules.roomy, rules.near, rules.vertical), layers, strict=True
             ):
                 mine[region] = fresh[inner]
-        rules.states, rules.slab, rules.slab_history = states, slab, history
+        rules.states, rules.slab, rules.slab_history, rules.seen_through = states, slab, history, through
         return rules
 
     def _remember_slabs(self, slab: np.ndarray, lo: np.ndarray, before: np.ndarray | None) -> np.ndarray:
@@ -764,16 +872,21 @@ class VoxelMapBase(Mapping):
 
     def _slabs(self, states: np.ndarray) -> np.ndarray:
         """The slabs of a block (free_space.slabs), where the rules use them."""
-        if self.params.floor_change_opening > 0:
+        if self.params.floor_change_opening > 0 or self._seen_through_rule():
             return slabs(states, self.global_map.voxel)
         return np.zeros(states.shape, dtype=bool)
 
     def _graph_rules(
-        self, states: np.ndarray, lo: np.ndarray, slab: np.ndarray, slab_history: np.ndarray
+        self,
+        states: np.ndarray,
+        lo: np.ndarray,
+        slab: np.ndarray,
+        slab_history: np.ndarray,
+        through: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The graph's rules on the block ``states`` (indices ``[lo, lo + shape)``) with its slabs
-        and :meth:`slab_history`: passable, roomy (no clearance penalty), near an obstacle,
-        vertical moves allowed."""
+        """The graph's rules on the block ``states`` (indices ``[lo, lo + shape)``) with its slabs,
+        :meth:`slab_history` and :meth:`seen_through`: passable, roomy (no clearance penalty), near
+        an obstacle, vertical moves allowed."""
         shape = states.shape
         v, reach, p = self.global_map.voxel, self.params.unseen_surface_reach, self.params
         unknown_free = p.plan_through_unknown
@@ -802,8 +915,17 @@ class VoxelMapBase(Mapping):
             opening=p.floor_change_opening,
             unseen_reach=reach,
             slab=slab,
+            seen_through=through if self._seen_through_rule() else None,
+            through_reach=p.seen_through_reach,
+            slab_history=slab_history,
         )
         return passable, roomy, near, vertical
+
+    def _seen_through_rule(self) -> bool:
+        """Whether floor changes need air seen through: the record is kept, and complete (a map
+        loaded without it has openings this flight never saw through, e.g. an OctoMap file)."""
+        p = self.params
+        return p.seen_through_rise > 0 and p.seen_through_reach > 0 and self._seen_through_known
 
     def _flyable(self, lo: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
         """Voxels of the block ``[lo, lo + shape)`` whose centre keeps the robot inside the area.
@@ -967,6 +1089,7 @@ class VoxelMapBase(Mapping):
             local_logodds=loc["logodds"],
             local_voxel=np.array(self.local_map.voxel),
             global_slab_history=self.slab_history(),
+            **({"global_seen_through": self.seen_through()} if self._seen_through_known else {}),
         )
 
     def load(self, path: Path) -> None:
@@ -993,6 +1116,10 @@ class VoxelMapBase(Mapping):
         history = np.unique(encode(saved.slab_history))
         if not np.array_equal(history, self._slab_history):  # else the rules' copy still holds
             self._slab_history, self._slab_history_loaded = history, True
+        self._seen_through_known = saved.seen_through is not None
+        through = encode(saved.seen_through) if saved.seen_through is not None else np.zeros(0, np.int64)
+        self._seen_through.replace(through)
+        self._prior_seen_through = self._seen_through.keys
         self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None
@@ -1004,6 +1131,9 @@ class VoxelMapBase(Mapping):
         self.global_map.from_arrays({"index": index, "logodds": logodds})
         self._slab_history = np.zeros(0, np.int64)
         self._slab_history_loaded = True
+        self._seen_through.replace(np.zeros(0, np.int64))
+        self._prior_seen_through = self._seen_through.keys
+        self._seen_through_known = False  # its openings were never seen through by this flight
         self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None

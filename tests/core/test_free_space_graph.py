@@ -75,10 +75,19 @@ AREA = BoundingBox(np.array([0.0, 0.0, 0.0]), np.array([10.0, 8.0, 6.0]))
 SIZE = (40, 32, 24)  # the area in 0.25 m voxels
 
 
-def put(mapping, states: np.ndarray, lo: np.ndarray, path, slab_history: np.ndarray | None = None) -> None:
+def put(
+    mapping,
+    states: np.ndarray,
+    lo: np.ndarray,
+    path,
+    slab_history: np.ndarray | None = None,
+    seen_through: np.ndarray | None = None,
+) -> None:
     """Replace the mapping's global map by ``states`` (int8, index ``lo`` first), through ``load``,
-    with ``slab_history`` (global indices; by default the mapping's own, as a flight keeps it)."""
+    with ``slab_history`` (global indices; by default the mapping's own, as a flight keeps it) and
+    the ``seen_through`` record (global indices; None: a map saved without it)."""
     history = mapping.slab_history() if slab_history is None else slab_history
+    record = {} if seen_through is None else {"global_seen_through": seen_through}
     idx = np.argwhere(states != UNKNOWN)
     logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
     np.savez_compressed(
@@ -91,6 +100,7 @@ def put(mapping, states: np.ndarray, lo: np.ndarray, path, slab_history: np.ndar
         local_logodds=np.zeros(0, np.float32),
         local_voxel=np.array(0.1),
         global_slab_history=history,
+        **record,
     )
     mapping.load(path)
 
@@ -171,6 +181,9 @@ def block_graph(mapping) -> FreeSpaceGraph:
         passable &= inside | (states == FREE)
         roomy &= inside | (states == FREE)
     flyable = mapping._flyable(lo, shape)
+    through = np.zeros(shape, dtype=bool)
+    rel = mapping.seen_through() - lo
+    through[tuple(rel[np.all((rel >= 0) & (rel < np.array(shape)), axis=1)].T)] = True
     vertical = vertical_ok(
         states,
         mapping.robot_radius,
@@ -178,6 +191,9 @@ def block_graph(mapping) -> FreeSpaceGraph:
         observed=p.observed_floor_changes,
         opening=p.floor_change_opening,
         unseen_reach=p.unseen_surface_reach,
+        seen_through=through if mapping._seen_through_rule() else None,
+        through_reach=p.seen_through_reach,
+        slab_history=history,
     )
     return FreeSpaceGraph(
         passable & flyable,
@@ -212,8 +228,10 @@ def graph_arrays(mapping, g: FreeSpaceGraph | None = None) -> dict[str, np.ndarr
         {"unseen_surface_reach": 0.5, "floor_change_opening": 1.0},
         {"plan_through_unknown": True},
         {"floor_change_opening": 0.0, "unseen_surface_reach": 0.0},
+        {"seen_through_reach": 1.5},
+        {"seen_through_reach": 2.5, "floor_change_opening": 0.0},
     ],
-    ids=["defaults", "wider-rules", "through-unknown", "no-slab-rules"],
+    ids=["defaults", "wider-rules", "through-unknown", "no-slab-rules", "seen-through", "seen-through-only"],
 )
 def test_the_graph_updated_near_changes_is_the_graph_built_from_scratch(params, tmp_path) -> None:
     from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
@@ -225,13 +243,20 @@ def test_the_graph_updated_near_changes_is_the_graph_built_from_scratch(params, 
 
     followed = configured()
     updated_in_place = 0
+    rng = np.random.default_rng(6)
+    # the seen-through cases: a record growing as a flight's does (the shaft, then random voxels)
+    record = (
+        np.argwhere(np.ones((10, 10, 3), bool)) + [28, 20, 10] if "seen_through_reach" in params else None
+    )
     for k, (name, states, lo) in enumerate(steps(np.random.default_rng(5))):
-        put(followed, states, lo, tmp_path / f"map{k}.npz")
+        if record is not None and k:
+            record = np.unique(np.concatenate([record, rng.integers(0, SIZE, size=(40, 3))]), axis=0)
+        put(followed, states, lo, tmp_path / f"map{k}.npz", seen_through=record)
         before = followed._rules
         got = graph_arrays(followed)
         updated_in_place += before is not None and followed._rules is before
         scratch = configured()
-        put(scratch, states, lo, tmp_path / f"scratch{k}.npz", followed.slab_history())
+        put(scratch, states, lo, tmp_path / f"scratch{k}.npz", followed.slab_history(), record)
         want = graph_arrays(scratch)
         # and the graph of every rule computed on the extent's block, as the graph was built before
         # (the rules agree there: the voxels round the extent are unknown, like those beyond it)
