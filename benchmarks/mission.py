@@ -29,6 +29,7 @@ Buildings (``--buildings``): ``demo`` (the demo mission: two 14 × 10 m floors a
 
     .venv/bin/python benchmarks/mission.py                          # docs/benchmarks.md
     .venv/bin/python benchmarks/mission.py --buildings demo --max-time 0   # the mission's own limit
+    .venv/bin/python benchmarks/mission.py --buildings demo --set mapping.seen_through_rise=0  # a rule's cost
 
 Results: ``results.json``, ``table.md`` and ``mission.png`` (ms per tick of each module against
 the building's reachable free volume, log-log) in ``--out``/mission-benchmark-TIME, printed too.
@@ -45,6 +46,7 @@ import os
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -172,14 +174,14 @@ def instrument(watch: Stopwatch, registry, mission) -> None:
     watch.patch(Runner, "_finish", "report")
 
 
-def fly(building: str, seed: int, max_time: float, out: Path) -> dict[str, Any]:
-    """One instrumented flight: its figures."""
+def fly(building: str, seed: int, max_time: float, out: Path, extra: Sequence[str] = ()) -> dict[str, Any]:
+    """One instrumented flight: its figures. ``extra``: further mission overrides (``KEY=VALUE``)."""
     from amslam.mission import load_mission
     from amslam.registry import build_plugin_manager
     from amslam.runner import Runner
 
     mission_name, overrides = BUILDINGS[building]
-    overrides = [*overrides, f"seed={seed}"]
+    overrides = [*overrides, *extra, f"seed={seed}"]
     if max_time > 0:
         overrides.append(f"limits.max_time={max_time:g}")
     registry = build_plugin_manager()
@@ -282,6 +284,13 @@ def main(argv: list[str] | None = None) -> int:
         "--max-time", type=float, default=400.0, help="simulated seconds per flight (0: the mission's limit)"
     )
     parser.add_argument("--out", default="runs", help="where the benchmark folder is made")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a mission override for every flight, as `amslam run --set` (the cost of a parameter)",
+    )
     args = parser.parse_args(argv)
     names = [b.strip() for b in args.buildings.split(",") if b.strip()]
     unknown = [b for b in names if b not in BUILDINGS]
@@ -293,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name in names:
         print(f"flying {name} (seed {args.seed}) ...", flush=True)
-        row = fly(name, args.seed, args.max_time, folder / "runs")
+        row = fly(name, args.seed, args.max_time, folder / "runs", args.set)
         print(
             f"  {row['verdict']}: {row['sim_s']:.0f} s simulated in {row['loop_s']:.0f} s "
             f"({row['realtime_factor']:.2f}× real time), load {row['load'][0]:.1f}",
