@@ -279,12 +279,12 @@ def vertical_ok(
       carved into a slab, which is only as wide as the pose error that carved it allows.
     * ``seen_through`` (voxels a ray crossed on its way to a point well above or below,
       :func:`~amslam.lib.voxel_grid.seen_through`): within ``through_reach`` horizontally of a
-      slab, floor or ceiling (or of a voxel of ``slab_history``) in the voxel's z layer or the
-      layers next to it, a vertical move only through such air. A slab seen from above and below
-      by poses whose heights disagree sits in two layers in two places, and the rays of each
-      side carve the other's layer: a three-floor flight's map had a free strip 2 m wide and 7 m
-      long through both layers of a slab, more than the opening rule's distance from either,
-      and climbed into it. Rays cross a real opening (the camera sees the floor above or below
+      slab, floor or ceiling (or of a voxel of ``slab_history``) seen from both floors, in its z
+      layer, a vertical move only through such air. A slab seen from above and below by poses
+      whose heights disagree sits in two layers in two places, and the rays of each side carve
+      the other's layer: a three-floor flight's map had a free strip 2 m wide and 7 m long
+      through both layers of a slab, more than the opening rule's distance from either, and
+      climbed into it. Rays cross a real opening (the camera sees the floor above or below
       through it); those that carved the strip ended on the slab.
 
     Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles). ``slab``: the
@@ -314,10 +314,17 @@ def vertical_ok(
         ok &= ~ndimage.binary_dilation(big, structure=_disc(opening, voxel))
     if seen_through is not None and through_reach > 0:
         floors = big | slab_history if slab_history is not None else big
+        # seen from both floors: observed free air two or three layers over it and under it (one
+        # layer off may be the slab itself, seen a layer high or low). The carving needs both
+        # sides seen; a slab seen from below only (a floor not yet visited) keeps the other rules,
+        # or the first climb to it would wait for a proof the level camera cannot give from below
+        # (a ray 1.6 m under the slab, 29° up at most, ends at 5 m range 0.8 m above it).
+        free = states == FREE
+        above = _shift(free, 2, -2) | _shift(free, 2, -3)
+        below = _shift(free, 2, 2) | _shift(free, 2, 3)
+        floors &= above & below
         if floors.any():
-            # the disc over three layers: the slab's own and the two its two sides were seen in
-            band = np.repeat(_disc(through_reach, voxel), 3, axis=2)
-            ok &= seen_through | ~ndimage.binary_dilation(floors, structure=band)
+            ok &= seen_through | ~ndimage.binary_dilation(floors, structure=_disc(through_reach, voxel))
     return ok
 
 
@@ -352,8 +359,9 @@ def graph_rules_reach(
     obstacle = np.maximum(unseen, narrow)
     inflated = [obstacle + _reach(clearance_kernel(r, voxel)) for r in radii]
     m = int(np.ceil(radii[0] / voxel)) + 1  # vertical_ok's box round horizontal surfaces
-    # the slabs, their unseen continuation and the slab history widened by the seen-through band
-    band = _reach(_disc(through_reach, voxel)) + np.array([0, 0, 1]) if through_reach > 0 else 0
+    # the slabs, their unseen continuation and the slab history (seen from both floors: three
+    # layers over and under) widened by the seen-through disc
+    band = _reach(_disc(through_reach, voxel)) + np.array([0, 0, 3]) if through_reach > 0 else 0
     vertical = np.maximum.reduce(
         [_reach(clearance_kernel(radii[0], voxel)), np.full(3, 1 + m), unseen + disc, unseen + band]
     )

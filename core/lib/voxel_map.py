@@ -321,10 +321,11 @@ class VoxelMapParams(BackendParams):
         1.5,
         ge=0,
         le=100,
-        description="Within this distance (m) horizontally of a slab, floor or ceiling, in its z layer"
-        " or the next, paths move vertically only through voxels seen through (seen_through_rise):"
-        " a floor is changed where the camera saw the other floor, not through a strip the map"
-        " carved into a slab seen from above and below by poses that disagreed in z; 0: no such rule.",
+        description="Within this distance (m) horizontally of a slab, floor or ceiling seen from both"
+        " floors, in its z layer, paths move vertically only through voxels seen through"
+        " (seen_through_rise): a floor is changed where the camera saw the other floor, not through a"
+        " strip the map carved into a slab seen from above and below by poses that disagreed in z;"
+        " 0: no such rule.",
     )
     contract_costs_above: int = Field(
         100_000,

@@ -442,3 +442,31 @@ def test_the_record_is_kept_by_integration_and_rebuilt_with_the_map(cls, tmp_pat
     m.rebuild_global(shifted)
     np.testing.assert_array_equal(m.seen_through(), through_record(shifted))
     assert not np.array_equal(through_record(shifted), through_record(frames))
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_a_floor_not_yet_visited_is_reached_without_the_proof(cls, tmp_path) -> None:
+    # From below, the level camera sees through a shaft only with rays that end within its 5 m
+    # range less than a metre above the slab: no proof. Before the floor above was visited, its
+    # air over the slab is unknown; the slab was seen from below only and could not be carved by
+    # the two sides' rays, so the first climb keeps the other rules.
+    from .global_maps import _save_global
+
+    shaft = (slice(10, 18), slice(10, 18))  # 2 m, in the middle: every voxel of it within 1.5 m of the slab
+    first_visit = building()
+    first_visit[(*shaft, SLAB)] = 0
+    first_visit[:, :, SLAB + 1 : 21] = UNKNOWN
+    first_visit[(*shaft, slice(SLAB + 1, SLAB + 5))] = 0  # seen through the shaft from below
+    up = np.array([3.5, 3.5, 3.6])
+    nothing = np.array([[0, 0, 0]])  # a record that holds no voxel of the shaft: the rule is on
+    _save_global(tmp_path / "first.npz", first_visit, V, global_seen_through=nothing)
+    m = load(cls, tmp_path, building())
+    m.load(tmp_path / "first.npz")
+    assert m.plan_path(BELOW, up) is not None
+    # The same shaft once the floor above is known round it: the slab is seen from both floors,
+    # and a climb needs the proof.
+    visited = building()
+    visited[(*shaft, SLAB)] = 0
+    _save_global(tmp_path / "visited.npz", visited, V, global_seen_through=nothing)
+    m.load(tmp_path / "visited.npz")
+    assert m.plan_path(BELOW, up) is None
