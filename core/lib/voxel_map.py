@@ -485,6 +485,11 @@ class _GrowingKeys:
     def replace(self, keys: np.ndarray) -> None:
         self.keys, self._unfolded, self._since_copy = np.unique(keys), [], None
 
+    @property
+    def replaced(self) -> bool:
+        """Whether :meth:`replace` came after the last dense copy (which no longer holds)."""
+        return self._since_copy is None
+
     def merged(self) -> np.ndarray:
         """Every key, additions folded in."""
         if self._unfolded:
@@ -550,8 +555,7 @@ class VoxelMapBase(Mapping):
         self._version = 0
         self._graph: tuple[int, FreeSpaceGraph] | None = None
         self._rules: _GraphRules | None = None
-        self._slab_history = np.zeros(0, np.int64)  # encode()d keys, sorted (see slab_history)
-        self._slab_history_loaded = False  # replaced by a load since the rules' last build
+        self._slab_history = _GrowingKeys()  # see slab_history
         self._seen_through = _GrowingKeys()  # see seen_through
         self._prior_seen_through = np.zeros(0, np.int64)  # a loaded map's, the base of a rebuild
         self._seen_through_known = True  # False after loading a map saved without the record
@@ -632,7 +636,10 @@ class VoxelMapBase(Mapping):
         self._version = 0
         self._graph = None
         self._rules = None
-        self._slab_history = np.zeros(0, np.int64)
+        self._slab_history = _GrowingKeys()
+        self._seen_through = _GrowingKeys()
+        self._prior_seen_through = np.zeros(0, np.int64)
+        self._seen_through_known = True
 
     def close(self) -> None:
         """Drop the maps (safe to call twice)."""
@@ -844,19 +851,11 @@ class VoxelMapBase(Mapping):
         history over that block. ``before``: the history over the same block at the last build,
         still true unless a map was loaded since (then, and for a new block, it is read back from
         the keys: ~5 ms on the demo's block, against ~0.3 ms for the update)."""
-        still = before is not None and not self._slab_history_loaded
+        still = before is not None and not self._slab_history.replaced
         new = slab & ~before if still else slab
         if new.any():
-            self._slab_history = np.union1d(self._slab_history, encode(np.argwhere(new) + lo))
-        if still:
-            return before | slab
-        self._slab_history_loaded = False
-        out = np.zeros(slab.shape, dtype=bool)
-        if len(self._slab_history):
-            rel = decode(self._slab_history) - lo
-            inside = np.all((rel >= 0) & (rel < np.array(slab.shape)), axis=1)
-            out[tuple(rel[inside].T)] = True
-        return out
+            self._slab_history.add(encode(np.argwhere(new) + lo))
+        return self._slab_history.over(lo, slab.shape, before)
 
     def slab_history(self) -> np.ndarray:
         """Global voxel indices (N×3) that the path rules took for a slab, floor or ceiling at some
@@ -869,7 +868,7 @@ class VoxelMapBase(Mapping):
         keeps no history of its voxels; the rules keep this one, and such voxels stay obstacles
         to the paths (:func:`~amslam.lib.free_space.obstacles`) whatever the map says of them now.
         """
-        return decode(self._slab_history)
+        return decode(self._slab_history.merged())
 
     def _slabs(self, states: np.ndarray) -> np.ndarray:
         """The slabs of a block (free_space.slabs), where the rules use them."""
@@ -1115,8 +1114,8 @@ class VoxelMapBase(Mapping):
                 )
             store.from_arrays({"index": grid.index, "logodds": grid.logodds})
         history = np.unique(encode(saved.slab_history))
-        if not np.array_equal(history, self._slab_history):  # else the rules' copy still holds
-            self._slab_history, self._slab_history_loaded = history, True
+        if not np.array_equal(history, self._slab_history.merged()):  # else the rules' copy holds
+            self._slab_history.replace(history)
         self._seen_through_known = saved.seen_through is not None
         through = encode(saved.seen_through) if saved.seen_through is not None else np.zeros(0, np.int64)
         self._seen_through.replace(through)
@@ -1130,8 +1129,7 @@ class VoxelMapBase(Mapping):
         index, occupied = read_bt(path, self.global_map.voxel)
         logodds = np.where(occupied, logit(self.params.p_max), logit(self.params.p_min)).astype(np.float32)
         self.global_map.from_arrays({"index": index, "logodds": logodds})
-        self._slab_history = np.zeros(0, np.int64)
-        self._slab_history_loaded = True
+        self._slab_history.replace(np.zeros(0, np.int64))
         self._seen_through.replace(np.zeros(0, np.int64))
         self._prior_seen_through = self._seen_through.keys
         self._seen_through_known = False  # its openings were never seen through by this flight
