@@ -33,6 +33,9 @@ REALTIME = (
     "core/test_mapper_thread.py",
     "e2e/test_detection_thread.py",
     "e2e/test_hostile_cli.py",
+    # its flights run under the hostile command line's wall-clock bound on hangs (BOUND): starved
+    # at the lowest priority on a loaded machine, a flight took longer than it (session 46)
+    "e2e/test_hostile_disk.py",
 )
 
 
