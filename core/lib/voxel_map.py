@@ -557,8 +557,7 @@ class VoxelMapBase(Mapping):
         self._rules: _GraphRules | None = None
         self._slab_history = _GrowingKeys()  # see slab_history
         self._seen_through = _GrowingKeys()  # see seen_through
-        self._prior_seen_through = np.zeros(0, np.int64)  # a loaded map's, the base of a rebuild
-        self._seen_through_known = True  # False after loading a map saved without the record
+        self._start_seen_through(np.zeros(0, np.int64), known=True)
 
     # ------------------------------------------------------------------ lifecycle
     @abc.abstractmethod
@@ -637,9 +636,7 @@ class VoxelMapBase(Mapping):
         self._graph = None
         self._rules = None
         self._slab_history = _GrowingKeys()
-        self._seen_through = _GrowingKeys()
-        self._prior_seen_through = np.zeros(0, np.int64)
-        self._seen_through_known = True
+        self._start_seen_through(np.zeros(0, np.int64), known=True)
 
     def close(self) -> None:
         """Drop the maps (safe to call twice)."""
@@ -712,6 +709,13 @@ class VoxelMapBase(Mapping):
         if p.seen_through_rise <= 0:
             return np.zeros(0, np.int64)
         return seen_through(depth, K, T_world_cam, stride, p.max_range, p.global_voxel, p.seen_through_rise)
+
+    def _start_seen_through(self, keys: np.ndarray, *, known: bool) -> None:
+        """Start the seen-through record from ``keys`` (a loaded map's, also the base of a rebuild);
+        ``known``: False for a map without one, which turns the rule off (:meth:`_seen_through_rule`)."""
+        self._seen_through.replace(keys)
+        self._prior_seen_through = self._seen_through.keys
+        self._seen_through_known = known
 
     def seen_through(self) -> np.ndarray:
         """Global voxel indices (N×3) a ray crossed on its way to a point at least
@@ -812,7 +816,7 @@ class VoxelMapBase(Mapping):
             states = store.dense_states(block_lo, tuple(int(s) for s in block_hi - block_lo))
             slab = self._slabs(states)
             history = self._remember_slabs(slab, block_lo, None)
-            through = self._seen_through.over(block_lo, states.shape, None)
+            through = self._through_over(block_lo, states.shape, None)
             self._rules = _GraphRules(
                 block_lo,
                 states,
@@ -825,7 +829,7 @@ class VoxelMapBase(Mapping):
         states = store.dense_states(rules.lo, rules.states.shape)
         slab = self._slabs(states)
         history = self._remember_slabs(slab, rules.lo, rules.slab_history)
-        through = self._seen_through.over(rules.lo, states.shape, rules.seen_through)
+        through = self._through_over(rules.lo, states.shape, rules.seen_through)
         changed = (states != rules.states) | (slab != rules.slab) | (history != rules.slab_history)
         changed |= through != rules.seen_through
         shape = np.array(states.shape)
@@ -920,6 +924,14 @@ class VoxelMapBase(Mapping):
             slab_history=slab_history,
         )
         return passable, roomy, near, vertical
+
+    def _through_over(self, lo: np.ndarray, shape: tuple[int, ...], before: np.ndarray | None) -> np.ndarray:
+        """The seen-through record over a rules block, or nothing while the rule is off: then the
+        record's growth is no change to the rules. (The rule turns on or off only at a ``load``,
+        which replaces the record, so the next copy is read whole.)"""
+        if self._seen_through_rule():
+            return self._seen_through.over(lo, shape, before)
+        return np.zeros(shape, dtype=bool)
 
     def _seen_through_rule(self) -> bool:
         """Whether floor changes need air seen through: the record is kept, and complete (a map
@@ -1116,10 +1128,8 @@ class VoxelMapBase(Mapping):
         history = np.unique(encode(saved.slab_history))
         if not np.array_equal(history, self._slab_history.merged()):  # else the rules' copy holds
             self._slab_history.replace(history)
-        self._seen_through_known = saved.seen_through is not None
-        through = encode(saved.seen_through) if saved.seen_through is not None else np.zeros(0, np.int64)
-        self._seen_through.replace(through)
-        self._prior_seen_through = self._seen_through.keys
+        known = saved.seen_through is not None
+        self._start_seen_through(encode(saved.seen_through) if known else np.zeros(0, np.int64), known=known)
         self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None
@@ -1130,9 +1140,8 @@ class VoxelMapBase(Mapping):
         logodds = np.where(occupied, logit(self.params.p_max), logit(self.params.p_min)).astype(np.float32)
         self.global_map.from_arrays({"index": index, "logodds": logodds})
         self._slab_history.replace(np.zeros(0, np.int64))
-        self._seen_through.replace(np.zeros(0, np.int64))
-        self._prior_seen_through = self._seen_through.keys
-        self._seen_through_known = False  # its openings were never seen through by this flight
+        # its openings were never seen through by this flight
+        self._start_seen_through(np.zeros(0, np.int64), known=False)
         self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None

@@ -19,7 +19,7 @@ from amslam.plugins.voxel_open3d.backend import Open3dVoxelMap
 from amslam.testing.mapping import make_context
 from amslam.types import BoundingBox
 
-from .global_maps import load_states, replace_states
+from .global_maps import _save_global, load_states, replace_states
 
 V = 0.25
 N = (24, 24, 24)  # 6 × 6 × 6 m
@@ -396,8 +396,6 @@ def band_crossings(path: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("cls", BACKENDS)
 def test_floors_are_changed_through_air_seen_through(cls, tmp_path) -> None:
-    from .global_maps import _save_global
-
     carved = strip_map()
     record = through_record(views(true_building_scene()))
     # Without the record (a map saved without it: the rule is off) the plan climbs the strip.
@@ -450,8 +448,6 @@ def test_a_floor_not_yet_visited_is_reached_without_the_proof(cls, tmp_path) -> 
     # range less than a metre above the slab: no proof. Before the floor above was visited, its
     # air over the slab is unknown; the slab was seen from below only and could not be carved by
     # the two sides' rays, so the first climb keeps the other rules.
-    from .global_maps import _save_global
-
     shaft = (slice(10, 18), slice(10, 18))  # 2 m, in the middle: every voxel of it within 1.5 m of the slab
     first_visit = building()
     first_visit[(*shaft, SLAB)] = 0
