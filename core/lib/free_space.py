@@ -261,6 +261,8 @@ def vertical_ok(
     seen_through: np.ndarray | None = None,
     through_reach: float = 0.0,
     slab_history: np.ndarray | None = None,
+    seen_from_above: np.ndarray | None = None,
+    seen_from_below: np.ndarray | None = None,
 ) -> np.ndarray:
     """Voxels where a path may move vertically (climb, descend) near slabs, floors and ceilings.
 
@@ -285,7 +287,10 @@ def vertical_ok(
       the other's layer: a three-floor flight's map had a free strip 2 m wide and 7 m long
       through both layers of a slab, more than the opening rule's distance from either, and
       climbed into it. Rays cross a real opening (the camera sees the floor above or below
-      through it); those that carved the strip ended on the slab.
+      through it); those that carved the strip ended on the slab. "Seen from both floors":
+      observed free air two or three layers over and under it and, when given, a hit on it (or a
+      layer off) in ``seen_from_above`` and ``seen_from_below``
+      (:func:`~amslam.lib.voxel_grid.surfaces_seen_from`).
 
     Elsewhere vertical moves keep the ordinary rule (known free, clear of obstacles). ``slab``: the
     block's :func:`slabs`, when the caller has them (see :func:`obstacles`).
@@ -323,6 +328,12 @@ def vertical_ok(
         above = _shift(free, 2, -2) | _shift(free, 2, -3)
         below = _shift(free, 2, 2) | _shift(free, 2, 3)
         floors &= above & below
+        # The air over a slab is also seen from below, through a shaft beside it, before any pose
+        # was over it (the demo's first climb waited for a proof it could not get); its top is
+        # hit from above only by a camera that was over it.
+        for side in (seen_from_above, seen_from_below):
+            if side is not None:
+                floors &= side | _shift(side, 2, 1) | _shift(side, 2, -1)
         if floors.any():
             ok &= seen_through | ~ndimage.binary_dilation(floors, structure=_disc(through_reach, voxel))
     return ok

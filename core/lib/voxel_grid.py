@@ -180,6 +180,23 @@ def seen_through(
     return np.unique(encode(to_index(points, voxel)))
 
 
+def surfaces_seen_from(
+    depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int, max_range: float, voxel: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Keys of the voxels a return of the depth image hit from above (its end more than a voxel
+    lower than the camera) and from below (more than a voxel higher).
+
+    The air over a slab can be seen from below, through a shaft beside it, before any pose was
+    on the floor above; its top cannot: a hit from above is the proof that the camera was over
+    the slab (:func:`~amslam.lib.free_space.vertical_ok`'s "seen from both floors").
+    """
+    origin, dirs, lengths, hit = depth_rays(depth, K, T_world_cam, stride, max_range)
+    ends = origin + dirs[hit] * lengths[hit, None]
+    keys = encode(to_index(ends, voxel))
+    dz = ends[:, 2] - origin[2]
+    return np.unique(keys[dz < -voxel]), np.unique(keys[dz > voxel])
+
+
 def traverse_rays(
     origin: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, hit: np.ndarray, voxel: float
 ) -> tuple[np.ndarray, np.ndarray]:

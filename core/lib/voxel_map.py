@@ -51,6 +51,7 @@ from amslam.lib.voxel_grid import (
     index_box,
     logit,
     seen_through,
+    surfaces_seen_from,
     to_index,
     union,
 )
@@ -100,6 +101,10 @@ class SavedMap:
     #: global voxel indices (N×3) the flight's rays saw through vertically
     #: (:meth:`VoxelMapBase.seen_through`); None in a map saved without that record
     seen_through: np.ndarray | None = None
+    #: global voxel indices (N×3) of surfaces the flight's rays hit from above and from below
+    #: (:meth:`VoxelMapBase.surfaces_seen_from`); None in a map saved without them
+    seen_from_above: np.ndarray | None = None
+    seen_from_below: np.ndarray | None = None
 
 
 def read_saved_map(path: Path) -> SavedMap:
@@ -136,10 +141,15 @@ def read_saved_map(path: Path) -> SavedMap:
         grids[name] = SavedGrid(index, logodds, voxel)
     none = np.zeros((0, 3), np.int64)
     history = _saved_indices(path, arrays.get("global_slab_history", none), "slab history")
-    through = arrays.get("global_seen_through")
-    if through is not None:
-        through = _saved_indices(path, through, "seen-through record")
-    return SavedMap(grids["global"], grids["local"], history, through)  # type: ignore[arg-type]
+    records = {}
+    for name, what in (
+        ("seen_through", "seen-through record"),
+        ("seen_from_above", "record of surfaces seen from above"),
+        ("seen_from_below", "record of surfaces seen from below"),
+    ):
+        raw = arrays.get(f"global_{name}")
+        records[name] = None if raw is None else _saved_indices(path, raw, what)
+    return SavedMap(grids["global"], grids["local"], history, **records)  # type: ignore[arg-type]
 
 
 def _saved_indices(path: Path, raw: np.ndarray, what: str) -> np.ndarray:
@@ -455,7 +465,7 @@ class _GraphRules:
     states: np.ndarray
     slab: np.ndarray  # the one non-local rule, over the whole block (see free_space.obstacles)
     slab_history: np.ndarray  # voxels some plan's rules took for a slab (VoxelMapBase.slab_history)
-    seen_through: np.ndarray  # voxels rays crossed vertically (VoxelMapBase.seen_through)
+    seen_through: np.ndarray  # (3, *shape): _VerticalViews.over, crossed and surfaces from above, below
     passable: np.ndarray
     roomy: np.ndarray  # passable at the full clearance margin (no penalty)
     near: np.ndarray  # within the robot radius of an obstacle
@@ -514,6 +524,40 @@ class _GrowingKeys:
         return out
 
 
+class _VerticalViews:
+    """What the flight's rays saw vertically, three growing records of global voxels: the air they
+    crossed on the way to a point well above or below (:meth:`VoxelMapBase.seen_through`) and the
+    surfaces they hit from above and from below (:meth:`VoxelMapBase.surfaces_seen_from`)."""
+
+    def __init__(self) -> None:
+        self.parts = (_GrowingKeys(), _GrowingKeys(), _GrowingKeys())
+
+    def add(self, keys: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        for part, k in zip(self.parts, keys, strict=True):
+            part.add(k)
+
+    def replace(self, keys: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        for part, k in zip(self.parts, keys, strict=True):
+            part.replace(k)
+
+    @property
+    def keys(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return tuple(part.keys for part in self.parts)  # type: ignore[return-value]
+
+    def merged(self, part: int) -> np.ndarray:
+        return self.parts[part].merged()
+
+    def over(self, lo: np.ndarray, shape: tuple[int, ...], before: np.ndarray | None) -> np.ndarray:
+        """The three records as dense masks over the block, stacked (``before``: as for
+        :meth:`_GrowingKeys.over`, the stack this gave last time)."""
+        return np.stack(
+            [part.over(lo, shape, None if before is None else before[i]) for i, part in enumerate(self.parts)]
+        )
+
+
+_NO_VIEWS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
 class VoxelStorage(Protocol):
     """Storage operations a voxel backend provides (see :class:`~.grid.DenseGrid`)."""
 
@@ -556,8 +600,8 @@ class VoxelMapBase(Mapping):
         self._graph: tuple[int, FreeSpaceGraph] | None = None
         self._rules: _GraphRules | None = None
         self._slab_history = _GrowingKeys()  # see slab_history
-        self._seen_through = _GrowingKeys()  # see seen_through
-        self._start_seen_through(np.zeros(0, np.int64), known=True)
+        self._seen_through = _VerticalViews()  # see seen_through, surfaces_seen_from
+        self._start_seen_through(_NO_VIEWS, known=True)
 
     # ------------------------------------------------------------------ lifecycle
     @abc.abstractmethod
@@ -636,7 +680,7 @@ class VoxelMapBase(Mapping):
         self._graph = None
         self._rules = None
         self._slab_history = _GrowingKeys()
-        self._start_seen_through(np.zeros(0, np.int64), known=True)
+        self._start_seen_through(_NO_VIEWS, known=True)
 
     def close(self) -> None:
         """Drop the maps (safe to call twice)."""
@@ -682,7 +726,7 @@ class VoxelMapBase(Mapping):
             store.integrate_depth(depth, K, T_world_cam, stride, p.max_range)
             through.append(self._through(depth, K, T_world_cam, stride))
         self.global_map = store
-        self._seen_through.replace(np.concatenate(through))
+        self._seen_through.replace(tuple(np.concatenate(part) for part in zip(*through, strict=True)))
         self._version += 1
         self._graph = None
         self.recompute_frontiers()
@@ -703,16 +747,21 @@ class VoxelMapBase(Mapping):
             self.local_map.forget(p.local_memory_frames)
         return box
 
-    def _through(self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int) -> np.ndarray:
-        """Keys of the global voxels a frame saw through vertically (:meth:`seen_through`)."""
+    def _through(
+        self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, stride: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Keys of the global voxels a frame saw through vertically (:meth:`seen_through`) and of
+        the surfaces it hit from above and from below (:meth:`surfaces_seen_from`)."""
         p = self.params
         if p.seen_through_rise <= 0:
-            return np.zeros(0, np.int64)
-        return seen_through(depth, K, T_world_cam, stride, p.max_range, p.global_voxel, p.seen_through_rise)
+            return _NO_VIEWS
+        v = p.global_voxel
+        through = seen_through(depth, K, T_world_cam, stride, p.max_range, v, p.seen_through_rise)
+        return (through, *surfaces_seen_from(depth, K, T_world_cam, stride, p.max_range, v))
 
-    def _start_seen_through(self, keys: np.ndarray, *, known: bool) -> None:
-        """Start the seen-through record from ``keys`` (a loaded map's, also the base of a rebuild);
-        ``known``: False for a map without one, which turns the rule off (:meth:`_seen_through_rule`)."""
+    def _start_seen_through(self, keys: tuple[np.ndarray, np.ndarray, np.ndarray], *, known: bool) -> None:
+        """Start the seen-through records from ``keys`` (a loaded map's, also the base of a rebuild);
+        ``known``: False for a map without them, which turns the rule off (:meth:`_seen_through_rule`)."""
         self._seen_through.replace(keys)
         self._prior_seen_through = self._seen_through.keys
         self._seen_through_known = known
@@ -722,7 +771,15 @@ class VoxelMapBase(Mapping):
         ``seen_through_rise`` higher or lower (:func:`~amslam.lib.voxel_grid.seen_through`): air
         between floors the camera saw through, vertically — an opening, where a path may change
         floors (:func:`~amslam.lib.free_space.vertical_ok`). Rebuilt with the global map."""
-        return decode(self._seen_through.merged())
+        return decode(self._seen_through.merged(0))
+
+    def surfaces_seen_from(self) -> tuple[np.ndarray, np.ndarray]:
+        """Global voxel indices (N×3, twice) of the surfaces rays hit from above (the camera more
+        than a voxel higher) and from below (:func:`~amslam.lib.voxel_grid.surfaces_seen_from`): a
+        slab between floors whose top and underside were both seen, where drifted poses of the
+        two floors may have carved it (:func:`~amslam.lib.free_space.vertical_ok`). Rebuilt with
+        the global map."""
+        return decode(self._seen_through.merged(1)), decode(self._seen_through.merged(2))
 
     def _local_shape(self) -> tuple[int, int, int]:
         return tuple(int(np.ceil(s / self.params.local_voxel)) for s in self.params.local_size)
@@ -831,7 +888,7 @@ class VoxelMapBase(Mapping):
         history = self._remember_slabs(slab, rules.lo, rules.slab_history)
         through = self._through_over(rules.lo, states.shape, rules.seen_through)
         changed = (states != rules.states) | (slab != rules.slab) | (history != rules.slab_history)
-        changed |= through != rules.seen_through
+        changed |= (through != rules.seen_through).any(axis=0)
         shape = np.array(states.shape)
         for box_lo, box_hi in _changed_regions(changed, pad):
             # computed on the region widened by the reach (and a voxel, for the horizontal
@@ -839,7 +896,7 @@ class VoxelMapBase(Mapping):
             c_lo, c_hi = np.maximum(box_lo - pad, 0), np.minimum(box_hi + pad, shape)
             part = tuple(slice(int(i), int(j)) for i, j in zip(c_lo, c_hi, strict=True))
             layers = self._graph_rules(
-                states[part], rules.lo + c_lo, slab[part], history[part], through[part]
+                states[part], rules.lo + c_lo, slab[part], history[part], through[(slice(None), *part)]
             )
             inner = tuple(slice(int(i), int(j)) for i, j in zip(box_lo - c_lo, box_hi - c_lo, strict=True))
             region = tuple(slice(int(i), int(j)) for i, j in zip(box_lo, box_hi, strict=True))
@@ -889,8 +946,8 @@ class VoxelMapBase(Mapping):
         through: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The graph's rules on the block ``states`` (indices ``[lo, lo + shape)``) with its slabs,
-        :meth:`slab_history` and :meth:`seen_through`: passable, roomy (no clearance penalty), near
-        an obstacle, vertical moves allowed."""
+        :meth:`slab_history` and the vertical views (``through``, :meth:`_through_over`): passable,
+        roomy (no clearance penalty), near an obstacle, vertical moves allowed."""
         shape = states.shape
         v, reach, p = self.global_map.voxel, self.params.unseen_surface_reach, self.params
         unknown_free = p.plan_through_unknown
@@ -919,19 +976,22 @@ class VoxelMapBase(Mapping):
             opening=p.floor_change_opening,
             unseen_reach=reach,
             slab=slab,
-            seen_through=through if self._seen_through_rule() else None,
+            seen_through=through[0] if self._seen_through_rule() else None,
             through_reach=p.seen_through_reach,
             slab_history=slab_history,
+            seen_from_above=through[1],
+            seen_from_below=through[2],
         )
         return passable, roomy, near, vertical
 
     def _through_over(self, lo: np.ndarray, shape: tuple[int, ...], before: np.ndarray | None) -> np.ndarray:
-        """The seen-through record over a rules block, or nothing while the rule is off: then the
-        record's growth is no change to the rules. (The rule turns on or off only at a ``load``,
-        which replaces the record, so the next copy is read whole.)"""
+        """The seen-through records over a rules block (crossed air, surfaces seen from above, from
+        below: ``(3, *shape)``), or nothing while the rule is off: then the records' growth is no
+        change to the rules. (The rule turns on or off only at a ``load``, which replaces the
+        records, so the next copy is read whole.)"""
         if self._seen_through_rule():
             return self._seen_through.over(lo, shape, before)
-        return np.zeros(shape, dtype=bool)
+        return np.zeros((3, *shape), dtype=bool)
 
     def _seen_through_rule(self) -> bool:
         """Whether floor changes need air seen through: the record is kept, and complete (a map
@@ -1101,8 +1161,16 @@ class VoxelMapBase(Mapping):
             local_logodds=loc["logodds"],
             local_voxel=np.array(self.local_map.voxel),
             global_slab_history=self.slab_history(),
-            **({"global_seen_through": self.seen_through()} if self._seen_through_known else {}),
+            **(self._saved_views() if self._seen_through_known else {}),
         )
+
+    def _saved_views(self) -> dict[str, np.ndarray]:
+        above, below = self.surfaces_seen_from()
+        return {
+            "global_seen_through": self.seen_through(),
+            "global_seen_from_above": above,
+            "global_seen_from_below": below,
+        }
 
     def load(self, path: Path) -> None:
         """Load a map written by :meth:`save` (same voxel sizes), or an OctoMap ``.bt`` into the
@@ -1128,8 +1196,9 @@ class VoxelMapBase(Mapping):
         history = np.unique(encode(saved.slab_history))
         if not np.array_equal(history, self._slab_history.merged()):  # else the rules' copy holds
             self._slab_history.replace(history)
-        known = saved.seen_through is not None
-        self._start_seen_through(encode(saved.seen_through) if known else np.zeros(0, np.int64), known=known)
+        views = (saved.seen_through, saved.seen_from_above, saved.seen_from_below)
+        known = all(v is not None for v in views)  # a map saved before the sides were kept: rule off
+        self._start_seen_through(tuple(encode(v) for v in views) if known else _NO_VIEWS, known=known)
         self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None
@@ -1141,7 +1210,7 @@ class VoxelMapBase(Mapping):
         self.global_map.from_arrays({"index": index, "logodds": logodds})
         self._slab_history.replace(np.zeros(0, np.int64))
         # its openings were never seen through by this flight
-        self._start_seen_through(np.zeros(0, np.int64), known=False)
+        self._start_seen_through(_NO_VIEWS, known=False)
         self._prior_global = self.global_map.to_arrays()
         self._version += 1
         self._graph = None

@@ -81,13 +81,15 @@ def put(
     lo: np.ndarray,
     path,
     slab_history: np.ndarray | None = None,
-    seen_through: np.ndarray | None = None,
+    views: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> None:
     """Replace the mapping's global map by ``states`` (int8, index ``lo`` first), through ``load``,
     with ``slab_history`` (global indices; by default the mapping's own, as a flight keeps it) and
-    the ``seen_through`` record (global indices; None: a map saved without it)."""
+    the ``views`` records: seen through, surfaces seen from above and from below (global indices;
+    None: a map saved without them)."""
     history = mapping.slab_history() if slab_history is None else slab_history
-    record = {} if seen_through is None else {"global_seen_through": seen_through}
+    names = ("global_seen_through", "global_seen_from_above", "global_seen_from_below")
+    record = {} if views is None else dict(zip(names, views, strict=True))
     idx = np.argwhere(states != UNKNOWN)
     logodds = np.where(states[tuple(idx.T)] == OCCUPIED, OCC_L, FREE_L).astype(np.float32)
     np.savez_compressed(
@@ -181,9 +183,12 @@ def block_graph(mapping) -> FreeSpaceGraph:
         passable &= inside | (states == FREE)
         roomy &= inside | (states == FREE)
     flyable = mapping._flyable(lo, shape)
-    through = np.zeros(shape, dtype=bool)
-    rel = mapping.seen_through() - lo
-    through[tuple(rel[np.all((rel >= 0) & (rel < np.array(shape)), axis=1)].T)] = True
+    through, above, below = (np.zeros(shape, dtype=bool) for _ in range(3))
+    for dense, indices in zip(
+        (through, above, below), (mapping.seen_through(), *mapping.surfaces_seen_from()), strict=True
+    ):
+        rel = indices - lo
+        dense[tuple(rel[np.all((rel >= 0) & (rel < np.array(shape)), axis=1)].T)] = True
     vertical = vertical_ok(
         states,
         mapping.robot_radius,
@@ -194,6 +199,8 @@ def block_graph(mapping) -> FreeSpaceGraph:
         seen_through=through if mapping._seen_through_rule() else None,
         through_reach=p.seen_through_reach,
         slab_history=history,
+        seen_from_above=above,
+        seen_from_below=below,
     )
     return FreeSpaceGraph(
         passable & flyable,
@@ -244,14 +251,18 @@ def test_the_graph_updated_near_changes_is_the_graph_built_from_scratch(params, 
     followed = configured()
     updated_in_place = 0
     rng = np.random.default_rng(6)
-    # the seen-through cases: a record growing as a flight's does (the shaft, then random voxels)
-    record = (
-        np.argwhere(np.ones((10, 10, 3), bool)) + [28, 20, 10] if "seen_through_reach" in params else None
-    )
+    # the seen-through cases: records growing as a flight's do (the shaft seen through, the slab's
+    # top and underside over half the building, then random voxels)
+    record = None
+    if "seen_through_reach" in params:
+        half = np.argwhere(np.ones((20, SIZE[1], 3), bool)) + [0, 0, 10]
+        record = [np.argwhere(np.ones((10, 10, 3), bool)) + [28, 20, 10], half, half]
     for k, (name, states, lo) in enumerate(steps(np.random.default_rng(5))):
         if record is not None and k:
-            record = np.unique(np.concatenate([record, rng.integers(0, SIZE, size=(40, 3))]), axis=0)
-        put(followed, states, lo, tmp_path / f"map{k}.npz", seen_through=record)
+            record = [
+                np.unique(np.concatenate([r, rng.integers(0, SIZE, size=(40, 3))]), axis=0) for r in record
+            ]
+        put(followed, states, lo, tmp_path / f"map{k}.npz", views=record)
         before = followed._rules
         got = graph_arrays(followed)
         updated_in_place += before is not None and followed._rules is before

@@ -340,8 +340,15 @@ def pitched_pose(position, yaw: float, pitch: float) -> np.ndarray:
     return T
 
 
-#: a camera under the slab looking up at the shaft, one over it looking down into it
-VIEWS = [((1.5, 4.5, 1.5), 0.0, np.radians(35)), ((1.5, 4.5, 4.2), 0.0, np.radians(-40))]
+#: a camera under the slab looking up at the shaft, one over it looking down into it; two looking
+#: at the slab by the strip :func:`strip_map` carves, from over it and from under it (both floors
+#: visited)
+VIEWS = [
+    ((1.5, 4.5, 1.5), 0.0, np.radians(35)),
+    ((1.5, 4.5, 4.2), 0.0, np.radians(-40)),
+    ((5.0, 1.5, 4.2), np.pi, np.radians(-30)),
+    ((5.0, 1.5, 1.5), np.pi, np.radians(30)),
+]
 
 
 def views(scene):
@@ -361,6 +368,25 @@ def through_record(frames) -> np.ndarray:
 
     keys = [seen_through(d, K, T, 1, CAMERA.max_range, V, 1.0) for d, K, T in frames]
     return decode(np.unique(np.concatenate(keys)))
+
+
+def sides_record(frames) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the surfaces ``frames`` hit from above and from below."""
+    from amslam.lib.voxel_grid import decode, surfaces_seen_from
+    from amslam.testing.mapping import CAMERA
+
+    sides = [surfaces_seen_from(d, K, T, 1, CAMERA.max_range, V) for d, K, T in frames]
+    return tuple(decode(np.unique(np.concatenate(side))) for side in zip(*sides, strict=True))
+
+
+def views_record(frames) -> dict[str, np.ndarray]:
+    """The seen-through records of ``frames`` as a saved map holds them."""
+    above, below = sides_record(frames)
+    return {
+        "global_seen_through": through_record(frames),
+        "global_seen_from_above": above,
+        "global_seen_from_below": below,
+    }
 
 
 def test_rays_see_through_a_shaft_and_not_through_a_slab() -> None:
@@ -397,13 +423,18 @@ def band_crossings(path: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("cls", BACKENDS)
 def test_floors_are_changed_through_air_seen_through(cls, tmp_path) -> None:
     carved = strip_map()
-    record = through_record(views(true_building_scene()))
+    record = views_record(views(true_building_scene()))
     # Without the record (a map saved without it: the rule is off) the plan climbs the strip.
     m = load(cls, tmp_path, carved)
     path = m.plan_path(BELOW, ABOVE)
     assert path is not None and (band_crossings(path) < SHAFT[0]).all(axis=1).any(), "the defect"
+    # a map saved with the air seen through but not the surfaces' sides (before they were kept):
+    # the rule is off too
+    _save_global(tmp_path / "older.npz", carved, V, global_seen_through=record["global_seen_through"])
+    m.load(tmp_path / "older.npz")
+    assert (band_crossings(m.plan_path(BELOW, ABOVE)) < SHAFT[0]).all(axis=1).any()
     # With the record the floor change goes through the shaft, the air the camera saw through.
-    _save_global(tmp_path / "seen.npz", carved, V, global_seen_through=record)
+    _save_global(tmp_path / "seen.npz", carved, V, **record)
     m.load(tmp_path / "seen.npz")
     path = m.plan_path(BELOW, ABOVE)
     assert path is not None
@@ -414,6 +445,8 @@ def test_floors_are_changed_through_air_seen_through(cls, tmp_path) -> None:
     later = load(cls, tmp_path, building())
     later.load(tmp_path / "saved.npz")
     np.testing.assert_array_equal(later.seen_through(), m.seen_through())
+    for got, want in zip(later.surfaces_seen_from(), m.surfaces_seen_from(), strict=True):
+        np.testing.assert_array_equal(got, want)
     np.testing.assert_allclose(later.plan_path(BELOW, ABOVE), path)
     # seen_through_rise 0: no record, no rule
     off = load(cls, tmp_path, carved, seen_through_rise=0.0)
@@ -431,6 +464,11 @@ def test_the_record_is_kept_by_integration_and_rebuilt_with_the_map(cls, tmp_pat
     for depth, K, T in frames:
         m.integrate_global(depth, K, T)
     np.testing.assert_array_equal(m.seen_through(), through_record(frames))
+    above, below = m.surfaces_seen_from()
+    # the cameras over the slab hit its top, those under it its underside; nothing else
+    assert set(above[:, 2]) == {SLAB} and set(below[:, 2]) == {SLAB}
+    for got, want in zip((above, below), sides_record(frames), strict=True):
+        np.testing.assert_array_equal(got, want)
     # SLAM moved the poses: the record is the frames' at the new poses, not the old ones'
     shifted = []
     for depth, K, T in frames:
@@ -440,6 +478,8 @@ def test_the_record_is_kept_by_integration_and_rebuilt_with_the_map(cls, tmp_pat
     m.rebuild_global(shifted)
     np.testing.assert_array_equal(m.seen_through(), through_record(shifted))
     assert not np.array_equal(through_record(shifted), through_record(frames))
+    for got, want in zip(m.surfaces_seen_from(), sides_record(shifted), strict=True):
+        np.testing.assert_array_equal(got, want)
 
 
 @pytest.mark.parametrize("cls", BACKENDS)
@@ -455,14 +495,29 @@ def test_a_floor_not_yet_visited_is_reached_without_the_proof(cls, tmp_path) -> 
     first_visit[(*shaft, slice(SLAB + 1, SLAB + 5))] = 0  # seen through the shaft from below
     up = np.array([3.5, 3.5, 3.6])
     nothing = np.array([[0, 0, 0]])  # a record that holds no voxel of the shaft: the rule is on
-    _save_global(tmp_path / "first.npz", first_visit, V, global_seen_through=nothing)
+    slab = np.argwhere(building()[:, :, SLAB] == OCCUPIED)
+    slab = np.column_stack([slab, np.full(len(slab), SLAB)])
+    from_below = {
+        "global_seen_through": nothing,
+        "global_seen_from_above": nothing,
+        "global_seen_from_below": slab,
+    }
+    _save_global(tmp_path / "first.npz", first_visit, V, **from_below)
     m = load(cls, tmp_path, building())
     m.load(tmp_path / "first.npz")
     assert m.plan_path(BELOW, up) is not None
-    # The same shaft once the floor above is known round it: the slab is seen from both floors,
-    # and a climb needs the proof.
+    # The air over the slab seen from below, through the shaft (rays up through it reach the air
+    # beyond its rim): the slab's top was never seen, no pose was over it to carve it, the climb
+    # keeps the other rules (the demo's first climb waited 400 s for a proof it could not get).
     visited = building()
     visited[(*shaft, SLAB)] = 0
-    _save_global(tmp_path / "visited.npz", visited, V, global_seen_through=nothing)
+    _save_global(tmp_path / "air.npz", visited, V, **from_below)
+    m.load(tmp_path / "air.npz")
+    assert m.plan_path(BELOW, up) is not None
+    # The same shaft once the floor above was visited: the slab's top seen from above, the slab
+    # seen from both floors, and a climb needs the proof.
+    _save_global(
+        tmp_path / "visited.npz", visited, V, **{**from_below, "global_seen_from_above": slab + [0, 0, 1]}
+    )
     m.load(tmp_path / "visited.npz")
     assert m.plan_path(BELOW, up) is None
