@@ -284,6 +284,17 @@ class Mapping(Backend):
     def plan_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Collision-free waypoints (K×3, world frame) from start to goal, or None."""
 
+    def plan_path_along_trail(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """Waypoints (K×3, world frame) from start to goal that follow the robot's own flown trail
+        where the global map has no path, or None.
+
+        The rules that keep paths off carved slabs and unseen rims may leave no way back through
+        the map (a three-floor flight ended on the top floor, its map holding no way down); the
+        way the robot came is free: it flew it. Optional: the default None (a backend that keeps
+        no trail). The runtime asks for it only on the way home, after :meth:`plan_path` failed.
+        """
+        return None
+
     def rebuild_global(self, frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> bool:
         """Build the global map anew from ``(depth, K, T_world_cam)`` frames, on top of a loaded
         prior map; True when done.

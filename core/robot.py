@@ -72,7 +72,7 @@ class PathHandle(Protocol):
 class Navigation(Protocol):
     """Paths through the maps."""
 
-    def request_path(self, goal_world: np.ndarray) -> PathHandle: ...
+    def request_path(self, goal_world: np.ndarray, *, along_trail: bool = False) -> PathHandle: ...
     def segment_clear_local(self, a_world: np.ndarray, b_world: np.ndarray) -> bool: ...
     def plan_local_path(self, start_world: np.ndarray, goal_world: np.ndarray) -> np.ndarray | None: ...
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None: ...
@@ -237,8 +237,10 @@ class Robot:
 
     # -- navigation ----------------------------------------------------------------------------
 
-    def request_path(self, goal_world: np.ndarray) -> Future:
-        """Waypoints from here to the goal through known free space, or None, as a future.
+    def request_path(self, goal_world: np.ndarray, *, along_trail: bool = False) -> Future:
+        """Waypoints from here to the goal through known free space, or None, as a future;
+        ``along_trail``: a path that follows the robot's flown trail where the map has none
+        (``Mapping.plan_path_along_trail``, the way home when the map's rules leave no way back).
 
         On a real vehicle the path is planned on the path thread: a path through the global map
         rebuilds its search graph whenever the map changed (every frame), 0.1-0.4 s that a
@@ -246,9 +248,10 @@ class Robot:
         once and the future is done when returned.
         """
         start, goal = self.position_world(), np.asarray(goal_world, float)
+        plan = self.mapping.plan_path_along_trail if along_trail else self.mapping.plan_path
         if self.path_thread is not None:
-            return self.path_thread.submit(self.mapping.plan_path, start, goal)
-        return finished(lambda: self.mapping.plan_path(start, goal))
+            return self.path_thread.submit(plan, start, goal)
+        return finished(lambda: plan(start, goal))
 
     def reachable_near(self, goal_world: np.ndarray, within: float = 1.0) -> np.ndarray | None:
         """``goal_world`` if the global map has a path to it from here, else the nearest point

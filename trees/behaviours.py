@@ -270,7 +270,9 @@ class GoTo(RobotBehaviour):
 
     SUCCESS on arrival (heading turned to the goal's yaw), or, with ``early_exit``, early when an
     exploration goal's frontier was seen on the way or the tour is older than ``replan_period``;
-    FAILURE when no path exists (the goal is marked unreachable). When the local map shows the way
+    FAILURE when no path exists (the goal is marked unreachable); with ``follow_trail`` (the way
+    home) a goal the map has no path to is flown to along the robot's own trail where the map's
+    rules leave no way. When the local map shows the way
     blocked, or the guards hold the robot where it is, it takes a detour on the local map or plans
     a new path and flies on. When to give the goal up (no progress, blocked too
     often) is the :class:`amslam.trees.decorators.GiveUpGoal` decorator's decision: the leaf
@@ -288,10 +290,12 @@ class GoTo(RobotBehaviour):
         goal_tolerance: float = DEFAULTS.goal_tolerance,
         yaw_tolerance: float = DEFAULTS.yaw_tolerance,
         replan_period: float = DEFAULTS.replan_period,
+        follow_trail: bool = False,
     ):
         super().__init__(name)
         self.goal_key = goal_key
         self.early_exit = early_exit
+        self.follow_trail = follow_trail
         self.goal_tolerance = goal_tolerance
         self.yaw_tolerance = yaw_tolerance
         self.replan_period = replan_period
@@ -310,11 +314,16 @@ class GoTo(RobotBehaviour):
         self.sent: tuple[int, np.ndarray | None] = (-1, None)  # (waypoint, where the guards sent it)
         self.held_since: float | None = None  # when the guards began to hold the robot where it is
 
-    def _plan(self) -> None:
-        """Ask for a path to the goal. On a real vehicle it is planned beside the control loop
-        and the robot holds meanwhile; in the simulator it is there at once."""
+    def _plan(self, along_trail: bool = False) -> None:
+        """Ask for a path to the goal (``along_trail``: one along the flown trail). On a real
+        vehicle it is planned beside the control loop and the robot holds meanwhile; in the
+        simulator it is there at once."""
         self.path = None
-        self._path_job = self.navigation.request_path(self.goal.position)
+        self._along_trail = along_trail
+        if along_trail:
+            self._path_job = self.navigation.request_path(self.goal.position, along_trail=True)
+        else:
+            self._path_job = self.navigation.request_path(self.goal.position)
         self._take_path()
 
     def _take_path(self) -> bool:
@@ -326,6 +335,18 @@ class GoTo(RobotBehaviour):
             return False
         self._path_job = None
         self.path = job.result()
+        if self.path is None and self.follow_trail and not self._along_trail:
+            # no way through the map: the way the robot came (the second request, at once in
+            # the simulator; on a real vehicle the robot holds while it is planned)
+            self._plan(along_trail=True)
+            return self._path_job is None
+        if self.path is not None and self._along_trail:
+            self.events.emit(
+                "path_along_trail",
+                goal=np.round(self.goal.position, 2).tolist(),
+                waypoints=len(self.path),
+                behaviour=self.name,
+            )
         self.index = self.first_index = 1 if self.path is not None and len(self.path) > 1 else 0
         return True
 
@@ -556,6 +577,7 @@ def return_home(
         goal_tolerance=ex.goal_tolerance,
         yaw_tolerance=ex.yaw_tolerance,
         replan_period=ex.replan_period,
+        follow_trail=True,
     )
     steps = Sequence("GoHomeSteps", memory=True, children=[b["SetHomeGoal"]("SetHomeGoal"), home, *then])
     return FailureIsSuccess("ReturnHome", steps)

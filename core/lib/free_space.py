@@ -690,3 +690,24 @@ def known_along(
 ) -> np.ndarray:
     """Whether each sample lies in a known (non-UNKNOWN) voxel."""
     return states_at(to_index(samples, voxel)) != UNKNOWN
+
+
+def trail_join(trail: np.ndarray, from_start: np.ndarray, to_goal: np.ndarray) -> tuple[int, int] | None:
+    """Where a path from a start to a goal joins the robot's flown ``trail`` (N×3, oldest first)
+    and where it leaves it: the indices ``(a, b)`` that minimise the path cost from the start to
+    ``trail[a]`` (``from_start``, N; inf: no path) plus the length flown along the trail between
+    ``a`` and ``b`` (either way) plus the cost from ``trail[b]`` to the goal (``to_goal``); None
+    when no trail point is reachable from one of the ends.
+
+    The trail is free space proven by the vehicle itself, where the map's rules may allow no way
+    (see :meth:`~amslam.interfaces.Mapping.plan_path_along_trail`).
+    """
+    trail = np.asarray(trail, float).reshape(-1, 3)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(trail, axis=0), axis=1))])
+    joins, leaves = np.flatnonzero(np.isfinite(from_start)), np.flatnonzero(np.isfinite(to_goal))
+    if not len(joins) or not len(leaves):
+        return None
+    flown = np.abs(along[joins][:, None] - along[leaves][None])
+    total = from_start[joins][:, None] + flown + to_goal[leaves][None]
+    i, j = np.unravel_index(int(np.argmin(total)), total.shape)
+    return int(joins[i]), int(leaves[j])

@@ -25,6 +25,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from amslam.errors import RunFileError
+from amslam.geometry import invert
 from amslam.interfaces import BackendParams, FieldError, Mapping, Point, RunContext
 from amslam.lib.free_space import (
     FreeSpaceGraph,
@@ -36,6 +37,7 @@ from amslam.lib.free_space import (
     segment_samples,
     slabs,
     smooth_path,
+    trail_join,
     vertical_ok,
 )
 from amslam.lib.frontiers import FrontierConfig, FrontierTracker
@@ -602,6 +604,7 @@ class VoxelMapBase(Mapping):
         self._slab_history = _GrowingKeys()  # see slab_history
         self._seen_through = _VerticalViews()  # see seen_through, surfaces_seen_from
         self._start_seen_through(_NO_VIEWS, known=True)
+        self._trail: list[np.ndarray] = []  # see trail
 
     # ------------------------------------------------------------------ lifecycle
     @abc.abstractmethod
@@ -681,6 +684,7 @@ class VoxelMapBase(Mapping):
         self._rules = None
         self._slab_history = _GrowingKeys()
         self._start_seen_through(_NO_VIEWS, known=True)
+        self._trail = []
 
     def close(self) -> None:
         """Drop the maps (safe to call twice)."""
@@ -701,6 +705,7 @@ class VoxelMapBase(Mapping):
         stride = p.global_stride or auto_stride(K, p.global_voxel, p.max_range)
         box = self.global_map.integrate_depth(depth, K, T_world_cam, stride, p.max_range)
         self._seen_through.add(self._through(depth, K, T_world_cam, stride))
+        self._extend_trail(T_world_cam)
         if not box.empty:
             self._pending = union(self._pending, box)
             self._version += 1
@@ -721,10 +726,12 @@ class VoxelMapBase(Mapping):
             store.from_arrays(self._prior_global)
         p = self.params
         through = [self._prior_seen_through]
+        self._trail = []
         for depth, K, T_world_cam in frames:
             stride = p.global_stride or auto_stride(K, p.global_voxel, p.max_range)
             store.integrate_depth(depth, K, T_world_cam, stride, p.max_range)
             through.append(self._through(depth, K, T_world_cam, stride))
+            self._extend_trail(T_world_cam)
         self.global_map = store
         self._seen_through.replace(tuple(np.concatenate(part) for part in zip(*through, strict=True)))
         self._version += 1
@@ -780,6 +787,20 @@ class VoxelMapBase(Mapping):
         two floors may have carved it (:func:`~amslam.lib.free_space.vertical_ok`). Rebuilt with
         the global map."""
         return decode(self._seen_through.merged(1)), decode(self._seen_through.merged(2))
+
+    def _extend_trail(self, T_world_cam: np.ndarray) -> None:
+        """Add the body's position at a frame to :meth:`trail`, a global voxel or more from the last."""
+        camera = self.context.camera if self.context is not None else None
+        T_world_body = T_world_cam @ invert(camera.T_body_cam) if camera is not None else T_world_cam
+        here = np.asarray(T_world_body, float)[:3, 3].copy()
+        if not self._trail or np.linalg.norm(here - self._trail[-1]) >= self.params.global_voxel:
+            self._trail.append(here)
+
+    def trail(self) -> np.ndarray:
+        """The body's positions (N×3, world frame, oldest first, a global voxel apart) at the frames
+        the global map holds, at the poses it holds them at (moved with it by a rebuild): the way
+        the robot flew, in the map's frame."""
+        return np.array(self._trail, float).reshape(-1, 3)
 
     def _local_shape(self) -> tuple[int, int, int]:
         return tuple(int(np.ceil(s / self.params.local_voxel)) for s in self.params.local_size)
@@ -1033,6 +1054,29 @@ class VoxelMapBase(Mapping):
             return bool(np.all(known | at_end)) and self.segment_free(a, b)
 
         return _smoothed_path(self._free_graph(), start, goal, v, clear)
+
+    def plan_path_along_trail(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """A path through the map to the flown :meth:`trail`, along it, and through the map to the
+        goal, the cheapest such (:func:`~amslam.lib.free_space.trail_join`); or None.
+
+        Flown as it was flown: the trail's points are a voxel apart, and corners the vehicle did
+        not cut are not cut (a straight shortcut between two of them may cross the slab the rules
+        keep it from)."""
+        self._require()
+        trail = self.trail()
+        if len(trail) < 2:
+            return None
+        start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+        costs = self.path_costs(np.stack([start, goal]), trail)
+        join = trail_join(trail, costs[0], costs[1])
+        if join is None:
+            return None
+        a, b = join
+        to_trail, from_trail = self.plan_path(start, trail[a]), self.plan_path(trail[b], goal)
+        if to_trail is None or from_trail is None:
+            return None
+        along = trail[a : b + 1] if a <= b else trail[b : a + 1][::-1]
+        return np.vstack([to_trail, along[1:-1], from_trail])
 
     def plan_local_path(
         self, start: np.ndarray, goal: np.ndarray, *, margin: float = 1.0

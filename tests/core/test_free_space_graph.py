@@ -291,3 +291,21 @@ def test_slabs_handed_in_are_the_slabs_the_rules_find() -> None:
         assert not ok[6, 10, 11]  # in the slab's layer, 0.5 m off the slab
         occ = obstacles(states, VOXEL, 0.25, 0.75, slab=given)
         np.testing.assert_array_equal(occ, obstacles(states, VOXEL, 0.25, 0.75))
+
+
+def test_a_path_joins_the_flown_trail_where_the_whole_way_costs_least() -> None:
+    from amslam.lib.free_space import trail_join
+
+    trail = np.array([[float(i), 0.0, 1.0] for i in range(10)])  # 1 m apart, oldest first
+    inf = np.inf
+    # the start reaches points 6-9, the goal 0-2: join at 6, leave at 2 (4 m along the trail)
+    from_start = np.array([inf] * 6 + [3.0, 2.0, 1.0, 0.0])
+    to_goal = np.array([0.5, 1.0, 1.5] + [inf] * 7)
+    assert trail_join(trail, from_start, to_goal) == (6, 2)
+    # a cheaper way to a point further along the trail wins over a shorter stretch of it
+    from_start[7] = 0.1
+    assert trail_join(trail, from_start, to_goal) == (7, 2)
+    # flown either way: the goal's side may be the newer one
+    assert trail_join(trail, to_goal, from_start) == (2, 7)
+    # an end that reaches no trail point: no way
+    assert trail_join(trail, from_start, np.full(10, inf)) is None

@@ -462,6 +462,9 @@ class TableRobot(StuckRobot):
     def yaw_world(self):
         return self.yaw
 
+    def mark_visited(self, position):
+        pass
+
     def send_setpoint_world(self, position, yaw):
         step = np.asarray(position) - self.here
         self.here = self.here + step * min(1.0, 0.2 / max(np.linalg.norm(step), 1e-9))
@@ -517,3 +520,61 @@ def test_goto_counts_a_goal_the_guards_hold_it_off_as_reached():
     statuses = fly(robot, go, 100)
     assert statuses[-1] == Status.SUCCESS and go.feedback_message == "arrived"
     assert robot.t < 1.0 and not robot.unreachable_marked
+
+
+class NoWayBackRobot(StuckRobot):
+    """Flies straight to what it is sent; its map has no path to the goal, its flown trail has."""
+
+    TRAIL = np.array([[0.0, 0.0, 1.0], [0.0, 2.0, 1.0], [5.0, 2.0, 1.0], [5.0, 0.0, 1.0]])
+
+    def __init__(self):
+        super().__init__()
+        self.here, self.yaw = np.array([0.0, 0.0, 1.0]), 0.0
+        self.asked = []
+
+    def request_path(self, goal, *, along_trail=False):
+        self.asked.append(along_trail)
+        future = Future()
+        future.set_result(self.TRAIL.copy() if along_trail else None)
+        return future
+
+    def position_world(self):
+        return self.here.copy()
+
+    def yaw_world(self):
+        return self.yaw
+
+    def mark_visited(self, position):
+        pass
+
+    def send_setpoint_world(self, position, yaw):
+        self.here, self.yaw = np.asarray(position, float).copy(), yaw
+        return self.here.copy()
+
+
+@pytest.mark.parametrize("follow_trail", [True, False])
+def test_the_way_home_follows_the_flown_trail_where_the_map_has_no_path(follow_trail):
+    from amslam.trees.behaviours import GoTo
+
+    robot = NoWayBackRobot()
+    py_trees.blackboard.Blackboard.set(
+        "/home", TourItem(TourItemKind.EXPLORE, np.array([5.0, 0.0, 1.0]), 0.0, 0.0, -1)
+    )
+    go = GoTo("GoHome", goal_key="/home", early_exit=False, follow_trail=follow_trail)
+    go.setup(**robot.services())
+    statuses = fly(robot, go, 200)
+    if follow_trail:
+        # the map first, then the trail, flown waypoint by waypoint round the corner it made
+        assert statuses[-1] == Status.SUCCESS and robot.asked == [False, True]
+        assert "path_along_trail" in robot.events and not robot.unreachable_marked
+        np.testing.assert_allclose(robot.here, [5.0, 0.0, 1.0])
+    else:  # an exploration goal the map cannot reach stays unreachable
+        assert statuses[-1] == Status.FAILURE and robot.asked == [False]
+        assert robot.unreachable_marked and "path_along_trail" not in robot.events
+
+
+def test_the_stock_way_home_follows_the_trail():
+    from amslam.trees.behaviours import return_home
+
+    home = return_home(STOCK)
+    assert [n.follow_trail for n in home.iterate() if n.name == "GoHome"] == [True]

@@ -521,3 +521,73 @@ def test_a_floor_not_yet_visited_is_reached_without_the_proof(cls, tmp_path) -> 
     )
     m.load(tmp_path / "visited.npz")
     assert m.plan_path(BELOW, up) is None
+
+
+def fly_trail(mapping, points: np.ndarray) -> None:
+    """The body's poses along ``points`` (level, heading +x) as frames whose images hold no pixel:
+    the trail without carving anything into the loaded map."""
+    from amslam.testing.mapping import CAMERA
+
+    for p in points:
+        T_world_body = np.eye(4)
+        T_world_body[:3, 3] = p
+        mapping.integrate_global(np.zeros((0, 0), np.float32), CAMERA.K, T_world_body @ CAMERA.T_body_cam)
+
+
+def polyline(*corners, step: float = 0.1) -> np.ndarray:
+    return np.concatenate(
+        [segment_points(a, b, step) for a, b in zip(corners[:-1], corners[1:], strict=True)]
+    )
+
+
+def segment_points(a, b, step: float) -> np.ndarray:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+    return a + (b - a) * np.linspace(0.0, 1.0, n + 1)[:, None]
+
+
+@pytest.mark.parametrize("cls", BACKENDS)
+def test_the_way_back_follows_the_flown_trail_where_the_rules_leave_none(cls, tmp_path) -> None:
+    from amslam.testing.mapping import CAMERA
+
+    # Both floors visited, the slab seen from both, the shaft never seen through (the level camera
+    # climbed it blind): the rule refuses every vertical move in it, no way down through the map.
+    slab = np.argwhere(building()[:, :, SLAB] == OCCUPIED)
+    slab = np.column_stack([slab, np.full(len(slab), SLAB)])
+    nothing = np.array([[0, 0, 0]])
+    shaft = building()
+    shaft[10:18, 10:18, SLAB] = 0  # 2 m, in the middle: every voxel of it within 1.5 m of the slab
+    _save_global(
+        tmp_path / "m.npz",
+        shaft,
+        V,
+        global_seen_through=nothing,
+        global_seen_from_above=slab + [0, 0, 1],
+        global_seen_from_below=slab,
+    )
+    m = cls()
+    m.configure(cls.Params(), make_context(tmp_path, camera=CAMERA, area=AREA))
+    m.load(tmp_path / "m.npz")
+    top, bottom = np.array([1.0, 5.0, 4.2]), np.array([1.0, 1.0, 1.5])
+    assert m.plan_path(top, bottom) is None
+    assert m.plan_path_along_trail(top, bottom) is None  # no trail yet
+    # the way it came: from the ground floor's corner to the shaft, up it, and on over the slab
+    flown = polyline(bottom, (3.5, 3.5, 1.5), (3.5, 3.5, 4.2), (2.0, 3.5, 4.2), (1.0, 4.5, 4.2))
+    fly_trail(m, flown)
+    assert len(m.trail()) >= 20 and np.allclose(m.trail()[0], bottom)
+    path = m.plan_path_along_trail(top, bottom)
+    assert path is not None
+    np.testing.assert_allclose(path[0], top)
+    np.testing.assert_allclose(path[-1], bottom)
+    # down the shaft as it came up, where it came up: every point in the slab's layer on the trail
+    from amslam.lib.free_space import segment_samples
+
+    pts = np.concatenate([segment_samples(a, b, 0.05) for a, b in zip(path[:-1], path[1:], strict=True)])
+    crossing = pts[(pts[:, 2] >= SLAB * V) & (pts[:, 2] < (SLAB + 1) * V), :2]
+    assert len(crossing) and np.abs(crossing - 3.5).max() < 0.15
+    # the map's part of the way: to the trail over the slab and from it on the ground floor, not
+    # the whole trail back to its start (the trail joined where the map reaches it)
+    assert len(path) < len(flown)
+    # a rebuild moves the trail with the frames' poses
+    m.rebuild_global([(np.zeros((0, 0), np.float32), CAMERA.K, np.eye(4) @ CAMERA.T_body_cam)])
+    np.testing.assert_allclose(m.trail(), [[0.0, 0.0, 0.0]], atol=1e-9)
