@@ -309,3 +309,21 @@ def test_a_path_joins_the_flown_trail_where_the_whole_way_costs_least() -> None:
     assert trail_join(trail, to_goal, from_start) == (2, 7)
     # an end that reaches no trail point: no way
     assert trail_join(trail, from_start, np.full(10, inf)) is None
+
+
+def test_the_trail_join_is_the_cheapest_of_all_pairs() -> None:
+    from amslam.lib.free_space import trail_join
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n = int(rng.integers(2, 40))
+        trail = np.cumsum(rng.normal(0.0, 0.3, size=(n, 3)), axis=0)
+        from_start, to_goal = (np.where(rng.random(n) < 0.3, rng.random(n) * 10, np.inf) for _ in range(2))
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(trail, axis=0), axis=1))])
+        every = from_start[:, None] + np.abs(along[:, None] - along[None]) + to_goal[None]
+        got = trail_join(trail, from_start, to_goal)
+        if not np.isfinite(every).any():
+            assert got is None
+            continue
+        a, b = got
+        assert every[a, b] == pytest.approx(every.min())
