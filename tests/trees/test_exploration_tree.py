@@ -444,17 +444,13 @@ def test_goto_held_in_place_with_no_way_round_gives_up_as_blocked():
     assert robot.t < 5.0  # three holds of HOLD_PATIENCE each, not the 20 s no-progress clock
 
 
-class TableRobot(StuckRobot):
-    """A table the global map missed stands across the straight path at x 2 m; the local map
-    shows it (segments within 0.4 m of it are blocked) and has a way round it at y 1 m."""
-
-    TABLE = np.array([2.0, 0.0, 1.0])
+class MovingRobot(StuckRobot):
+    """A robot that moves where it is sent (its ``send_setpoint_world`` says how), from the origin
+    at 1 m, heading +x."""
 
     def __init__(self):
         super().__init__()
-        self.here = np.array([0.0, 0.0, 1.0])
-        self.yaw = 0.0
-        self.local_plans = []
+        self.here, self.yaw = np.array([0.0, 0.0, 1.0]), 0.0
 
     def position_world(self):
         return self.here.copy()
@@ -464,6 +460,17 @@ class TableRobot(StuckRobot):
 
     def mark_visited(self, position):
         pass
+
+
+class TableRobot(MovingRobot):
+    """A table the global map missed stands across the straight path at x 2 m; the local map
+    shows it (segments within 0.4 m of it are blocked) and has a way round it at y 1 m."""
+
+    TABLE = np.array([2.0, 0.0, 1.0])
+
+    def __init__(self):
+        super().__init__()
+        self.local_plans = []
 
     def send_setpoint_world(self, position, yaw):
         step = np.asarray(position) - self.here
@@ -522,14 +529,13 @@ def test_goto_counts_a_goal_the_guards_hold_it_off_as_reached():
     assert robot.t < 1.0 and not robot.unreachable_marked
 
 
-class NoWayBackRobot(StuckRobot):
+class NoWayBackRobot(MovingRobot):
     """Flies straight to what it is sent; its map has no path to the goal, its flown trail has."""
 
     TRAIL = np.array([[0.0, 0.0, 1.0], [0.0, 2.0, 1.0], [5.0, 2.0, 1.0], [5.0, 0.0, 1.0]])
 
     def __init__(self):
         super().__init__()
-        self.here, self.yaw = np.array([0.0, 0.0, 1.0]), 0.0
         self.asked = []
 
     def request_path(self, goal, *, along_trail=False):
@@ -537,15 +543,6 @@ class NoWayBackRobot(StuckRobot):
         future = Future()
         future.set_result(self.TRAIL.copy() if along_trail else None)
         return future
-
-    def position_world(self):
-        return self.here.copy()
-
-    def yaw_world(self):
-        return self.yaw
-
-    def mark_visited(self, position):
-        pass
 
     def send_setpoint_world(self, position, yaw):
         self.here, self.yaw = np.asarray(position, float).copy(), yaw
