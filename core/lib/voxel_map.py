@@ -49,6 +49,7 @@ from amslam.lib.voxel_grid import (
     LogOddsModel,
     centres,
     decode,
+    depth_rays,
     encode,
     index_box,
     logit,
@@ -762,9 +763,9 @@ class VoxelMapBase(Mapping):
         p = self.params
         if p.seen_through_rise <= 0:
             return _NO_VIEWS
-        v = p.global_voxel
-        through = seen_through(depth, K, T_world_cam, stride, p.max_range, v, p.seen_through_rise)
-        return (through, *surfaces_seen_from(depth, K, T_world_cam, stride, p.max_range, v))
+        v, rays = p.global_voxel, depth_rays(depth, K, T_world_cam, stride, p.max_range)
+        through = seen_through(depth, K, T_world_cam, stride, p.max_range, v, p.seen_through_rise, rays)
+        return (through, *surfaces_seen_from(depth, K, T_world_cam, stride, p.max_range, v, rays))
 
     def _start_seen_through(self, keys: tuple[np.ndarray, np.ndarray, np.ndarray], *, known: bool) -> None:
         """Start the seen-through records from ``keys`` (a loaded map's, also the base of a rebuild);
