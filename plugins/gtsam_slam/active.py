@@ -140,9 +140,7 @@ class ActiveSlam:
         SLC needs ``min_matches`` landmarks in one panorama, and range alone ignores walls: so
         prefer the oldest key pose where the landmarks actually *observed* from key poses within
         ``panorama_radius`` of it (what a panorama there would see) number enough; fall back to
-        the oldest key pose with that many of the cluster's landmarks within sensing range. (The
-        paper's one landmark sent demo flights back, attempt after attempt, to a corridor key pose
-        3.8 m from one sofa of a cluster spread over 7.5 m: its panoramas saw three other objects.)
+        the paper's rule when no key pose qualifies.
         """
         need = min(self.min_matches, len(members))
         observed_from: dict[int, set[int]] = {}
@@ -159,5 +157,5 @@ class ActiveSlam:
                 if close.sum() >= need:
                     return int(k)
         d = np.linalg.norm(kp_pos[:, None, :] - pos[members][None], axis=2)
-        in_range = np.flatnonzero((d <= sensing_range).sum(axis=1) >= need)
-        return int(in_range[0]) if len(in_range) else None
+        seen_any = np.flatnonzero((d <= sensing_range).any(axis=1))
+        return int(seen_any[0]) if len(seen_any) else None

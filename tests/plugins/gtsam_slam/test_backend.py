@@ -165,29 +165,6 @@ def test_slc_candidates_cluster_landmarks_and_pick_the_oldest_keypose(looped) ->
         assert c.yaw == pytest.approx(yaw_of(kps[c.keypose_id].T_world_body))
 
 
-def test_an_slc_viewpoint_is_within_range_of_enough_of_its_cluster() -> None:
-    """Where no key pose's panorama observed enough of a cluster (here: landmarks with no
-    observation of this robot, as after a merge), the viewpoint is the oldest key pose with
-    ``min_matches`` of its landmarks within sensing range, not one within range of a single one."""
-    from types import SimpleNamespace
-
-    from amslam.plugins.gtsam_slam.active import ActiveParams, ActiveSlam
-    from amslam.plugins.gtsam_slam.graph import LandmarkRec
-
-    front = SimpleNamespace(robot=0, graph=None)
-    active = ActiveSlam(ActiveParams(), front, panorama_radius=1.0, min_matches=3)
-    pos = np.array([[0.0, 3.8, 1.0], [6.0, 3.0, 1.0], [7.0, 1.0, 1.0], [8.0, 2.5, 1.0]])
-    lms = [LandmarkRec(i, "chair", 0, 0.0, p) for i, p in enumerate(pos)]
-    members = np.arange(4)
-    # key pose 0: 3.8 m from one landmark (the paper's rule takes it); 1: three within 4 m
-    kp_pos = np.array([[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [6.5, 2.0, 1.0], [7.0, 2.0, 1.0]])
-    assert active._viewpoint(lms, members, pos, kp_pos, sensing_range=4.0) == 2
-    assert active._viewpoint(lms, members, pos, kp_pos[:2], sensing_range=4.0) is None
-    # a cluster of two needs both
-    assert active._viewpoint(lms, members[:2], pos, kp_pos[:2], sensing_range=4.0) is None
-    assert active._viewpoint(lms, members[1:3], pos, kp_pos, sensing_range=4.0) == 2
-
-
 def test_no_loop_closure_without_old_landmarks() -> None:
     slam = configured()
     T = pose_from(np.array([0.0, 0, 1]), 0.0)
