@@ -251,17 +251,24 @@ def test_the_graph_updated_near_changes_is_the_graph_built_from_scratch(params, 
     followed = configured()
     updated_in_place = 0
     rng = np.random.default_rng(6)
-    # the seen-through cases: records growing as a flight's do (the shaft seen through, the slab's
-    # top and underside over half the building, then random voxels)
+    # the seen-through cases: records growing as a flight's do. The shaft's core seen through (its
+    # rim not) and the slab's top over the shaft's half of the building; the crossed air grows by
+    # random voxels in the first steps; in the later ones, which change few voxels, the slab's
+    # underside is seen a strip further each step (so that the strip alone changes the rules at the
+    # shaft's rim: without the opening rule only the seen-through rule refuses it there) and both
+    # sides' records grow by random voxels off the slab's layers, which change no rule
     record = None
     if "seen_through_reach" in params:
-        half = np.argwhere(np.ones((20, SIZE[1], 3), bool)) + [0, 0, 10]
-        record = [np.argwhere(np.ones((10, 10, 3), bool)) + [28, 20, 10], half, half]
+        shaft_side = np.argwhere(np.ones((20, SIZE[1], 3), bool)) + [20, 0, 10]
+        core = np.argwhere(np.ones((6, 6, 3), bool)) + [30, 22, 10]
+        record = [core, shaft_side, shaft_side[:0]]
     for k, (name, states, lo) in enumerate(steps(np.random.default_rng(5))):
-        if record is not None and k:
-            record = [
-                np.unique(np.concatenate([r, rng.integers(0, SIZE, size=(40, 3))]), axis=0) for r in record
-            ]
+        if record is not None and k < 6:
+            record[0] = np.unique(np.concatenate([record[0], rng.integers(0, SIZE, size=(40, 3))]), axis=0)
+        elif record is not None:
+            strip = np.argwhere(np.ones((4, SIZE[1], 3), bool)) + [20 + 4 * (k - 6), 0, 10]
+            low = rng.integers(0, [SIZE[0], SIZE[1], 8], size=(40, 3))  # layers 0-7: no slab near
+            record = [record[0], np.concatenate([record[1], low]), np.concatenate([record[2], strip, low])]
         put(followed, states, lo, tmp_path / f"map{k}.npz", views=record)
         before = followed._rules
         got = graph_arrays(followed)
