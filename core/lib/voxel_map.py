@@ -910,16 +910,7 @@ class VoxelMapBase(Mapping):
         history = self._remember_slabs(slab, rules.lo, rules.slab_history)
         through = self._through_over(rules.lo, states.shape, rules.seen_through)
         changed = (states != rules.states) | (slab != rules.slab) | (history != rules.slab_history)
-        changed |= through[0] != rules.seen_through[0]
-        sides = (through[1:] != rules.seen_through[1:]).any(axis=0)
-        if sides.any():
-            # Every surface a ray hits goes into the sides' records, but the rules read them only
-            # on a slab (or its history, or its unseen continuation a voxel on) and a layer off
-            # (free_space.vertical_ok): other changes of theirs change no rule. (Marking them all
-            # cost the demo 0.5 ms a tick of path costs in rules recomputed for nothing.)
-            from scipy import ndimage
-
-            changed |= sides & ndimage.binary_dilation(slab | history, structure=np.ones((3, 3, 5), bool))
+        changed |= (through != rules.seen_through).any(axis=0)
         shape = np.array(states.shape)
         for box_lo, box_hi in _changed_regions(changed, pad):
             # computed on the region widened by the reach (and a voxel, for the horizontal
