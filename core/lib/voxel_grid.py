@@ -183,23 +183,17 @@ def seen_through(
 
 
 def surfaces_seen_from(
-    depth: np.ndarray,
-    K: np.ndarray,
-    T_world_cam: np.ndarray,
-    stride: int,
-    max_range: float,
-    voxel: float,
-    rays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    rays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], voxel: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Keys of the voxels a return of the depth image hit from above (its end more than a voxel
+    """Keys of the voxels a return of a depth image hit from above (its end more than a voxel
     lower than the camera) and from below (more than a voxel higher).
 
     The air over a slab can be seen from below, through a shaft beside it, before any pose was
     on the floor above; its top cannot: a hit from above is the proof that the camera was over
-    the slab (:func:`~amslam.lib.free_space.vertical_ok`'s "seen from both floors"). ``rays``: as
-    for :func:`seen_through`.
+    the slab (:func:`~amslam.lib.free_space.vertical_ok`'s "seen from both floors"). ``rays``: a
+    depth image's :func:`depth_rays`.
     """
-    origin, dirs, lengths, hit = rays or depth_rays(depth, K, T_world_cam, stride, max_range)
+    origin, dirs, lengths, hit = rays
     ends = origin + dirs[hit] * lengths[hit, None]
     keys = encode(to_index(ends, voxel))
     dz = ends[:, 2] - origin[2]

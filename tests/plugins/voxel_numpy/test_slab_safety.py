@@ -372,10 +372,10 @@ def through_record(frames) -> np.ndarray:
 
 def sides_record(frames) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the surfaces ``frames`` hit from above and from below."""
-    from amslam.lib.voxel_grid import decode, surfaces_seen_from
+    from amslam.lib.voxel_grid import decode, depth_rays, surfaces_seen_from
     from amslam.testing.mapping import CAMERA
 
-    sides = [surfaces_seen_from(d, K, T, 1, CAMERA.max_range, V) for d, K, T in frames]
+    sides = [surfaces_seen_from(depth_rays(d, K, T, 1, CAMERA.max_range), V) for d, K, T in frames]
     return tuple(decode(np.unique(np.concatenate(side))) for side in zip(*sides, strict=True))
 
 
