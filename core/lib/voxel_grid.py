@@ -145,18 +145,11 @@ def depth_rays(
 
 
 def seen_through(
-    depth: np.ndarray,
-    K: np.ndarray,
-    T_world_cam: np.ndarray,
-    stride: int,
-    max_range: float,
-    voxel: float,
-    rise: float,
-    rays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    rays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], voxel: float, rise: float
 ) -> np.ndarray:
-    """Keys of the voxels a ray of the depth image crossed on its way to a point at least ``rise``
-    metres higher or lower than the voxel: air the camera saw *through*, vertically. ``rays``:
-    the image's :func:`depth_rays`, when the caller has them (they are most of the cost).
+    """Keys of the voxels a ray of a depth image (``rays``: its :func:`depth_rays`) crossed on its
+    way to a point at least ``rise`` metres higher or lower than the voxel: air the camera saw
+    *through*, vertically.
 
     A slab is opaque: no ray crosses it. So the air of a slab's layer that a ray crossed to end a
     floor above or below (or at ``max_range`` beyond, when it met nothing) is an opening, and the
@@ -164,7 +157,7 @@ def seen_through(
     ended on the slab itself, within its thickness of the voxels they carved. Samples every half
     voxel along a ray, up to a voxel before its end (the voxels in front of the surface).
     """
-    origin, dirs, lengths, _ = rays or depth_rays(depth, K, T_world_cam, stride, max_range)
+    origin, dirs, lengths, _ = rays
     # a sample t metres along a ray is |dz| (length - t) below (or above) its end: ``rise`` away
     # up to length - rise / |dz|, and a voxel in front of the end up to length - voxel
     dz = np.abs(dirs[:, 2])
@@ -190,8 +183,8 @@ def surfaces_seen_from(
 
     The air over a slab can be seen from below, through a shaft beside it, before any pose was
     on the floor above; its top cannot: a hit from above is the proof that the camera was over
-    the slab (:func:`~amslam.lib.free_space.vertical_ok`'s "seen from both floors"). ``rays``: a
-    depth image's :func:`depth_rays`.
+    the slab (:func:`~amslam.lib.free_space.vertical_ok`'s "seen from both floors"). ``rays``: as
+    for :func:`seen_through`.
     """
     origin, dirs, lengths, hit = rays
     ends = origin + dirs[hit] * lengths[hit, None]

@@ -764,8 +764,7 @@ class VoxelMapBase(Mapping):
         if p.seen_through_rise <= 0:
             return _NO_VIEWS
         v, rays = p.global_voxel, depth_rays(depth, K, T_world_cam, stride, p.max_range)
-        through = seen_through(depth, K, T_world_cam, stride, p.max_range, v, p.seen_through_rise, rays)
-        return (through, *surfaces_seen_from(rays, v))
+        return (seen_through(rays, v, p.seen_through_rise), *surfaces_seen_from(rays, v))
 
     def _start_seen_through(self, keys: tuple[np.ndarray, np.ndarray, np.ndarray], *, known: bool) -> None:
         """Start the seen-through records from ``keys`` (a loaded map's, also the base of a rebuild);

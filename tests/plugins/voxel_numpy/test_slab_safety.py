@@ -363,10 +363,10 @@ def views(scene):
 
 
 def through_record(frames) -> np.ndarray:
-    from amslam.lib.voxel_grid import decode, seen_through
+    from amslam.lib.voxel_grid import decode, depth_rays, seen_through
     from amslam.testing.mapping import CAMERA
 
-    keys = [seen_through(d, K, T, 1, CAMERA.max_range, V, 1.0) for d, K, T in frames]
+    keys = [seen_through(depth_rays(d, K, T, 1, CAMERA.max_range), V, 1.0) for d, K, T in frames]
     return decode(np.unique(np.concatenate(keys)))
 
 
