@@ -320,10 +320,7 @@ class GoTo(RobotBehaviour):
         simulator it is there at once."""
         self.path = None
         self._along_trail = along_trail
-        if along_trail:
-            self._path_job = self.navigation.request_path(self.goal.position, along_trail=True)
-        else:
-            self._path_job = self.navigation.request_path(self.goal.position)
+        self._path_job = self.navigation.request_path(self.goal.position, along_trail=along_trail)
         self._take_path()
 
     def _take_path(self) -> bool:

@@ -234,7 +234,7 @@ class StuckRobot(FakeRobot):
     def time(self):
         return self.t
 
-    def request_path(self, goal):
+    def request_path(self, goal, *, along_trail=False):
         from concurrent.futures import Future
 
         self.paths += 1
