@@ -319,24 +319,32 @@ def vertical_ok(
         ok &= ~ndimage.binary_dilation(big, structure=_disc(opening, voxel))
     if seen_through is not None and through_reach > 0:
         floors = big | slab_history if slab_history is not None else big
-        # seen from both floors: observed free air two or three layers over it and under it (one
-        # layer off may be the slab itself, seen a layer high or low). The carving needs both
-        # sides seen; a slab seen from below only (a floor not yet visited) keeps the other rules,
-        # or the first climb to it would wait for a proof the level camera cannot give from below
-        # (a ray 1.6 m under the slab, 29° up at most, ends at 5 m range 0.8 m above it).
-        free = states == FREE
-        above = _shift(free, 2, -2) | _shift(free, 2, -3)
-        below = _shift(free, 2, 2) | _shift(free, 2, 3)
-        floors &= above & below
-        # The air over a slab is also seen from below, through a shaft beside it, before any pose
-        # was over it (the demo's first climb waited for a proof it could not get); its top is
-        # hit from above only by a camera that was over it.
-        for side in (seen_from_above, seen_from_below):
-            if side is not None:
-                floors &= side | _shift(side, 2, 1) | _shift(side, 2, -1)
+        floors &= _seen_from_both_floors(states, seen_from_above, seen_from_below)
         if floors.any():
             ok &= seen_through | ~ndimage.binary_dilation(floors, structure=_disc(through_reach, voxel))
     return ok
+
+
+def _seen_from_both_floors(
+    states: np.ndarray, seen_from_above: np.ndarray | None, seen_from_below: np.ndarray | None
+) -> np.ndarray:
+    """Voxels of a slab's layer seen from both floors (:func:`vertical_ok`): observed free air two
+    or three layers over them and under them (one layer off may be the slab itself, seen a layer
+    high or low) and, when given, a hit on them or a layer off from above and from below.
+
+    The carving the seen-through rule guards against needs both sides seen; a slab seen from below
+    only (a floor not yet visited) keeps the other rules, or the first climb to it would wait for a
+    proof the level camera cannot give from below (a ray 1.6 m under the slab, 29° up at most, ends
+    at 5 m range 0.8 m above it). The air over a slab is also seen from below, through a shaft
+    beside it, before any pose was over it (the demo's first climb waited for a proof it could not
+    get); its top is hit from above only by a camera that was over it.
+    """
+    free = states == FREE
+    both = (_shift(free, 2, -2) | _shift(free, 2, -3)) & (_shift(free, 2, 2) | _shift(free, 2, 3))
+    for side in (seen_from_above, seen_from_below):
+        if side is not None:
+            both &= side | _shift(side, 2, 1) | _shift(side, 2, -1)
+    return both
 
 
 def _reach(structure: np.ndarray) -> np.ndarray:
