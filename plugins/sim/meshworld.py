@@ -180,16 +180,8 @@ def _mesh_xy_extent(
 
 def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
     """Load a mesh world; relative paths are resolved against ``base_dir`` (the mission folder)."""
-    from scipy.spatial import cKDTree
-
     mesh_path = (find_world_file(p.mesh, base_dir) or base_dir / p.mesh).resolve()
     V, T, C = _read_mesh(mesh_path, p)
-    n = len(T)
-    tri_inst = np.zeros(n, dtype=np.int32)
-    centroids = V[T].mean(axis=1)
-    normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-
     entries: list[dict] = []
     obj_dir = base_dir
     if p.objects is not None:
@@ -198,90 +190,17 @@ def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
             raise PlatformError(f"mesh world: objects file not found: {obj_path}")
         entries = object_entries(obj_path)
         obj_dir = obj_path.parent
-
-    objects: list[WorldObject] = []
-    extra_parts: list[MeshPart] = []
-    struct = set(p.structure_classes)
-    # 1. objects with meshes: label the coinciding world triangles
-    labelled_entries = []
-    tri_owner_cls: dict[int, str] = {}
-    for k, e in enumerate(entries):
-        if "name" not in e or "class" not in e:
-            raise PlatformError(f"mesh world: object #{k} of {p.objects} needs 'name' and 'class'")
-        cls = normalize_class(e["class"]) if p.normalize_classes else e["class"]
-        cls = p.class_map.get(cls, p.class_map.get(e["class"], cls))
-        labelled_entries.append((e, cls))
-    inst_of: dict[str, int] = {}
-    next_id = 1
-    for e, cls in labelled_entries:
-        iid = 0 if cls in struct else next_id
-        if iid:
-            next_id += 1
-        inst_of[e["name"]] = iid
-        tri_owner_cls[iid] = cls
-
-    tree = cKDTree(centroids)
-    struct_mask = np.zeros(n, dtype=bool)
-    for e, cls in labelled_entries:
-        if "mesh" not in e:
-            continue
-        ov, ot, _ = _read_mesh((obj_dir / e["mesh"]).resolve(), p)
-        oc = ov[ot].mean(axis=1)
-        # every world triangle within tolerance of an object triangle centroid belongs to it
-        hits = tree.query_ball_point(oc, r=p.match_tolerance)
-        idx = np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])) if len(hits) else []
-        iid = inst_of[e["name"]]
-        if len(idx) >= 0.5 * len(ot):
-            if iid:
-                tri_inst[idx] = iid
-            else:
-                struct_mask[idx] = True
-        else:  # not part of the world mesh: add it
-            albedo = class_colour("wall" if iid == 0 else cls)
-            extra_parts.append(MeshPart.uniform(e["name"], ov, ot, iid, albedo))
-    # 2. objects given by bounds only: label unlabelled triangles inside the box
-    for e, _cls in labelled_entries:
-        if "mesh" in e or "bounds" not in e:
-            continue
-        lo, hi = (np.asarray(b, dtype=np.float64) * p.scale for b in e["bounds"])
-        inside = np.all((V[T] >= lo - 0.01) & (V[T] <= hi + 0.01), axis=(1, 2))
-        sel = inside & (tri_inst == 0) & ~struct_mask
-        tri_inst[sel] = inst_of[e["name"]]
-
-    # ground truth per object: bounds of its labelled triangles (or of its own mesh / the file)
-    for e, cls in labelled_entries:
-        iid = inst_of[e["name"]]
-        if iid == 0:
-            continue
-        sel = tri_inst == iid
-        if sel.any():
-            pts = V[T[sel]].reshape(-1, 3)
-        else:
-            part = next((q for q in extra_parts if q.name == e["name"]), None)
-            if part is not None:
-                pts = part.vertices
-            elif "bounds" in e:
-                pts = np.asarray(e["bounds"], dtype=np.float64) * p.scale
-            else:
-                continue
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        objects.append(WorldObject(e["name"], cls, iid, (lo + hi) / 2, lo, hi))
-
-    # albedo: vertex colours when the file has them, else class / structure colours
-    if C is not None and len(C) == len(V):
-        albedo = C[T].mean(axis=1)
-    else:
-        albedo = np.tile(class_colour("wall"), (n, 1))
-        albedo[(tri_inst == 0) & (normals[:, 2] > 0.9)] = class_colour("floor")
-        albedo[(tri_inst == 0) & (normals[:, 2] < -0.9)] = class_colour("ceiling")
-        for iid in np.unique(tri_inst[tri_inst > 0]):
-            albedo[tri_inst == iid] = class_colour(tri_owner_cls[int(iid)])
+    labelled = _classified_entries(entries, p)
+    instances = _instance_ids(labelled, set(p.structure_classes))
+    tri_inst, extra_parts = _label_triangles(V, T, labelled, instances, obj_dir, p)
+    objects = _objects_of(V, T, tri_inst, labelled, instances, extra_parts, p.scale)
+    owner_class = {instances[e["name"]]: cls for e, cls in labelled}
     world_part = MeshPart(
         mesh_path.parent.name if mesh_path.name.startswith("world") else mesh_path.stem,
         V,
         T,
         tri_inst,
-        albedo.astype(np.float32),
+        _albedo(V, T, C, tri_inst, owner_class).astype(np.float32),
     )
     all_v = np.concatenate([V] + [q.vertices for q in extra_parts])
     lo, hi = all_v.min(axis=0), all_v.max(axis=0)
@@ -304,3 +223,119 @@ def load_mesh_world(p: MeshWorldParams, base_dir: Path) -> WorldSpec:
         spec.floor_heights = survey_floors(World(spec)).floors
     spec.start_floor_z = spec.floor_heights[0]
     return spec
+
+
+def _classified_entries(entries: list[dict], p: MeshWorldParams) -> list[tuple[dict, str]]:
+    """Each object entry with its class as the world names it (normalised, then ``class_map``)."""
+    labelled = []
+    for k, e in enumerate(entries):
+        if "name" not in e or "class" not in e:
+            raise PlatformError(f"mesh world: object #{k} of {p.objects} needs 'name' and 'class'")
+        cls = normalize_class(e["class"]) if p.normalize_classes else e["class"]
+        cls = p.class_map.get(cls, p.class_map.get(e["class"], cls))
+        labelled.append((e, cls))
+    return labelled
+
+
+def _instance_ids(labelled: list[tuple[dict, str]], structure: set[str]) -> dict[str, int]:
+    """Instance id per object name, 1, 2, … in file order; 0 for the structure classes (walls)."""
+    ids: dict[str, int] = {}
+    next_id = 1
+    for e, cls in labelled:
+        ids[e["name"]] = 0 if cls in structure else next_id
+        next_id += cls not in structure
+    return ids
+
+
+def _label_triangles(
+    V: np.ndarray,
+    T: np.ndarray,
+    labelled: list[tuple[dict, str]],
+    instances: dict[str, int],
+    obj_dir: Path,
+    p: MeshWorldParams,
+) -> tuple[np.ndarray, list[MeshPart]]:
+    """The instance id of each world triangle, and the object meshes the world mesh lacks.
+
+    First the objects with meshes: every world triangle within ``match_tolerance`` of one of an
+    object mesh's triangle centroids is the object's (a structure object's triangles are marked
+    and kept from the next step); an object mesh of which fewer than half the triangles match is
+    not in the world mesh and is added as a part of its own. Then the objects given by bounds:
+    the unlabelled triangles inside their box."""
+    from scipy.spatial import cKDTree
+
+    tri_inst = np.zeros(len(T), dtype=np.int32)
+    struct_mask = np.zeros(len(T), dtype=bool)
+    extra_parts: list[MeshPart] = []
+    tree = cKDTree(V[T].mean(axis=1))
+    for e, cls in labelled:
+        if "mesh" not in e:
+            continue
+        ov, ot, _ = _read_mesh((obj_dir / e["mesh"]).resolve(), p)
+        hits = tree.query_ball_point(ov[ot].mean(axis=1), r=p.match_tolerance)
+        idx = np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])) if len(hits) else []
+        iid = instances[e["name"]]
+        if len(idx) >= 0.5 * len(ot):
+            if iid:
+                tri_inst[idx] = iid
+            else:
+                struct_mask[idx] = True
+        else:  # not part of the world mesh: add it
+            albedo = class_colour("wall" if iid == 0 else cls)
+            extra_parts.append(MeshPart.uniform(e["name"], ov, ot, iid, albedo))
+    for e, _cls in labelled:
+        if "mesh" in e or "bounds" not in e:
+            continue
+        lo, hi = (np.asarray(b, dtype=np.float64) * p.scale for b in e["bounds"])
+        inside = np.all((V[T] >= lo - 0.01) & (V[T] <= hi + 0.01), axis=(1, 2))
+        tri_inst[inside & (tri_inst == 0) & ~struct_mask] = instances[e["name"]]
+    return tri_inst, extra_parts
+
+
+def _objects_of(
+    V: np.ndarray,
+    T: np.ndarray,
+    tri_inst: np.ndarray,
+    labelled: list[tuple[dict, str]],
+    instances: dict[str, int],
+    extra_parts: list[MeshPart],
+    scale: float,
+) -> list[WorldObject]:
+    """The ground truth per object: the bounds of its labelled triangles, else of its own mesh,
+    else of its entry's ``bounds``; an object with none of them is left out."""
+    objects = []
+    for e, cls in labelled:
+        iid = instances[e["name"]]
+        if iid == 0:
+            continue
+        sel = tri_inst == iid
+        if sel.any():
+            pts = V[T[sel]].reshape(-1, 3)
+        else:
+            part = next((q for q in extra_parts if q.name == e["name"]), None)
+            if part is not None:
+                pts = part.vertices
+            elif "bounds" in e:
+                pts = np.asarray(e["bounds"], dtype=np.float64) * scale
+            else:
+                continue
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        objects.append(WorldObject(e["name"], cls, iid, (lo + hi) / 2, lo, hi))
+    return objects
+
+
+def _albedo(
+    V: np.ndarray, T: np.ndarray, C: np.ndarray | None, tri_inst: np.ndarray, owner_class: dict[int, str]
+) -> np.ndarray:
+    """Per triangle: the file's vertex colours when it has them, else the class colours (walls,
+    floors facing up, ceilings facing down, objects by their class)."""
+    if C is not None and len(C) == len(V):
+        return C[T].mean(axis=1)
+    normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    albedo = np.tile(class_colour("wall"), (len(T), 1))
+    albedo[(tri_inst == 0) & (normals[:, 2] > 0.9)] = class_colour("floor")
+    albedo[(tri_inst == 0) & (normals[:, 2] < -0.9)] = class_colour("ceiling")
+    for iid in np.unique(tri_inst[tri_inst > 0]):
+        albedo[tri_inst == iid] = class_colour(owner_class[int(iid)])
+    return albedo
