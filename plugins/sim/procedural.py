@@ -363,122 +363,162 @@ class _Builder:
             box(g0, g1, z0 + p.door_height, z1)
 
     def build(self) -> WorldSpec:
-        p, rng = self.p, self.rng
-        W, D = p.size
-        t = p.wall_thickness
-        fh = p.floor_height
-        xl = W - p.lobby_width  # centre line of the lobby wall
-        cy0 = D / 2 - p.corridor_width / 2 - t / 2  # corridor wall centre lines
-        cy1 = D / 2 + p.corridor_width / 2 + t / 2
-        if cy0 < 2.5 or D - cy1 < 2.5 or xl < 4.0:
-            raise ValueError(f"building {W}x{D} m is too small for a corridor, rooms and a lobby")
-        sx = W - p.lobby_width / 2  # shaft centre (lobby centre)
-        sy = D / 2
-        s = p.shaft_size / 2
-        shaft = _Rect(sx - s, sy - s, sx + s, sy + s)
-        dw = p.door_width
-
+        p = self.p
+        at = _Layout.of(p)
         for f in range(p.floors):
-            z = f * fh
-            # outer walls
-            self.walls[f] += [
-                ([0, 0, z], [W, t, z + fh - p.slab]),
-                ([0, D - t, z], [W, D, z + fh - p.slab]),
-                ([0, 0, z], [t, D, z + fh - p.slab]),
-                ([W - t, 0, z], [W, D, z + fh - p.slab]),
-            ]
-            corridor_gaps: dict[int, list] = {0: [], 1: []}
-            lobby_gaps = [(cy0 + t / 2, cy1 - t / 2)]  # the corridor opens into the lobby
-            rooms: list[tuple[_Rect, list[_Rect]]] = []
-            for side, (ya, yb) in enumerate([(t, cy0 - t / 2), (cy1 + t / 2, D - t)]):
-                wy0, wy1 = (0.0, cy0) if side == 0 else (cy1, D)  # partition walls span the strip
-                door_y = yb if side == 0 else ya  # the room's corridor-side edge
-                # split the strip into rooms along x
-                cuts = [t / 2]
-                while True:
-                    w = rng.uniform(*p.room_width)
-                    if cuts[-1] + w + p.room_width[0] > xl:
-                        break
-                    cuts.append(cuts[-1] + w)
-                cuts.append(xl)
-                side_gaps: dict[int, list] = {}
-                for i in range(1, len(cuts) - 1):
-                    gaps = []
-                    if rng.random() < p.extra_doors and yb - ya > dw + 0.8:
-                        g = rng.uniform(ya + 0.4, yb - 0.4 - dw)
-                        gaps.append((g, g + dw))
-                    side_gaps[i] = gaps
-                    self.wall_y(f, cuts[i], wy0, wy1, gaps)
-                if rng.random() < 0.5 and yb - ya > dw + 0.8:  # the last room opens into the lobby
-                    g = rng.uniform(ya + 0.4, yb - 0.4 - dw)
-                    lobby_gaps.append((g, g + dw))
-                    side_gaps[len(cuts) - 1] = [(g, g + dw)]
-                for i in range(len(cuts) - 1):
-                    rx0, rx1 = cuts[i] + t / 2, cuts[i + 1] - t / 2
-                    g = rng.uniform(rx0 + 0.3, max(rx0 + 0.3, rx1 - 0.3 - dw))
-                    corridor_gaps[side].append((g, g + dw))
-                    keep = [_Rect(g - 0.3, door_y - 1.3, g + dw + 0.3, door_y + 1.3)]
-                    for a, b in side_gaps.get(i, []):  # door in the west partition
-                        keep.append(_Rect(rx0 - 1.3, a - 0.3, rx0 + 1.3, b + 0.3))
-                    for a, b in side_gaps.get(i + 1, []):  # door in the east partition
-                        keep.append(_Rect(rx1 - 1.3, a - 0.3, rx1 + 1.3, b + 0.3))
-                    rooms.append((_Rect(rx0, ya, rx1, yb), keep))
-            for room, keep in rooms:
-                self.furnish(room, z, keep)
-            self.wall_x(f, cy0, t, xl, corridor_gaps[0])
-            self.wall_x(f, cy1, t, xl, corridor_gaps[1])
-            self.wall_y(f, xl, t, D - t, lobby_gaps)
-            # lobby furniture: a few pieces along the walls, away from the shaft and the corridor
-            lobby = _Rect(xl + t / 2, t, W - t, D - t)
-            keep = [
-                _Rect(shaft.x0 - 0.6, shaft.y0 - 0.6, shaft.x1 + 0.6, shaft.y1 + 0.6),
-                _Rect(xl - 1.5, cy0 - 0.5, xl + 2.0, cy1 + 0.5),
-            ] + [_Rect(xl - 1.0, a - 0.3, xl + 1.6, b + 0.3) for a, b in lobby_gaps]
-            self.furnish(lobby, z, keep)
+            self._build_floor(f, at)
+        self._add_slabs(at)
+        W, D = p.size
+        return WorldSpec(
+            name=p.name,
+            parts=self._mesh_parts(),
+            objects=self.objects,
+            floor_heights=tuple(f * p.floor_height for f in range(p.floors)),
+            bounds_lo=np.array([0.0, 0.0, -p.slab]),
+            bounds_hi=np.array([W, D, p.floors * p.floor_height]),
+            start_xy=np.array([p.wall_thickness + 1.0, D / 2]),
+            start_floor_z=0.0,
+            start_yaw=0.0,
+            places={
+                "shaft": np.array([*at.shaft_centre, 0.0]),
+                "corridor_east": np.array([at.xl - 1.0, D / 2, 0.0]),
+                "lobby_entrance": np.array([at.xl + 1.0, D / 2, 0.0]),
+            },
+        )
 
-        # slabs: ground, intermediate (with the shaft hole), roof
+    def _build_floor(self, f: int, at: _Layout) -> None:
+        """One floor: outer walls, the rooms on both sides of the corridor (partitions, doors,
+        furniture), the corridor and lobby walls, the lobby's furniture. The random draws come in
+        this order, so a seed's building stays the same."""
+        p, t = self.p, self.p.wall_thickness
+        W, D = p.size
+        z, top = f * p.floor_height, (f + 1) * p.floor_height - p.slab
+        self.walls[f] += [
+            ([0, 0, z], [W, t, top]),
+            ([0, D - t, z], [W, D, top]),
+            ([0, 0, z], [t, D, top]),
+            ([W - t, 0, z], [W, D, top]),
+        ]
+        corridor_gaps: dict[int, list] = {0: [], 1: []}
+        lobby_gaps = [(at.cy0 + t / 2, at.cy1 - t / 2)]  # the corridor opens into the lobby
+        rooms: list[tuple[_Rect, list[_Rect]]] = []
+        for side in (0, 1):
+            rooms += self._strip_rooms(f, side, at, corridor_gaps[side], lobby_gaps)
+        for room, keep in rooms:
+            self.furnish(room, z, keep)
+        self.wall_x(f, at.cy0, t, at.xl, corridor_gaps[0])
+        self.wall_x(f, at.cy1, t, at.xl, corridor_gaps[1])
+        self.wall_y(f, at.xl, t, D - t, lobby_gaps)
+        # lobby furniture: a few pieces along the walls, away from the shaft and the corridor
+        lobby = _Rect(at.xl + t / 2, t, W - t, D - t)
+        sh = at.shaft
+        keep = [
+            _Rect(sh.x0 - 0.6, sh.y0 - 0.6, sh.x1 + 0.6, sh.y1 + 0.6),
+            _Rect(at.xl - 1.5, at.cy0 - 0.5, at.xl + 2.0, at.cy1 + 0.5),
+        ] + [_Rect(at.xl - 1.0, a - 0.3, at.xl + 1.6, b + 0.3) for a, b in lobby_gaps]
+        self.furnish(lobby, z, keep)
+
+    def _strip_rooms(
+        self, f: int, side: int, at: _Layout, corridor_gaps: list, lobby_gaps: list
+    ) -> list[tuple[_Rect, list[_Rect]]]:
+        """The rooms of one side of the corridor (0 south, 1 north), each with the zones its
+        furniture keeps clear of its doors; builds their partitions and adds their doors to the
+        corridor's and the lobby's gaps."""
+        p, rng, t, dw = self.p, self.rng, self.p.wall_thickness, self.p.door_width
+        D = p.size[1]
+        ya, yb = (t, at.cy0 - t / 2) if side == 0 else (at.cy1 + t / 2, D - t)
+        wy0, wy1 = (0.0, at.cy0) if side == 0 else (at.cy1, D)  # partition walls span the strip
+        door_y = yb if side == 0 else ya  # the room's corridor-side edge
+        # split the strip into rooms along x
+        cuts = [t / 2]
+        while True:
+            w = rng.uniform(*p.room_width)
+            if cuts[-1] + w + p.room_width[0] > at.xl:
+                break
+            cuts.append(cuts[-1] + w)
+        cuts.append(at.xl)
+        side_gaps: dict[int, list] = {}
+        for i in range(1, len(cuts) - 1):
+            gaps = []
+            if rng.random() < p.extra_doors and yb - ya > dw + 0.8:
+                g = rng.uniform(ya + 0.4, yb - 0.4 - dw)
+                gaps.append((g, g + dw))
+            side_gaps[i] = gaps
+            self.wall_y(f, cuts[i], wy0, wy1, gaps)
+        if rng.random() < 0.5 and yb - ya > dw + 0.8:  # the last room opens into the lobby
+            g = rng.uniform(ya + 0.4, yb - 0.4 - dw)
+            lobby_gaps.append((g, g + dw))
+            side_gaps[len(cuts) - 1] = [(g, g + dw)]
+        rooms = []
+        for i in range(len(cuts) - 1):
+            rx0, rx1 = cuts[i] + t / 2, cuts[i + 1] - t / 2
+            g = rng.uniform(rx0 + 0.3, max(rx0 + 0.3, rx1 - 0.3 - dw))
+            corridor_gaps.append((g, g + dw))
+            keep = [_Rect(g - 0.3, door_y - 1.3, g + dw + 0.3, door_y + 1.3)]
+            for a, b in side_gaps.get(i, []):  # door in the west partition
+                keep.append(_Rect(rx0 - 1.3, a - 0.3, rx0 + 1.3, b + 0.3))
+            for a, b in side_gaps.get(i + 1, []):  # door in the east partition
+                keep.append(_Rect(rx1 - 1.3, a - 0.3, rx1 + 1.3, b + 0.3))
+            rooms.append((_Rect(rx0, ya, rx1, yb), keep))
+        return rooms
+
+    def _add_slabs(self, at: _Layout) -> None:
+        """The slabs: the ground, one under each upper floor with the shaft's hole, the roof."""
+        p, sh = self.p, at.shaft
+        W, D = p.size
         for f in range(p.floors + 1):
-            z1 = f * fh
+            z1 = f * p.floor_height
             z0 = z1 - p.slab
             if 0 < f < p.floors:
                 self.floors[f] += [
-                    ([0, 0, z0], [W, shaft.y0, z1]),
-                    ([0, shaft.y1, z0], [W, D, z1]),
-                    ([0, shaft.y0, z0], [shaft.x0, shaft.y1, z1]),
-                    ([shaft.x1, shaft.y0, z0], [W, shaft.y1, z1]),
+                    ([0, 0, z0], [W, sh.y0, z1]),
+                    ([0, sh.y1, z0], [W, D, z1]),
+                    ([0, sh.y0, z0], [sh.x0, sh.y1, z1]),
+                    ([sh.x1, sh.y0, z0], [W, sh.y1, z1]),
                 ]
             else:
                 self.floors[f].append(([0, 0, z0], [W, D, z1]))
 
+    def _mesh_parts(self) -> list[MeshPart]:
+        """The furniture's parts, then each floor's walls and each slab as one part."""
         parts = list(self.parts)
         for f, boxes in enumerate(self.walls):
             v, tr = boxes_mesh([(np.array(a, float), np.array(b, float)) for a, b in boxes])
             parts.append(MeshPart.uniform(f"wall (floor {f})", v, tr, 0, class_colour("wall")))
         for f, boxes in enumerate(self.floors):
             v, tr = boxes_mesh([(np.array(a, float), np.array(b, float)) for a, b in boxes])
-            name = "ground slab" if f == 0 else ("roof slab" if f == p.floors else f"slab under floor {f}")
+            roof = f == self.p.floors
+            name = "ground slab" if f == 0 else ("roof slab" if roof else f"slab under floor {f}")
             # The top face is a floor, the bottom face a ceiling: colour per triangle by normal.
             part = MeshPart.uniform(name, v, tr, 0, class_colour("floor"))
             nz = _triangle_normals(v, tr)[:, 2]
             part.albedo[nz < -0.5] = class_colour("ceiling")
             parts.append(part)
+        return parts
 
-        return WorldSpec(
-            name=p.name,
-            parts=parts,
-            objects=self.objects,
-            floor_heights=tuple(f * fh for f in range(p.floors)),
-            bounds_lo=np.array([0.0, 0.0, -p.slab]),
-            bounds_hi=np.array([W, D, p.floors * fh]),
-            start_xy=np.array([t + 1.0, D / 2]),
-            start_floor_z=0.0,
-            start_yaw=0.0,
-            places={
-                "shaft": np.array([sx, sy, 0.0]),
-                "corridor_east": np.array([xl - 1.0, D / 2, 0.0]),
-                "lobby_entrance": np.array([xl + 1.0, D / 2, 0.0]),
-            },
-        )
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where a floor plan's fixed lines are: the lobby wall's centre line ``xl`` (the lobby at the
+    east end), the corridor walls' ``cy0`` and ``cy1``, the shaft in the lobby's middle."""
+
+    xl: float
+    cy0: float
+    cy1: float
+    shaft_centre: tuple[float, float]
+    shaft: _Rect
+
+    @classmethod
+    def of(cls, p: ProceduralWorldParams) -> _Layout:
+        W, D = p.size
+        t = p.wall_thickness
+        xl = W - p.lobby_width
+        cy0 = D / 2 - p.corridor_width / 2 - t / 2
+        cy1 = D / 2 + p.corridor_width / 2 + t / 2
+        if cy0 < 2.5 or D - cy1 < 2.5 or xl < 4.0:
+            raise ValueError(f"building {W}x{D} m is too small for a corridor, rooms and a lobby")
+        sx, sy, s = W - p.lobby_width / 2, D / 2, p.shaft_size / 2
+        return cls(xl, cy0, cy1, (sx, sy), _Rect(sx - s, sy - s, sx + s, sy + s))
 
 
 def _triangle_normals(v: np.ndarray, t: np.ndarray) -> np.ndarray:
