@@ -411,24 +411,9 @@ def survey_floors(
       ``large`` m² of a walkable surface with ``storey`` of headroom below it; a raised platform
       on solid ground beside a floor, a table or a rack top is not a floor of its own.
     """
-    lo, hi = np.asarray(world.spec.bounds_lo, float), np.asarray(world.spec.bounds_hi, float)
-    span = np.maximum(hi[:2] - lo[:2], cell)
-    cell = max(cell, float(np.sqrt(span[0] * span[1] / max_columns)))
-    xs = np.arange(lo[0] + cell / 2, hi[0], cell)
-    ys = np.arange(lo[1] + cell / 2, hi[1], cell)
-    xy = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
-    top = hi[2] + 1.0
-    rays = np.column_stack([xy, np.full(len(xy), top), np.tile([0.0, 0.0, -1.0], (len(xy), 1))])
-    import open3d as o3d
-
-    ans = world.scene.list_intersections(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
-    ray = ans["ray_ids"].numpy().astype(np.int64)
-    t = ans["t_hit"].numpy().astype(np.float64)
-    tri = world.triangle_index(ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy())
-    order = np.lexsort((t, ray))
-    ray, t, tri = ray[order], t[order], tri[order]
-    z = top - t
-    first = np.r_[True, ray[1:] != ray[:-1]]
+    lo = np.asarray(world.spec.bounds_lo, float)
+    hits = _vertical_hits(world, cell, max_columns)
+    z, tri, first = hits.z, hits.triangle, hits.first
     # headroom: to the next surface above in the same column (none above: open sky)
     above = np.where(first, np.inf, np.r_[np.inf, z[:-1]])
     room = above - z
@@ -440,18 +425,66 @@ def survey_floors(
     # storey below a walkable surface: a walkable surface lower in the same column with `storey`
     # of headroom (under this one's slab)
     tall = (walk & (room >= storey)).astype(np.int64)
-    last = np.searchsorted(ray, ray, side="right") - 1  # last (lowest) hit of each hit's column
+    last = np.searchsorted(hits.ray, hits.ray, side="right") - 1  # last (lowest) hit of each hit's column
     cs = np.cumsum(tall)
     storey_below = (cs[last] - cs) > 0
 
-    wz, wxy = z[walk], xy[ray[walk]]
-    sky, over = first[walk], storey_below[walk]
+    wz, wxy = z[walk], hits.xy[hits.ray[walk]]
     if len(wz) == 0:
         return FloorSurvey((), (float(lo[2]),), None, large)
-    closed = world.enclosed_share(wxy, np.column_stack([wz + 1.2, wz + 1.8]))
-    inside = closed >= enclosed
-    cell_area = cell * cell
-    # levels: the heights holding the most walkable area first, each claiming what lies within 6 cm
+    inside = world.enclosed_share(wxy, np.column_stack([wz + 1.2, wz + 1.8])) >= enclosed
+    levels = _levels(wz, hits.cell * hits.cell, inside, first[walk], storey_below[walk])
+    # a floor (and the ground around) is a large share of the building, not a patch of ground in
+    # a corner of its walls, nor the eaves of a roof
+    big = max(large, share * max((lv.enclosed_area for lv in levels), default=0.0))
+    terrain = next((lv.z for lv in levels if lv.open_sky_area >= big), None)
+    floors = _floors_of(levels, terrain, big, float(lo[2]), large, share, storey, basement_tolerance)
+    return FloorSurvey(tuple(levels), tuple(floors), terrain, large)
+
+
+@dataclass(frozen=True)
+class _VerticalHits:
+    """Every surface a vertical ray down each column of a grid crosses, column by column from the
+    top: the hit's column (``ray``, an index into ``xy``), height, triangle, and whether it is
+    its column's first."""
+
+    xy: np.ndarray
+    cell: float
+    ray: np.ndarray
+    z: np.ndarray
+    triangle: np.ndarray
+    first: np.ndarray
+
+
+def _vertical_hits(world: World, cell: float, max_columns: int) -> _VerticalHits:
+    """One ray down through the whole world per ``cell`` column (the cell grown to keep at most
+    ``max_columns`` of them), every surface it crosses listed."""
+    import open3d as o3d
+
+    lo, hi = np.asarray(world.spec.bounds_lo, float), np.asarray(world.spec.bounds_hi, float)
+    span = np.maximum(hi[:2] - lo[:2], cell)
+    cell = max(cell, float(np.sqrt(span[0] * span[1] / max_columns)))
+    xs = np.arange(lo[0] + cell / 2, hi[0], cell)
+    ys = np.arange(lo[1] + cell / 2, hi[1], cell)
+    xy = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+    top = hi[2] + 1.0
+    rays = np.column_stack([xy, np.full(len(xy), top), np.tile([0.0, 0.0, -1.0], (len(xy), 1))])
+    ans = world.scene.list_intersections(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+    ray = ans["ray_ids"].numpy().astype(np.int64)
+    t = ans["t_hit"].numpy().astype(np.float64)
+    tri = world.triangle_index(ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy())
+    order = np.lexsort((t, ray))
+    ray, t, tri = ray[order], t[order], tri[order]
+    first = np.r_[True, ray[1:] != ray[:-1]]
+    return _VerticalHits(xy, cell, ray, top - t, tri, first)
+
+
+def _levels(
+    wz: np.ndarray, cell_area: float, inside: np.ndarray, sky: np.ndarray, over: np.ndarray
+) -> list[Level]:
+    """The walkable surfaces (heights ``wz``, each a cell's area; inside walls, open to the sky,
+    over a storey) grouped into levels, lowest first: the heights holding the most walkable area
+    first, each claiming what lies within 6 cm."""
     bins = np.round(wz / 0.02).astype(np.int64)
     ub, inv = np.unique(bins, return_inverse=True)
     weight = np.bincount(inv, minlength=len(ub)).astype(float)
@@ -472,24 +505,33 @@ def survey_floors(
             )
         )
     levels.sort(key=lambda lv: lv.z)
-    # a floor (and the ground around) is a large share of the building, not a patch of ground in
-    # a corner of its walls, nor the eaves of a roof
-    big = max(large, share * max((lv.enclosed_area for lv in levels), default=0.0))
-    terrain = next((lv.z for lv in levels if lv.open_sky_area >= big), None)
+    return levels
+
+
+def _floors_of(
+    levels: list[Level],
+    terrain: float | None,
+    big: float,
+    bottom: float,
+    large: float,
+    share: float,
+    storey: float,
+    basement_tolerance: float,
+) -> list[float]:
+    """The floor heights among the levels (the rules of :func:`survey_floors`): ``big`` the area
+    of a large level, ``bottom`` the mesh's lowest point (the floor when no level is large)."""
     grounds = [lv for lv in levels if lv.enclosed_area >= big and lv.enclosed_area >= lv.open_sky_area]
     at_ground = [lv for lv in grounds if terrain is None or lv.z >= terrain - basement_tolerance]
-    floors: list[float] = []
-    if grounds:
-        ground = (at_ground or grounds)[0]
-        floors.append(ground.z)
-        big = max(large, share * ground.enclosed_area)
-        for lv in levels:
-            if lv.z - floors[-1] >= storey and lv.enclosed_area >= big and lv.over_storey_area >= big:
-                floors.append(lv.z)
-    else:  # nothing inside walls: the lowest large walkable level, else the bottom of the mesh
+    if not grounds:  # nothing inside walls: the lowest large walkable level, else the bottom of the mesh
         wide = [lv for lv in levels if lv.area >= large]
-        floors = [wide[0].z if wide else float(lo[2])]
-    return FloorSurvey(tuple(levels), tuple(floors), terrain, large)
+        return [wide[0].z if wide else bottom]
+    ground = (at_ground or grounds)[0]
+    floors = [ground.z]
+    big = max(large, share * ground.enclosed_area)
+    for lv in levels:
+        if lv.z - floors[-1] >= storey and lv.enclosed_area >= big and lv.over_storey_area >= big:
+            floors.append(lv.z)
+    return floors
 
 
 # -------------------------------------------------------------------------------------------
