@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import shutil
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -185,6 +186,45 @@ def run_camera_only(args: argparse.Namespace, registry) -> int:
     return 0
 
 
+def _truth_folder(out: str | None, mission_name: str) -> tuple[Path, Path | None]:
+    """The run's truth folder (``--out``, else ``sitl/MISSION-STAMP``) and the outermost folder
+    of its path that does not exist yet (removed again if the world cannot be built); None when
+    the folder exists."""
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    folder = Path(out) if out else Path("sitl") / f"{mission_name}-{stamp}"
+    made = None if folder.exists() else folder
+    while made is not None and not made.parent.exists():
+        made = made.parent
+    return folder, made
+
+
+def _serve(vehicle, write_summary: Callable[[], dict], *, once: bool) -> None:
+    """Print the vehicle's log as it grows; after each flight (armed, then landed and disarmed)
+    write the summary and say how it went; with ``once``, return after the first."""
+    flew = False
+    shown = 0
+    while True:
+        time.sleep(0.2)
+        for t, what in list(vehicle.log)[shown:]:
+            print(f"  t {t:7.2f}  {what}", flush=True)
+            shown += 1
+        state = vehicle.state()
+        flew = flew or state["armed"]
+        if flew and not state["armed"] and state["landed"]:
+            summary = write_summary()
+            flew = False
+            print(
+                f"down and disarmed: {len(summary['contacts'])} contacts, closest approach"
+                f" {summary['closest_approach_m']} m, estimate off by {summary['estimate_error_m']} m",
+                flush=True,
+            )
+            if once:
+                # PX4 heartbeats say "disarmed" twice a second here: amslam waits up to 3 s to
+                # hear it before it sends a disarm itself, which nobody would answer any more
+                time.sleep(ONCE_LINGER)
+                return
+
+
 def run_sitl(args: argparse.Namespace, registry) -> int:
     from amslam.apps.sitl.record import TruthRecord
     from amslam.apps.sitl.vehicle import SitlVehicle
@@ -198,11 +238,7 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
         )
     mavlink_to = _mavlink_peer_address(p.url)
     also_to = _gcs_address(args.gcs)
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out) if args.out else Path("sitl") / f"{mission.name}-{stamp}"
-    made = None if out.exists() else out  # the outermost folder this run creates
-    while made is not None and not made.parent.exists():
-        made = made.parent
+    out, made = _truth_folder(args.out, mission.name)
     record = TruthRecord(out)
     try:
         sim, sim_params = _started_simulator(mission, p, out)
@@ -263,29 +299,8 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
     if streamer:
         streamer.start()
     print("ready: waiting for amslam fly (Ctrl-C stops)", flush=True)
-    flew = False
-    shown = 0
     try:
-        while True:
-            time.sleep(0.2)
-            for t, what in list(vehicle.log)[shown:]:
-                print(f"  t {t:7.2f}  {what}", flush=True)
-                shown += 1
-            state = vehicle.state()
-            flew = flew or state["armed"]
-            if flew and not state["armed"] and state["landed"]:
-                summary = write_summary()
-                flew = False
-                print(
-                    f"down and disarmed: {len(summary['contacts'])} contacts, closest approach"
-                    f" {summary['closest_approach_m']} m, estimate off by {summary['estimate_error_m']} m",
-                    flush=True,
-                )
-                if args.once:
-                    # PX4 heartbeats say "disarmed" twice a second here: amslam waits up to 3 s to
-                    # hear it before it sends a disarm itself, which nobody would answer any more
-                    time.sleep(ONCE_LINGER)
-                    break
+        _serve(vehicle, write_summary, once=args.once)
     except KeyboardInterrupt:
         pass  # SIGINT, SIGTERM: stop serving, keep the record
     finally:
