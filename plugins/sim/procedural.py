@@ -123,6 +123,32 @@ class _Rect:
         return self.x0 <= o.x0 and self.y0 <= o.y0 and o.x1 <= self.x1 and o.y1 <= self.y1
 
 
+@dataclass
+class _Spots:
+    """Free floor in a room: ``inner`` (the room less a margin) less what is ``placed``."""
+
+    rng: np.random.Generator
+    inner: _Rect
+    placed: list[_Rect]
+
+    def take(self, r: _Rect) -> bool:
+        """Claim ``r`` if it is inside the room and 0.15 m clear of everything placed."""
+        if self.inner.contains(r) and not any(r.overlaps(o, 0.15) for o in self.placed):
+            self.placed.append(r)
+            return True
+        return False
+
+    def place(self, w: float, d: float, attempts: int = 30) -> tuple[float, float] | None:
+        """The centre of a free ``w`` × ``d`` spot drawn at random (up to ``attempts`` draws)."""
+        inner = self.inner
+        for _ in range(attempts):
+            x = self.rng.uniform(inner.x0 + w / 2, max(inner.x0 + w / 2, inner.x1 - w / 2))
+            y = self.rng.uniform(inner.y0 + d / 2, max(inner.y0 + d / 2, inner.y1 - d / 2))
+            if self.take(_Rect(x - w / 2, y - d / 2, x + w / 2, y + d / 2)):
+                return x, y
+        return None
+
+
 # -------------------------------------------------------------------------------------------
 # furniture models: boxes in the object's own frame (x forward, origin at floor centre)
 # -------------------------------------------------------------------------------------------
@@ -243,69 +269,77 @@ class _Builder:
 
     def furnish(self, room: _Rect, z: float, keep_out: list[_Rect]) -> None:
         """Place one arrangement (and maybe loose pieces) in a room, avoiding keep-out zones."""
-        rng, dens = self.rng, self.p.furniture
-        if dens <= 0:
+        if self.p.furniture <= 0:
             return
-        placed: list[_Rect] = list(keep_out)
         inner = _Rect(room.x0 + 0.1, room.y0 + 0.1, room.x1 - 0.1, room.y1 - 0.1)
+        spots = _Spots(self.rng, inner, list(keep_out))
+        kind = self.rng.choice(["meeting", "classroom", "lounge", "office"], p=[0.35, 0.25, 0.2, 0.2])
+        arrange = {"meeting": self._meeting, "classroom": self._classroom, "lounge": self._lounge}
+        arrange.get(str(kind), self._office)(spots, z)
+        self._pieces_against_walls(spots, z)
 
-        def try_place(w: float, d: float, attempts: int = 30) -> tuple[float, float] | None:
-            for _ in range(attempts):
-                x = rng.uniform(inner.x0 + w / 2, max(inner.x0 + w / 2, inner.x1 - w / 2))
-                y = rng.uniform(inner.y0 + d / 2, max(inner.y0 + d / 2, inner.y1 - d / 2))
-                r = _Rect(x - w / 2, y - d / 2, x + w / 2, y + d / 2)
-                if inner.contains(r) and not any(r.overlaps(o, 0.15) for o in placed):
-                    placed.append(r)
-                    return x, y
-            return None
+    def _meeting(self, spots: _Spots, z: float) -> None:
+        """A table with chairs along both long sides, their backs away from it."""
+        rng, dens = self.rng, self.p.furniture
+        tb, L, W = _table(rng)
+        n_side = max(1, int(L // 0.6))
+        pos = spots.place(L + 1.2, W + 1.2)
+        if pos is None:
+            return
+        x, y = pos
+        self.add_object("table", tb, x, y, z, 0.0)
+        for sx in np.linspace(-L / 2 + L / (2 * n_side), L / 2 - L / (2 * n_side), n_side):
+            for side in (-1, 1):
+                if rng.random() < 0.85 * min(1.0, dens):
+                    jit = rng.normal(0, 0.04, 2)
+                    cy = y + side * (W / 2 + 0.3) + jit[1]
+                    # backrest (-x in the chair frame) faces away from the table
+                    yaw = -side * np.pi / 2 + rng.normal(0, 0.15)
+                    self.add_object("chair", _chair(rng), x + sx + jit[0], cy, z, yaw)
 
-        kind = rng.choice(["meeting", "classroom", "lounge", "office"], p=[0.35, 0.25, 0.2, 0.2])
-        if kind == "meeting":
-            tb, L, W = _table(rng)
-            n_side = max(1, int(L // 0.6))
-            pos = try_place(L + 1.2, W + 1.2)
-            if pos is not None:
-                x, y = pos
-                self.add_object("table", tb, x, y, z, 0.0)
-                for sx in np.linspace(-L / 2 + L / (2 * n_side), L / 2 - L / (2 * n_side), n_side):
-                    for side in (-1, 1):
-                        if rng.random() < 0.85 * min(1.0, dens):
-                            jit = rng.normal(0, 0.04, 2)
-                            cy = y + side * (W / 2 + 0.3) + jit[1]
-                            # backrest (-x in the chair frame) faces away from the table
-                            yaw = -side * np.pi / 2 + rng.normal(0, 0.15)
-                            self.add_object("chair", _chair(rng), x + sx + jit[0], cy, z, yaw)
-        elif kind == "classroom":
-            rows = int(rng.integers(2, 4))
-            cols = int(rng.integers(2, 5))
-            pitch_x, pitch_y = 0.9, 0.75
-            pos = try_place(rows * pitch_x + 0.2, cols * pitch_y + 0.2)
-            if pos is not None:
-                x, y = pos
-                for i in range(rows):
-                    for j in range(cols):
-                        if rng.random() < min(1.0, 0.95 * dens):
-                            cx = x + (i - (rows - 1) / 2) * pitch_x
-                            cy = y + (j - (cols - 1) / 2) * pitch_y
-                            self.add_object("chair", _chair(rng), cx, cy, z, rng.normal(0, 0.03))
-        elif kind == "lounge":
-            sb, d, L = _sofa(rng)
-            pos = try_place(d, L)
-            if pos is not None:
-                self.add_object("sofa", sb, *pos, z, 0.0 if rng.random() < 0.5 else np.pi)
-            tb, L2, W2 = _table(rng, rng.uniform(0.8, 1.1), rng.uniform(0.5, 0.7))
-            pos = try_place(L2, W2)
-            if pos is not None:
-                self.add_object("table", tb, *pos, z, 0.0)
-        else:  # office
-            tb, L, W = _table(rng)
-            pos = try_place(L + 0.2, W + 1.0)
-            if pos is not None:
-                x, y = pos
-                self.add_object("table", tb, x, y, z, 0.0)
-                self.add_object("chair", _chair(rng), x, y + W / 2 + 0.3, z, -np.pi / 2 + rng.normal(0, 0.3))
-        # loose pieces against the walls
-        for _ in range(int(rng.poisson(1.2 * dens))):
+    def _classroom(self, spots: _Spots, z: float) -> None:
+        """Rows of chairs on a grid."""
+        rng, dens = self.rng, self.p.furniture
+        rows = int(rng.integers(2, 4))
+        cols = int(rng.integers(2, 5))
+        pitch_x, pitch_y = 0.9, 0.75
+        pos = spots.place(rows * pitch_x + 0.2, cols * pitch_y + 0.2)
+        if pos is None:
+            return
+        x, y = pos
+        for i in range(rows):
+            for j in range(cols):
+                if rng.random() < min(1.0, 0.95 * dens):
+                    cx = x + (i - (rows - 1) / 2) * pitch_x
+                    cy = y + (j - (cols - 1) / 2) * pitch_y
+                    self.add_object("chair", _chair(rng), cx, cy, z, rng.normal(0, 0.03))
+
+    def _lounge(self, spots: _Spots, z: float) -> None:
+        """A sofa and a low table."""
+        rng = self.rng
+        sb, d, L = _sofa(rng)
+        pos = spots.place(d, L)
+        if pos is not None:
+            self.add_object("sofa", sb, *pos, z, 0.0 if rng.random() < 0.5 else np.pi)
+        tb, L2, W2 = _table(rng, rng.uniform(0.8, 1.1), rng.uniform(0.5, 0.7))
+        pos = spots.place(L2, W2)
+        if pos is not None:
+            self.add_object("table", tb, *pos, z, 0.0)
+
+    def _office(self, spots: _Spots, z: float) -> None:
+        """A desk and its chair."""
+        rng = self.rng
+        tb, L, W = _table(rng)
+        pos = spots.place(L + 0.2, W + 1.0)
+        if pos is not None:
+            x, y = pos
+            self.add_object("table", tb, x, y, z, 0.0)
+            self.add_object("chair", _chair(rng), x, y + W / 2 + 0.3, z, -np.pi / 2 + rng.normal(0, 0.3))
+
+    def _pieces_against_walls(self, spots: _Spots, z: float) -> None:
+        """Loose shelves, chairs and sofas, each backed against one of the room's walls."""
+        rng, inner = self.rng, spots.inner
+        for _ in range(int(rng.poisson(1.2 * self.p.furniture))):
             which = rng.choice(["shelf", "chair", "sofa"], p=[0.5, 0.35, 0.15])
             if which == "shelf":
                 b, d, w = _shelf(rng)
@@ -325,8 +359,7 @@ class _Builder:
                     x = rng.uniform(inner.x0 + w / 2, max(inner.x0 + w / 2, inner.x1 - w / 2))
                     r = _Rect(x - w / 2, y - d / 2, x + w / 2, y + d / 2)
                     yaw = np.pi / 2 if side == 2 else -np.pi / 2
-                if inner.contains(r) and not any(r.overlaps(o, 0.15) for o in placed):
-                    placed.append(r)
+                if spots.take(r):
                     self.add_object(str(which), b, x, y, z, yaw + rng.normal(0, 0.02))
                     break
 
