@@ -208,6 +208,12 @@ def slc_tables(rows: list[dict]) -> str:
     and against the same seed flown with SLC off.
     """
     figures = [_ablation_figures(row) for row in rows]
+    lines = [*_table_one(rows, figures), "", *_table_two(rows, figures), "", *_summary(rows, figures)]
+    return "\n".join([*lines, ""])
+
+
+def _table_one(rows: list[dict], figures: list[dict]) -> list[str]:
+    """Paper 1 Table I: the end-of-mission errors with SLC on, one line per flight and the mean."""
     lines = [
         "## End-of-mission errors with SLC on (like paper 1 Table I)",
         "",
@@ -225,11 +231,17 @@ def slc_tables(rows: list[dict]) -> str:
             f"{_fmt(f['pos_vs_vio'], 1)} % | {_fmt(f['drift'], 2)} % | {_fmt(f['vio_y'], 2)} | "
             f"{_fmt(f['slam_y'], 2)} | {_fmt(f['yaw_vs_vio'], 1)} % |"
         )
-    lines += [
+    lines.append(
         f"| **mean** | | | | | | **{_fmt(_mean(f['pos_vs_vio'] for f in figures), 1)} %** | "
         f"{_fmt(_mean(f['drift'] for f in figures), 2)} % | | | "
-        f"**{_fmt(_mean(f['yaw_vs_vio'] for f in figures), 1)} %** |",
-        "",
+        f"**{_fmt(_mean(f['yaw_vs_vio'] for f in figures), 1)} %** |"
+    )
+    return lines
+
+
+def _table_two(rows: list[dict], figures: list[dict]) -> list[str]:
+    """Paper 1 Table II: the uncertainty's drop upon each SLC and its final value, SLC on vs off."""
+    lines = [
         "## Uncertainty reduction, upon SLC and SLC on vs off (like paper 1 Table II / Fig. 7)",
         "",
         "| world | seed | avg. pose upon SLC | pose tr(Σ) on | pose tr(Σ) off | reduction | "
@@ -244,11 +256,17 @@ def slc_tables(rows: list[dict]) -> str:
             f"{_fmt(f['l_on'], 4)} | {_fmt(f['l_off'], 4)} | {_fmt(f['lm_unc'], 1)} % | "
             f"{_fmt(f['length'], 1)} |"
         )
-    lines += [
+    lines.append(
         f"| **mean** | | {_fmt(_mean(x for f in figures for x in f['upon']), 1)} % | | | "
         f"**{_fmt(_mean(f['pose_unc'] for f in figures), 1)} %** | | | "
-        f"**{_fmt(_mean(f['lm_unc'] for f in figures), 1)} %** | |",
-        "",
+        f"**{_fmt(_mean(f['lm_unc'] for f in figures), 1)} %** | |"
+    )
+    return lines
+
+
+def _summary(rows: list[dict], figures: list[dict]) -> list[str]:
+    """Mean ± std over seeds per world (and over all flights when there are several worlds)."""
+    lines = [
         "## Summary, mean ± std over seeds",
         "",
         "Reductions of SLAM with SLC on against VIO (paper 1 Table I) and against SLAM with SLC off "
@@ -278,7 +296,7 @@ def slc_tables(rows: list[dict]) -> str:
             )
             + f" | {mean_std((x for f in fs for x in f['upon']), unit=' %')} |"
         )
-    return "\n".join([*lines, ""])
+    return lines
 
 
 def plot_fig7(rows: list[dict], path: Path) -> None:
