@@ -240,6 +240,34 @@ def _fly(
     return {**flown, "mission": mission}
 
 
+def _one_world(flown: list[dict]) -> WorldSummary:
+    """The world the team flew; RuntimeError when a robot's run flew another (its objects differ)."""
+    world: WorldSummary = flown[0]["world"]
+    for f in flown[1:]:
+        same = f["world"] is not None and set(f["world"].object_positions) == set(world.object_positions)
+        if not same or any(
+            not np.allclose(f["world"].object_positions[k], world.object_positions[k])
+            for k in world.object_positions
+        ):
+            raise RuntimeError(
+                f"robot run {f['run_dir']} did not fly in the same world as {flown[0]['run_dir']}"
+            )
+    return world
+
+
+def _rates_and_common_errors(rows: list[dict]) -> None:
+    """Add to each row (robots, then the combined map last) its objects mapped per minute, and to
+    each robot's its error and the combined map's on the objects both mapped."""
+    for row in rows:
+        row["objects_per_minute"] = row["mapped"] / row["minutes"] if row["minutes"] > 0 else None
+    comb = rows[-1]["errors"]
+    for row in rows[:-1]:
+        common = sorted(set(row["errors"]) & set(comb))
+        row["common"] = len(common)
+        row["common_error_alone"] = float(np.mean([row["errors"][k] for k in common])) if common else None
+        row["common_error_merged"] = float(np.mean([comb[k] for k in common])) if common else None
+
+
 def fly_team(
     spec: str,
     registry: Registry,
@@ -267,16 +295,7 @@ def fly_team(
     runs.mkdir(parents=True, exist_ok=True)
     teams = team_overrides(spec, registry, n, mode, seed, overrides, scratch=runs, **setup)
     flown = [_fly(spec, registry, flags, runs, log, reuse) for flags in teams]
-    world: WorldSummary = flown[0]["world"]
-    for f in flown[1:]:
-        same = f["world"] is not None and set(f["world"].object_positions) == set(world.object_positions)
-        if not same or any(
-            not np.allclose(f["world"].object_positions[k], world.object_positions[k])
-            for k in world.object_positions
-        ):
-            raise RuntimeError(
-                f"robot run {f['run_dir']} did not fly in the same world as {flown[0]['run_dir']}"
-            )
+    world = _one_world(flown)
     models = class_models(flown[0]["mission"])
     fit = shape_fitter(models)
     params = MergeParams(landmark_models=models)  # shape classes merge by their shapes
@@ -310,14 +329,7 @@ def fly_team(
             **score(merged.landmarks, world),
         }
     )
-    for row in rows:
-        row["objects_per_minute"] = row["mapped"] / row["minutes"] if row["minutes"] > 0 else None
-    comb = rows[-1]["errors"]
-    for row in rows[:-1]:  # each robot against the merged map on the objects both mapped
-        common = sorted(set(row["errors"]) & set(comb))
-        row["common"] = len(common)
-        row["common_error_alone"] = float(np.mean([row["errors"][k] for k in common])) if common else None
-        row["common_error_merged"] = float(np.mean([comb[k] for k in common])) if common else None
+    _rates_and_common_errors(rows)
     return {
         "seed": seed,
         "n": n,
