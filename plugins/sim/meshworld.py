@@ -242,8 +242,11 @@ def _instance_ids(labelled: list[tuple[dict, str]], structure: set[str]) -> dict
     ids: dict[str, int] = {}
     next_id = 1
     for e, cls in labelled:
-        ids[e["name"]] = 0 if cls in structure else next_id
-        next_id += cls not in structure
+        if cls in structure:
+            ids[e["name"]] = 0
+        else:
+            ids[e["name"]] = next_id
+            next_id += 1
     return ids
 
 

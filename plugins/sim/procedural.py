@@ -538,6 +538,8 @@ class _Layout:
     xl: float
     cy0: float
     cy1: float
+    # kept beside the rect, not derived from it: (x0 + x1) / 2 may differ from the centre in its
+    # last bit, and the world's `places["shaft"]` (a mission's start) must stay what it was
     shaft_centre: tuple[float, float]
     shaft: _Rect
 
