@@ -287,11 +287,44 @@ class OdometryNoise:
     def sigmas(self, distance: float, dyaw: float) -> np.ndarray:
         """Stds over ``distance`` metres turning ``dyaw`` radians, in gtsam's Pose3 tangent order
         (roll, pitch, yaw, x, y, z)."""
-        root = math.sqrt(max(0.0, float(distance)))
-        st = max(self.translation_min, self.translation * root)
-        sz = max(self.translation_min, self.vertical * root)
-        sy = max(self.yaw_min, self.yaw * root + self.yaw_per_rad * abs(float(dyaw)))
-        return np.array([self.roll_pitch, self.roll_pitch, sy, st, st, sz])
+        return self.sigmas_of_steps(np.array([distance], float), np.array([dyaw], float))[0]
+
+    def sigmas_of_steps(self, distances: np.ndarray, dyaws: np.ndarray) -> np.ndarray:
+        """:meth:`sigmas` of many steps at once: ``(n, 6)`` for ``n`` distances and turns."""
+        root = np.sqrt(np.maximum(0.0, np.asarray(distances, float)))
+        st = np.maximum(self.translation_min, self.translation * root)
+        sz = np.maximum(self.translation_min, self.vertical * root)
+        sy = np.maximum(self.yaw_min, self.yaw * root + self.yaw_per_rad * np.abs(np.asarray(dyaws, float)))
+        rp = np.full_like(st, self.roll_pitch)
+        return np.stack([rp, rp, sy, st, st, sz], axis=1)
+
+    def drift_to_end(
+        self, positions: np.ndarray, yaws: np.ndarray, distances: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """How far the last pose of a path may have drifted relative to each earlier pose of it.
+
+        The odometry chains one step per consecutive pair of poses (``positions`` (n, 3), world
+        ``yaws`` and travelled ``distances``, n of each). Propagated to first order, the step into
+        pose k adds its translation noise to the end, and its yaw noise rotates the rest of the
+        path about pose k, moving the end by ``δψ · |p_end − p_k|`` (horizontally): over a long
+        path in a small building the end's error grows like √travel, not like the travel.
+
+        Returns:
+            Per pose j, the variance of the end's position relative to pose j (m², summed over the
+            three axes) and of its yaw (rad²); zero for the end itself.
+        """
+        positions = np.asarray(positions, float).reshape(-1, 3)
+        steps = self.sigmas_of_steps(
+            np.diff(np.asarray(distances, float)), np.diff(np.unwrap(np.asarray(yaws, float)))
+        )
+        lever_sq = np.sum((positions[-1, :2] - positions[1:, :2]) ** 2, axis=1)
+        position_step = steps[:, 3] ** 2 + steps[:, 4] ** 2 + steps[:, 5] ** 2 + steps[:, 2] ** 2 * lever_sq
+        yaw_step = steps[:, 2] ** 2
+
+        def after(step: np.ndarray) -> np.ndarray:  # Σ over the steps after pose j
+            return np.append(np.cumsum(step[::-1])[::-1], 0.0)
+
+        return after(position_step), after(yaw_step)
 
 
 @dataclass(frozen=True)

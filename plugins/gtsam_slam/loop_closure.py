@@ -89,32 +89,45 @@ class LoopCloser:
         matches, accumulated since the estimate was last tied to them: since each landmark was last
         observed by a detection *other than the panorama's own* (those are what the loop closure
         verifies), or since its first sighting. Landmark ``i`` thus bounds the correction by
-        ``floor + ratio × untied_i`` (position and yaw alike), and a solution must respect the
-        bound of every landmark it matches (:class:`.slc.SlcPrior`). A robot that returns after a
-        long loop, whose detections made new duplicates instead of re-observing the old landmarks,
-        gets a wide bound; one whose front end kept re-observing them a narrow one, which rules out
-        alignments shifted by a row of a repeated layout.
+        ``√(floor² + (prior_sigmas · σᵢ)²)`` — the registration's own error and the drift, which are
+        independent — where σᵢ is the graph's own odometry model propagated along the key poses
+        flown since that tie (:meth:`.OdometryNoise.drift_to_end`: the translation walk plus the
+        yaw walk's sweep of the path since), for position and yaw alike; a solution
+        must respect the bound of every landmark it matches (:class:`.slc.SlcPrior`). A robot that
+        returns after a long loop, whose detections made new duplicates instead of re-observing the
+        old landmarks, gets a wide bound; one whose front end kept re-observing them a narrow one,
+        which rules out alignments shifted by a row of a repeated layout. The bound grows like the
+        square root of the untied travel, as a random walk does: a bound linear in it let an 8 m
+        false correction through after 290 m untied in a three-floor flight (this bound: 5.2 m).
 
         Returns:
             The prior and the untied travel of each landmark of ``old`` (m).
         """
         p = self.p
-        T = self.front.T_world_odom() @ odom.T_odom_body
+        front = self.front
+        T = front.T_world_odom() @ odom.T_odom_body
         own = {id(o) for g in groups for o in g}
-        tie = np.array(
+        tie_keypose = np.array(
             [
-                max((o.distance for o in lm.observations if id(o) not in own), default=lm.first_distance)
+                max((o.keypose for o in lm.observations if id(o) not in own), default=lm.first_keypose)
                 for lm in old
             ]
         )
-        untied = np.maximum(self.front.distance - tie, 0.0)
+        # The path since the oldest tie: the key poses, then the robot where it is now.
+        kps = front.kps
+        path = [*kps, None]
+        positions = np.array([(kp.T_odom_body if kp else odom.T_odom_body)[:3, 3] for kp in path])
+        yaws = np.array([yaw_of(kp.T_odom_body if kp else odom.T_odom_body) for kp in path])
+        distances = np.array([kp.distance if kp else front.distance for kp in path])
+        position_var, yaw_var = self.graph.noise.odometry_noise().drift_to_end(positions, yaws, distances)
+        tie = np.clip(tie_keypose, 0, len(kps) - 1)
         prior = slc.SlcPrior(
             yaw=yaw_of(T),
             translation=T[:3, 3].copy(),
-            max_translation=p.prior_translation_floor + p.prior_translation_ratio * untied,
-            max_yaw=p.prior_yaw_floor + p.prior_yaw_ratio * untied,
+            max_translation=np.hypot(p.prior_translation_floor, p.prior_sigmas * np.sqrt(position_var[tie])),
+            max_yaw=np.minimum(np.pi, np.hypot(p.prior_yaw_floor, p.prior_sigmas * np.sqrt(yaw_var[tie]))),
         )
-        return prior, untied
+        return prior, np.maximum(front.distance - distances[tie], 0.0)
 
     def try_loop_closure(
         self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]

@@ -341,20 +341,16 @@ class LoopClosureParams(BaseModel):
     prior_translation_floor: float = Field(
         0.4, ge=0, le=1000, description="drift bound: position correction at zero untied travel, m"
     )
-    prior_translation_ratio: float = Field(
-        0.03,
+    prior_sigmas: float = Field(
+        3.0,
         ge=0,
-        le=10,
-        description="drift bound: plus this share of the travel since the map here was seen",
+        le=100,
+        description="drift bound: this many standard deviations of the odometry model's drift over"
+        " the key poses flown since the map here was seen (graph.odometry_sigma_*), added to the"
+        " floor in quadrature",
     )
     prior_yaw_floor: float = Field(
         0.15, ge=0, le=math.pi, description="drift bound: yaw correction at zero untied travel, rad"
-    )
-    prior_yaw_ratio: float = Field(
-        0.005,
-        ge=0,
-        le=math.pi,
-        description="drift bound: plus this much yaw per metre of untied travel, rad/m",
     )
 
 
