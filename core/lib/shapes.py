@@ -434,22 +434,7 @@ def complete_cuboid(
     pr = np.asarray(prior, float).copy()
     cams = np.asarray(cameras, float).reshape(-1, 3)
     local = (cams - c) @ R  # camera positions along b1, b2, b3
-    # which fitted axis is the length: a fitted extent longer than the object is wide is; else
-    # an elongated reference's longer axis; else, for a first view of one end, the axis within
-    # 30° of the viewing direction. Without a clear cue nothing is extended (a box grown along
-    # the wrong axis would cover the car in the next stall).
-    dr = None if reference is None else np.asarray(reference["dims"], float)
-    if d[0] > pr[1] + 2 * tolerance:
-        swapped, decided = False, True
-    elif dr is not None and max(dr[:2]) >= 1.5 * min(dr[:2]):
-        length = np.asarray(reference["rotation"], float)[:, int(np.argmax(dr[:2]))]
-        swapped, decided = bool(abs(R[:, 0] @ length) < abs(R[:, 1] @ length)), True
-    elif len(cams):
-        view = np.abs(np.mean(local[:, :2], axis=0))  # mean viewing direction, box axes
-        swapped = bool(view[1] > view[0])
-        decided = max(view) >= np.tan(np.radians(60.0)) * min(view)
-    else:
-        swapped, decided = False, False
+    swapped, decided = _length_axis(R, d, pr, local, reference, tolerance)
     if swapped:
         pr[[0, 1]] = pr[[1, 0]]
     missing = np.zeros(3)
@@ -473,6 +458,36 @@ def complete_cuboid(
             ambiguous[a] = True
     out = cuboid_shape(R, c_new, d_new) if extended.any() else shape
     return Completion(out, d, missing, extended, ambiguous, bool(swapped))
+
+
+def _length_axis(
+    R: np.ndarray,
+    d: np.ndarray,
+    prior: np.ndarray,
+    local: np.ndarray,
+    reference: dict | None,
+    tolerance: float,
+) -> tuple[bool, bool]:
+    """Which fitted horizontal axis of :func:`complete_cuboid`'s box is the object's length.
+
+    A fitted extent longer than the object is wide is; else an elongated reference's longer
+    axis; else, for a first view of one end, the axis within 30° of the viewing direction
+    (``local``: the cameras in box axes). Without a clear cue nothing is extended (a box grown
+    along the wrong axis would cover the car in the next stall).
+
+    Returns:
+        Whether ``b2`` (not ``b1``) is the length, and whether a cue decided it.
+    """
+    dr = None if reference is None else np.asarray(reference["dims"], float)
+    if d[0] > prior[1] + 2 * tolerance:
+        return False, True
+    if dr is not None and max(dr[:2]) >= 1.5 * min(dr[:2]):
+        length = np.asarray(reference["rotation"], float)[:, int(np.argmax(dr[:2]))]
+        return bool(abs(R[:, 0] @ length) < abs(R[:, 1] @ length)), True
+    if len(local):
+        view = np.abs(np.mean(local[:, :2], axis=0))  # mean viewing direction, box axes
+        return bool(view[1] > view[0]), bool(max(view) >= np.tan(np.radians(60.0)) * min(view))
+    return False, False
 
 
 def cuboid_shape(R: np.ndarray, center: np.ndarray, dims: np.ndarray | list[float]) -> dict:
