@@ -162,14 +162,7 @@ class FrontEnd:
         dets = [dets[i] for i in keep]
         if not dets:
             return
-        if keypose is not None:
-            kp = keypose
-        else:
-            if self.last_odom is None or odom.stamp > self.last_odom.stamp:
-                self.track(odom)
-            kpp = self.keypose_params
-            due = not self.kps or self._due(odom.T_odom_body, kpp.detection_distance, kpp.detection_yaw)
-            kp = self.new_keypose(odom) if due else len(self.kps) - 1
+        kp = keypose if keypose is not None else self._detection_keypose(odom)
         rec = self.kps[kp]
         T_odom_kp = rec.T_odom_body
         # Re-express the detections in the key pose's body frame with the (locally exact) VIO motion.
@@ -181,52 +174,73 @@ class FrontEnd:
             dets, p_body = self._shape_detections(odom.stamp, kp, T_kp_cam, dets, p_body)
         if dets:
             p_world = p_body @ T_world_kp[:3, :3].T + T_world_kp[:3, 3]
-            p_odom = p_body @ T_odom_kp[:3, :3].T + T_odom_kp[:3, 3]
             assoc = self.associate([d.class_name for d in dets], p_world, p_body, rec.distance)
             for i, lm_id in self._shape_assoc.items():
                 assoc[i] = lm_id
-            g = self.graph
-            for k, (d, pb, pw, po, lm_id) in enumerate(
-                zip(dets, p_body, p_world, p_odom, assoc, strict=True)
-            ):
-                if lm_id < 0:
-                    lm_id = g.new_landmark_id()
-                    g.landmarks[lm_id] = self._new_landmark(lm_id, d.class_name, kp)
-                lm = g.landmarks[lm_id]
-                points = None
-                if self.keep_points:
-                    pc = np.asarray(d.points_cam, float).reshape(-1, 3)
-                    if self.max_kept_points and len(pc) > self.max_kept_points:
-                        pc = pc[:: -(-len(pc) // self.max_kept_points)]
-                    points = pc @ T_kp_cam[:3, :3].T + T_kp_cam[:3, 3]
-                g.observe(
-                    lm,
-                    Observation(
-                        self.robot,
-                        kp,
-                        rec.key,
-                        rec.distance,
-                        odom.stamp,
-                        d.class_name,
-                        pb,
-                        po,
-                        lm_id,
-                        points,
-                        d.confidence,
-                        _horizontal_spread(d.points_cam, T_kp_cam),
-                    ),
-                    pw,
-                )
-                if not lm.in_graph and lm.count >= p.min_observations:
-                    g.admit(lm)
-                if k in self._shape_meas:
-                    g.observe_shape(lm, rec.key, self._shape_meas[k])
+            self._observe(odom.stamp, kp, T_kp_cam, dets, p_body, p_world, assoc)
             if self._shape_twins:
-                g.fuse_shape_twins(self._shape_twins, self.emit)
+                self.graph.fuse_shape_twins(self._shape_twins, self.emit)
                 self._shape_twins = []
         self.expire_tentative()
         if flush:
             self.graph.flush()
+
+    def _detection_keypose(self, odom: Odometry) -> int:
+        """The key pose a detection frame at ``odom`` is made at: a new one when ``odom`` is away
+        from the last (``keyposes.detection_distance`` / ``detection_yaw``), else the last."""
+        if self.last_odom is None or odom.stamp > self.last_odom.stamp:
+            self.track(odom)
+        kpp = self.keypose_params
+        due = not self.kps or self._due(odom.T_odom_body, kpp.detection_distance, kpp.detection_yaw)
+        return self.new_keypose(odom) if due else len(self.kps) - 1
+
+    def _observe(
+        self,
+        stamp: float,
+        kp: int,
+        T_kp_cam: np.ndarray,
+        dets: list[Detection],
+        p_body: np.ndarray,
+        p_world: np.ndarray,
+        assoc: list[int],
+    ) -> None:
+        """Record each associated detection as an observation of its landmark (a new landmark for
+        ``-1``), admit landmarks seen often enough into the graph, add the shapes' measurements."""
+        p = self.p
+        g = self.graph
+        rec = self.kps[kp]
+        T_odom_kp = rec.T_odom_body
+        p_odom = p_body @ T_odom_kp[:3, :3].T + T_odom_kp[:3, 3]
+        for k, (d, pb, pw, po, lm_id) in enumerate(zip(dets, p_body, p_world, p_odom, assoc, strict=True)):
+            if lm_id < 0:
+                lm_id = g.new_landmark_id()
+                g.landmarks[lm_id] = self._new_landmark(lm_id, d.class_name, kp)
+            lm = g.landmarks[lm_id]
+            points = None
+            if self.keep_points:
+                pc = np.asarray(d.points_cam, float).reshape(-1, 3)
+                if self.max_kept_points and len(pc) > self.max_kept_points:
+                    pc = pc[:: -(-len(pc) // self.max_kept_points)]
+                points = pc @ T_kp_cam[:3, :3].T + T_kp_cam[:3, 3]
+            obs = Observation(
+                self.robot,
+                kp,
+                rec.key,
+                rec.distance,
+                stamp,
+                d.class_name,
+                pb,
+                po,
+                lm_id,
+                points,
+                d.confidence,
+                _horizontal_spread(d.points_cam, T_kp_cam),
+            )
+            g.observe(lm, obs, pw)
+            if not lm.in_graph and lm.count >= p.min_observations:
+                g.admit(lm)
+            if k in self._shape_meas:
+                g.observe_shape(lm, rec.key, self._shape_meas[k])
 
     def _new_landmark(self, lm_id: int, class_name: str, kp: int) -> LandmarkRec:
         rec = self.kps[kp]
