@@ -205,59 +205,93 @@ def refine_with_slc(
     usable = (own_ig > params.slc_min_gain) & np.isfinite(own_ig)
     chained = gain_model is not None and all(c.keypose_id in gain_model.keypose_ids for c in candidates)
     chain = _ClosureChain(gain_model) if chained else None
-    refined: list[tuple[str, int]] = []
-    gains: list[float] = []
-    in_path = np.zeros(graph.size, dtype=bool)
-    used = 0.0
+    out = _RefinedTour(graph.size, chain)
 
     def cost_from(stop: tuple[str, int], node: int) -> float:
         kind, i = stop
         return float(graph.slc_costs[i, node] if kind == "slc" else graph.costs[i, node])
 
-    def fly(metres: float) -> None:
-        nonlocal used
-        used += metres
-        if chain is not None:
-            chain.since_anchor += metres
-
     prev: tuple[str, int] = ("vp", 0)  # the robot
     for node in tour:
         v = node - 1
-        remaining = graph.gains[v] * max(0.0, 1.0 - float(w[in_path, v].sum()))
+        remaining = graph.gains[v] * max(0.0, 1.0 - float(w[out.in_path, v].sum()))
         vp_cost = cost_from(prev, node)
         utility = remaining / (vp_cost + params.utility_epsilon)
         best, ig = -1, own_ig
-        if prev[0] == "vp" and usable.any():
-            to_slc = graph.slc_costs[:, prev[1]]
-            fits = usable & (used + to_slc <= budget + _EPS)
-            if fits.any():
-                if chain is not None:
-                    ig = chain.gains([c.keypose_id for c in candidates], fits, to_slc)
-                best = int(np.flatnonzero(fits)[np.argmax(ig[fits])])
-                if ig[best] <= params.slc_min_gain:
-                    best = -1
+        if prev[0] == "vp":
+            best, ig = _best_closure(
+                graph.slc_costs[:, prev[1]], usable, out.used, budget, own_ig, candidates, chain, params
+            )
         if best >= 0 and params.slc_scale * ig[best] > utility:
-            refined.append(("slc", best))
-            gains.append(float(ig[best]))
             usable[best] = False
-            fly(float(graph.slc_costs[best, prev[1]]))
-            if chain is not None:
-                chain.close_at(candidates[best].keypose_id, gains[-1])
+            out.close(
+                best, candidates[best].keypose_id, float(ig[best]), float(graph.slc_costs[best, prev[1]])
+            )
             prev = ("slc", best)
             on = float(graph.slc_costs[best, node])
-            if used + on <= budget + _EPS:
-                refined.append(("vp", node))
-                in_path[v] = True
-                fly(on)
+            if out.used + on <= budget + _EPS:
+                out.visit(node, on)
                 prev = ("vp", node)
-        elif used + vp_cost <= budget + _EPS:
-            refined.append(("vp", node))
-            in_path[v] = True
-            fly(vp_cost)
+        elif out.used + vp_cost <= budget + _EPS:
+            out.visit(node, vp_cost)
             prev = ("vp", node)
         else:
             break
-    return refined, gains
+    return out.stops, out.gains
+
+
+class _RefinedTour:
+    """Algorithm 1's tour as it grows: its stops, the IG each closure was chosen with, the
+    viewpoints in it, the metres it uses, and the chain of closures the next one is scored on."""
+
+    def __init__(self, size: int, chain: _ClosureChain | None) -> None:
+        self.stops: list[tuple[str, int]] = []
+        self.gains: list[float] = []
+        self.in_path = np.zeros(size, dtype=bool)
+        self.used = 0.0
+        self.chain = chain
+
+    def visit(self, node: int, metres: float) -> None:
+        """Fly ``metres`` to viewpoint ``node`` (1..M)."""
+        self.stops.append(("vp", node))
+        self.in_path[node - 1] = True
+        self._fly(metres)
+
+    def close(self, j: int, keypose_id: int, gain: float, metres: float) -> None:
+        """Fly ``metres`` to loop-closure candidate ``j`` (at key pose ``keypose_id``), chosen for
+        ``gain``."""
+        self.stops.append(("slc", j))
+        self.gains.append(gain)
+        self._fly(metres)
+        if self.chain is not None:
+            self.chain.close_at(keypose_id, gain)
+
+    def _fly(self, metres: float) -> None:
+        self.used += metres
+        if self.chain is not None:
+            self.chain.since_anchor += metres
+
+
+def _best_closure(
+    to_slc: np.ndarray,
+    usable: np.ndarray,
+    used: float,
+    budget: float,
+    own_ig: np.ndarray,
+    candidates: tuple[SlcCandidate, ...],
+    chain: _ClosureChain | None,
+    params: CopParams,
+) -> tuple[int, np.ndarray]:
+    """The usable candidate of largest IG the budget still fits after ``used`` (``to_slc``: each
+    one's cost from the robot's viewpoint), and every candidate's IG: its own, or with ``chain`` eq. (10)
+    given the closures already in the tour. ``-1`` when none fits or the best is worth no more
+    than ``slc_min_gain``."""
+    fits = usable & (used + to_slc <= budget + _EPS)
+    if not fits.any():
+        return -1, own_ig
+    ig = own_ig if chain is None else chain.gains([c.keypose_id for c in candidates], fits, to_slc)
+    best = int(np.flatnonzero(fits)[np.argmax(ig[fits])])
+    return (best if ig[best] > params.slc_min_gain else -1), ig
 
 
 class _ClosureChain:
