@@ -183,19 +183,12 @@ def team_overrides(
         bases = _low_bases(platform, boxes, low_alt, radius, base_spacing, n)
         overhead_flags: list[str] = []
         if mode == "heterogeneous":
-            overhead_base = _overhead_base(platform, lo, hi, high_alt, radius, bases, base_spacing)
-            bases.append(overhead_base)
+            bases.append(_overhead_base(platform, lo, hi, high_alt, radius, bases, base_spacing))
             overhead_flags = [f"robot.altitude={high_alt}", f"platform.camera.pitch_deg={overhead_pitch}"]
             if getattr(mission.backends["platform"].params.world, "kind", None) == "outdoor":
-                wps = lawnmower(
-                    platform.world, lo, hi, overhead_base, high_alt, overhead_spacing, radius + 0.75
+                overhead_flags += _lawnmower_flags(
+                    platform, lo, hi, bases[-1], high_alt, overhead_spacing, radius
                 )
-                overhead_flags += [
-                    "tree=waypoints",
-                    f"waypoints.points={wps}",
-                    "waypoints.heading=travel",
-                    "waypoints.tolerance=0.3",
-                ]
     finally:
         platform.close()
     teams = []
@@ -209,6 +202,26 @@ def team_overrides(
             flags.append(f"area={{lo: {np.round(blo, 2).tolist()}, hi: {np.round(bhi, 2).tolist()}}}")
         teams.append(flags)
     return teams
+
+
+def _lawnmower_flags(
+    platform: Any,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    base: np.ndarray,
+    altitude: float,
+    spacing: float,
+    radius: float,
+) -> list[str]:
+    """The overhead robot's flags outdoors: a lawnmower of waypoints over the area from its base,
+    lanes ``spacing`` apart, kept ``radius`` + 0.75 m from the world, heading along each lane."""
+    wps = lawnmower(platform.world, lo, hi, base, altitude, spacing, radius + 0.75)
+    return [
+        "tree=waypoints",
+        f"waypoints.points={wps}",
+        "waypoints.heading=travel",
+        "waypoints.tolerance=0.3",
+    ]
 
 
 def _far_enough(spots: np.ndarray, bases: list[np.ndarray], spacing: float) -> list[np.ndarray]:
