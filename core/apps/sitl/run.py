@@ -3,16 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import shutil
 import time
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 import numpy as np
 
 from amslam.errors import AmslamError, MissionError
+
+if TYPE_CHECKING:
+    from amslam.apps.sitl.camera import CameraStreamer
+    from amslam.apps.sitl.record import TruthRecord
+    from amslam.apps.sitl.vehicle import SitlVehicle
 
 #: ``--once``: seconds the vehicle keeps talking after its landing, so that amslam hears it disarmed
 ONCE_LINGER = 4.0
@@ -225,6 +232,36 @@ def _serve(vehicle, write_summary: Callable[[], dict], *, once: bool) -> None:
                 return
 
 
+def _write_summary(
+    record: TruthRecord,
+    vehicle: SitlVehicle,
+    streamer: CameraStreamer | None,
+    mission: str,
+    world: str,
+    T_world_local: np.ndarray,
+    mavlink_to: tuple[str, int],
+) -> dict:
+    """Write the truth folder's summary now (the vehicle's thread may be stepping the simulator):
+    the vehicle's state and its estimate's error, the camera's stats, the closest approach."""
+    status, truth = vehicle.truth()
+    est = vehicle.state()
+    start = T_world_local[:3, 3]
+    drift = float(np.linalg.norm(truth[:3, 3] - start - np.array(est["estimate_local_enu"])))
+    return record.summary(
+        mission=mission,
+        world=world,
+        T_world_local=T_world_local.round(4).tolist(),
+        mavlink_to=f"{mavlink_to[0]}:{mavlink_to[1]}",
+        camera=streamer.stats() if streamer else None,
+        vehicle=est,
+        estimate_error_m=round(drift, 3),
+        closest_approach_m=status.closest_approach,
+        closest_to=status.closest_to,
+        closest_position_world=status.closest_position,
+        vehicle_log=[f"{t:.2f} {what}" for t, what in list(vehicle.log)],
+    )
+
+
 def run_sitl(args: argparse.Namespace, registry) -> int:
     from amslam.apps.sitl.record import TruthRecord
     from amslam.apps.sitl.vehicle import SitlVehicle
@@ -277,24 +314,16 @@ def run_sitl(args: argparse.Namespace, registry) -> int:
         flush=True,
     )
 
-    def write_summary() -> dict:
-        status, truth = vehicle.truth()  # the vehicle's thread may be stepping the simulator
-        est = vehicle.state()
-        drift = float(np.linalg.norm(truth[:3, 3] - start - np.array(est["estimate_local_enu"])))
-        return record.summary(
-            mission=mission.name,
-            world=summary_of_world.name,
-            T_world_local=T_world_local.round(4).tolist(),
-            mavlink_to=f"{mavlink_to[0]}:{mavlink_to[1]}",
-            camera=streamer.stats() if streamer else None,
-            vehicle=est,
-            estimate_error_m=round(drift, 3),
-            closest_approach_m=status.closest_approach,
-            closest_to=status.closest_to,
-            closest_position_world=status.closest_position,
-            vehicle_log=[f"{t:.2f} {what}" for t, what in list(vehicle.log)],
-        )
-
+    write_summary = functools.partial(
+        _write_summary,
+        record,
+        vehicle,
+        streamer,
+        mission.name,
+        summary_of_world.name,
+        T_world_local,
+        mavlink_to,
+    )
     vehicle.start()
     if streamer:
         streamer.start()
