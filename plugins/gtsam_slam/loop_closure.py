@@ -116,10 +116,10 @@ class LoopCloser:
         # The path flown: the key poses, then the robot where it is now (a few ms at 3000 key poses;
         # loop closures are tried a few times a flight).
         kps = front.kps
-        path = [*kps, None]
-        positions = np.array([(kp.T_odom_body if kp else odom.T_odom_body)[:3, 3] for kp in path])
-        yaws = np.array([yaw_of(kp.T_odom_body if kp else odom.T_odom_body) for kp in path])
-        distances = np.array([kp.distance if kp else front.distance for kp in path])
+        poses = [*(kp.T_odom_body for kp in kps), odom.T_odom_body]
+        positions = np.array([T_odom[:3, 3] for T_odom in poses])
+        yaws = np.array([yaw_of(T_odom) for T_odom in poses])
+        distances = np.array([*(kp.distance for kp in kps), front.distance])
         position_var, yaw_var = self.graph.noise.odometry_noise().drift_to_end(positions, yaws, distances)
         tie = np.clip(tie_keypose, 0, len(kps) - 1)
         prior = slc.SlcPrior(

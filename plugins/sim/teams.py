@@ -187,7 +187,7 @@ def team_overrides(
             overhead_flags = [f"robot.altitude={high_alt}", f"platform.camera.pitch_deg={overhead_pitch}"]
             if getattr(mission.backends["platform"].params.world, "kind", None) == "outdoor":
                 overhead_flags += _lawnmower_flags(
-                    platform, lo, hi, bases[-1], high_alt, overhead_spacing, radius
+                    platform.world, lo, hi, bases[-1], high_alt, overhead_spacing, radius
                 )
     finally:
         platform.close()
@@ -205,7 +205,7 @@ def team_overrides(
 
 
 def _lawnmower_flags(
-    platform: Any,
+    world: Any,
     lo: np.ndarray,
     hi: np.ndarray,
     base: np.ndarray,
@@ -215,7 +215,7 @@ def _lawnmower_flags(
 ) -> list[str]:
     """The overhead robot's flags outdoors: a lawnmower of waypoints over the area from its base,
     lanes ``spacing`` apart, kept ``radius`` + 0.75 m from the world, heading along each lane."""
-    wps = lawnmower(platform.world, lo, hi, base, altitude, spacing, radius + 0.75)
+    wps = lawnmower(world, lo, hi, base, altitude, spacing, radius + 0.75)
     return [
         "tree=waypoints",
         f"waypoints.points={wps}",
