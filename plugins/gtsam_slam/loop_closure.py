@@ -9,6 +9,7 @@ iSAM2 propagate the correction.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,6 +21,16 @@ from amslam.plugins.gtsam_slam.params import LoopClosureParams
 from amslam.types import Detection, LoopClosureResult, Odometry
 
 __all__ = ["LoopCloser", "LoopClosureParams"]
+
+
+@dataclass(frozen=True)
+class _PathDrift:
+    """Per key pose of the path flown (and the robot now, last): its odometry distance, and the
+    standard deviation of the robot's drift now relative to it (position, m; yaw, rad)."""
+
+    distances: np.ndarray
+    position_sigma: np.ndarray
+    yaw_sigma: np.ndarray
 
 
 class LoopCloser:
@@ -80,8 +91,21 @@ class LoopCloser:
         local = (np.array(centres).reshape(-1, 3) - T[:3, 3]) @ yaw_matrix(yaw_of(T))  # Rzᵀ (p − t), row-wise
         return groups, local, [g[0].class_name for g in groups]
 
+    def _path_drift(self, odom: Odometry) -> _PathDrift:
+        """The drift of the robot's estimate now relative to each key pose of the path flown (the
+        key poses, then the robot where it is now; a few ms at 3000 key poses, and loop closures
+        are tried a few times a flight)."""
+        front = self.front
+        kps = front.kps
+        poses = [*(kp.T_odom_body for kp in kps), odom.T_odom_body]
+        positions = np.array([T_odom[:3, 3] for T_odom in poses])
+        yaws = np.array([yaw_of(T_odom) for T_odom in poses])
+        distances = np.array([*(kp.distance for kp in kps), front.distance])
+        position_var, yaw_var = self.graph.noise.odometry_noise().drift_to_end(positions, yaws, distances)
+        return _PathDrift(distances, np.sqrt(position_var), np.sqrt(yaw_var))
+
     def _prior(
-        self, odom: Odometry, old: list[LandmarkRec], groups: list[list[Observation]]
+        self, odom: Odometry, old: list[LandmarkRec], groups: list[list[Observation]], drift: _PathDrift
     ) -> tuple[slc.SlcPrior, np.ndarray]:
         """The current estimate of the robot's world yaw and position, and per-landmark drift bounds.
 
@@ -113,22 +137,14 @@ class LoopCloser:
                 for lm in old
             ]
         )
-        # The path flown: the key poses, then the robot where it is now (a few ms at 3000 key poses;
-        # loop closures are tried a few times a flight).
-        kps = front.kps
-        poses = [*(kp.T_odom_body for kp in kps), odom.T_odom_body]
-        positions = np.array([T_odom[:3, 3] for T_odom in poses])
-        yaws = np.array([yaw_of(T_odom) for T_odom in poses])
-        distances = np.array([*(kp.distance for kp in kps), front.distance])
-        position_var, yaw_var = self.graph.noise.odometry_noise().drift_to_end(positions, yaws, distances)
-        tie = np.clip(tie_keypose, 0, len(kps) - 1)
+        tie = np.clip(tie_keypose, 0, len(front.kps) - 1)
         prior = slc.SlcPrior(
             yaw=yaw_of(T),
             translation=T[:3, 3].copy(),
-            max_translation=np.hypot(p.prior_translation_floor, p.prior_sigmas * np.sqrt(position_var[tie])),
-            max_yaw=np.minimum(np.pi, np.hypot(p.prior_yaw_floor, p.prior_sigmas * np.sqrt(yaw_var[tie]))),
+            max_translation=np.hypot(p.prior_translation_floor, p.prior_sigmas * drift.position_sigma[tie]),
+            max_yaw=np.minimum(np.pi, np.hypot(p.prior_yaw_floor, p.prior_sigmas * drift.yaw_sigma[tie])),
         )
-        return prior, np.maximum(front.distance - distances[tie], 0.0)
+        return prior, np.maximum(front.distance - drift.distances[tie], 0.0)
 
     def try_loop_closure(
         self, odom: Odometry, T_body_cam: np.ndarray, detections: list[Detection]
@@ -160,7 +176,8 @@ class LoopCloser:
             min_matches=p.min_matches,
             ambiguity_ratio=p.ambiguity_ratio,
         )
-        prior, untied = self._prior(odom, old, groups) if p.prior else (None, np.zeros(0))
+        drift = self._path_drift(odom)
+        prior, untied = self._prior(odom, old, groups, drift) if p.prior else (None, np.zeros(0))
         bound: dict[str, float] = {}
         sol = (
             slc.solve_scalable(A, B, ca, cb, sp, prior=prior, rng=self.rng)
@@ -185,8 +202,13 @@ class LoopCloser:
         before = front.T_world_odom() @ T
         dyaw = wrap_angle(yaw_of(T_world_body) - yaw_of(before))
         dt = float(np.linalg.norm(T_world_body[:3, 3] - before[:3, 3]))
-        oldest = min(old[int(a)].first_distance for a, _ in sol.pairs)
-        limit = p.max_drift_floor + p.max_drift_ratio * (now - oldest)
+        # However the registration was searched, a correction larger than the odometry model lets
+        # the robot drift since the oldest matched landmark was first seen is a wrong registration.
+        # With the drift bound (``prior``) this never binds (its floor and sigmas are smaller and
+        # it counts from a later key pose); without it (the paper's search) it is the only check.
+        oldest = min(old[int(a)].first_keypose for a, _ in sol.pairs)
+        first = min(max(oldest, 0), len(front.kps) - 1)
+        limit = float(np.hypot(p.max_drift_floor, p.max_drift_sigmas * drift.position_sigma[first]))
         if dt > limit:
             reason = f"correction {dt:.2f} m exceeds {limit:.2f} m"
             return self._report(LoopClosureResult(False, reason, sol.matched, sol.rms), **bound)

@@ -322,10 +322,15 @@ class LoopClosureParams(BaseModel):
     window: float = Field(30.0, gt=0, le=3600, description="panorama: detections of the last N seconds")
     panorama_radius: float = Field(1.0, gt=0, le=100, description="panorama: within this of the robot, m")
     merge_radius: float = Field(0.4, gt=0, le=100, description="same-class panorama detections merge, m")
-    max_drift_ratio: float = Field(
-        0.1, gt=0, le=10, description="reject corrections beyond this share of the distance travelled"
+    max_drift_sigmas: float = Field(
+        4.0,
+        gt=0,
+        le=100,
+        description="reject a correction beyond this many standard deviations of the odometry model's"
+        " drift since the oldest matched landmark was first seen (graph.odometry_sigma_*), added to"
+        " max_drift_floor in quadrature; never binds with the drift bound (prior) at its defaults",
     )
-    max_drift_floor: float = Field(1.0, ge=0, le=1000, description="plus this many metres")
+    max_drift_floor: float = Field(1.0, ge=0, le=1000, description="the correction refused at no travel, m")
     fuse_ratio: float = Field(
         0.5,
         gt=0,

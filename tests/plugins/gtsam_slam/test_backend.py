@@ -237,6 +237,23 @@ def test_loop_closure_is_held_to_the_drift_bound() -> None:
     assert "within the drift bound" in events[-1][1]["reason"]
 
 
+def test_without_the_drift_bound_the_odometry_model_still_refuses_an_implausible_correction() -> None:
+    # The paper's unconstrained search: the ~1 m correction after a ~40 m loop is within 4σ of the
+    # odometry model's drift since the start's landmarks were first seen, so it is accepted.
+    _, events = _loop_then_panorama(loop_closure={"prior": False})
+    ev = events[-1][1]
+    assert ev["accepted"], ev
+    assert 0.5 < ev["translation_correction"] < 2.0
+    # The same correction against a model that lets the robot drift almost nothing is refused.
+    tight = {"prior": False, "max_drift_sigmas": 0.1, "max_drift_floor": 0.3}
+    _, events = _loop_then_panorama(loop_closure=tight)
+    ev = events[-1][1]
+    assert not ev["accepted"]
+    assert ev["reason"].startswith("correction ") and "exceeds" in ev["reason"], ev["reason"]
+    limit = float(ev["reason"].split("exceeds ")[1].split(" m")[0])
+    assert 0.3 <= limit < 0.5  # the 0.3 m floor and a tenth of a σ of about half a metre
+
+
 def _near_duplicates(slam: GtsamSlam, radius: float = 0.4) -> int:
     lms = slam.landmarks()
     return sum(
