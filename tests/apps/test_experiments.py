@@ -80,6 +80,30 @@ def test_slc_tables_summarise_each_world_and_all_of_them():
     assert "| **all** | 3 | 3 / 2 | 3 of 3 | 3 / 6 | 63.3 ± 12.5 % | 50.0 ± 0.0 % |" in table
 
 
+def test_slc_tables_also_reduce_the_summed_errors():
+    # Seed 2's VIO barely drifted: its own percentage (-400 %) swamps the mean of the two flights,
+    # while the summed errors weigh it by what it drifted: 1 - (0.2 + 0.05) / (1.0 + 0.01).
+    rows = [
+        {
+            "world": "w",
+            "seed": 1,
+            "on": {"metrics": metrics(1.0, 0.2, 0.5, 0.4)},
+            "off": {"metrics": metrics(1.0, 0.4, 1.0, 0.8)},
+        },
+        {
+            "world": "w",
+            "seed": 2,
+            "on": {"metrics": metrics(0.01, 0.05, 0.3, 0.2)},
+            "off": {"metrics": metrics(0.01, 0.1, 0.5, 0.2)},
+        },
+    ]
+    table = slc_tables(rows)
+    assert "| w | 2 | 2 / 2 | 1 of 2 | 2 / — | -160.0 ± 240.0 % |" in table
+    # position vs VIO 75.2 %, vs SLC off 1 - 0.25 / 0.5; yaw 4° -> 1° on both (vs VIO 75 %, vs off 0 %);
+    # pose traces 1 - 0.8 / 1.5, landmark traces 1 - 0.6 / 1.0
+    assert "| w | 2 | 75.2 % | 50.0 % | 75.0 % | 0.0 % | 46.7 % | 40.0 % |" in table
+
+
 def test_planner_table_and_plot(tmp_path):
     rows = [
         {
