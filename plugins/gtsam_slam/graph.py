@@ -382,13 +382,25 @@ class SlamGraph:
         model = self.shape_model(lm_id)
         slack = self.shapes.point_slack(lm_id, pose_key)
         if model is None:
-            slack = max(slack, self.p.spread_slack * ob.spread)
+            slack = max(
+                slack, self.p.spread_slack * ob.spread * np.sqrt(self._views_sharing_offset(ob, lm_id))
+            )
         noise = self.noise.bearing_range(rng, slack, self.shapes.point_scale(lm_id, pose_key), robust)
         if model == "cuboid":  # to the box pose's translation, its centre
             return gtsam.BearingRangeFactorPose3(
                 pose_key, self.position_key(lm_id), gtsam.Unit3(p_body), rng, noise
             )
         return gtsam.BearingRangeFactor3D(pose_key, self.position_key(lm_id), gtsam.Unit3(p_body), rng, noise)
+
+    def _views_sharing_offset(self, ob: Observation, lm_id: int) -> int:
+        """How many of the landmark's detections by this robot, this one included, were made within
+        ``graph.spread_window`` seconds before it (1 with the window off)."""
+        window = self.p.spread_window
+        if window <= 0:
+            return 1
+        lm = self.landmarks.get(lm_id)
+        seen = lm.observations if lm is not None else []
+        return max(1, sum(1 for o in seen if o.robot == ob.robot and 0 <= ob.stamp - o.stamp <= window))
 
     def measured_as_point(self, lm: LandmarkRec) -> bool:
         """Whether a detection of ``lm`` is measured by a range-bearing factor: a point landmark's,

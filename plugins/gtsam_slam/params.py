@@ -292,6 +292,14 @@ class GraphParams(BaseModel):
         " RMS spread (m) more, in range and across: the visible part's centroid moves with the view by"
         " about the object's size",
     )
+    spread_window: float = Field(
+        0.0,
+        ge=0,
+        le=3600,
+        description="a point landmark's detections within this many seconds of each other share the"
+        " visible part's offset: each one's spread slack is widened by the square root of how many"
+        " of them there are, so together they weigh as one view, s (0: each view independent)",
+    )
     robust: Literal["huber", "cauchy", "none"] = Field("huber", description="robust kernel")
     robust_k: float = Field(1.345, gt=0, le=100, description="robust kernel width (whitened units)")
     fusion_sigma: float = Field(

@@ -439,3 +439,33 @@ def test_spread_slack_loosens_a_wide_objects_centroid_not_a_compact_ones() -> No
     np.testing.assert_allclose(off, sigmas(0.0, 0.0))
     assert table[2] == pytest.approx(off[2] + 0.4) and table[0] == pytest.approx(off[0] + 0.4 / 3.0)
     assert off[2] < chair[2] < table[2]
+
+
+def test_views_within_the_spread_window_share_one_offset() -> None:
+    """Detections of one object made moments apart see the same part of it, so their centroids
+    share one offset from its centre: with ``graph.spread_window`` the k-th of them within the
+    window is widened by √k times its spread slack (k views weigh about as one), one made after a
+    longer pause or by another robot is not."""
+    from amslam.plugins.gtsam_slam.graph import LandmarkRec, Observation
+
+    slam = configured(graph={"spread_slack": 1.0, "spread_window": 10.0})
+    g = slam._graph
+    lm = LandmarkRec(0, "table", 0, 0.0, np.zeros(3))
+    g.landmarks[0] = lm
+    p = np.array([3.0, 0.0, 0.0])
+    base = configured(graph={"spread_slack": 0.0})._graph.noise.bearing_range(3.0, robust=False).sigmas()
+
+    def range_sigma(stamp: float, robot: int = 0) -> float:
+        ob = Observation(robot, 0, 0, 0.0, stamp, "table", p, p, 0, spread=0.4)
+        lm.observations.append(ob)  # as SlamGraph.observe records it before its factor
+        return float(g.bearing_range(ob, 0, robust=False).noiseModel().sigmas()[2])
+
+    widened = [range_sigma(t) for t in (0.0, 1.0, 2.0, 3.0)]
+    np.testing.assert_allclose(widened, base[2] + 0.4 * np.sqrt([1, 2, 3, 4]))
+    assert range_sigma(20.0) == pytest.approx(base[2] + 0.4)  # after a pause: a view of its own
+    assert range_sigma(20.5, robot=1) == pytest.approx(base[2] + 0.4)  # another robot's view
+    off = configured(graph={"spread_slack": 1.0})._graph
+    off.landmarks[0] = lm
+    ob = Observation(0, 0, 0, 0.0, 21.0, "table", p, p, 0, spread=0.4)
+    lm.observations.append(ob)
+    assert off.bearing_range(ob, 0, robust=False).noiseModel().sigmas()[2] == pytest.approx(base[2] + 0.4)
