@@ -11,7 +11,9 @@ parameters (its ``mission.yaml``), in seconds instead of a flight's minutes, and
 * ``--points true-surface``: every detection's points moved onto the surface of its true object's
   box, from the same views (a perfect depth sensor and mask: the landmark model's best case);
 * ``--set KEY=VALUE``: the flight's parameters overridden, as missions spell them
-  (``slam.shapes.window=6``, ``slam.graph.robust=cauchy``).
+  (``slam.shapes.window=6``, ``slam.graph.robust=cauchy``);
+* ``--drop-unknown-keys``: a flight of an older version, whose ``mission.yaml`` names parameters
+  since renamed or removed, re-solved without them (refused otherwise, naming them).
 
 Per flight and variant it prints VIO's and the re-solved trajectory's position error against the
 truth at the key poses (RMS, at the end) and the largest yaw error, then the landmarks as the
@@ -135,20 +137,48 @@ def trajectory_errors(poses: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     }
 
 
+def load_flight_mission(
+    run_dir: Path, sets: list[str], registry: Any, drop_unknown_keys: bool = False
+) -> Any:
+    """The flight's ``mission.yaml`` with ``sets`` applied. A flight of an older version may name
+    parameters since renamed or removed: refused, naming them, unless ``drop_unknown_keys``, which
+    leaves them out (the re-solve then uses today's defaults for what replaced them) and says so."""
+    from amslam.errors import MissionError
+    from amslam.mission import load_mission
+
+    overrides = ["slam.plugin=gtsam", *sets]
+    try:
+        return load_mission(str(run_dir / "mission.yaml"), registry, overrides)
+    except MissionError as exc:
+        only_unknown = exc.unknown_keys and len(exc.unknown_keys) == len(exc.problems)
+        if not (drop_unknown_keys and only_unknown):
+            hint = " (a flight of an older version: --drop-unknown-keys re-solves it without them)"
+            raise OfflineError(f"{run_dir}: {exc}{hint if only_unknown else ''}") from exc
+        print(
+            f"{run_dir.name}: left out {', '.join(exc.unknown_keys)} (unknown to this version)",
+            file=sys.stderr,
+        )
+        try:
+            return load_mission(str(run_dir / "mission.yaml"), registry, overrides, unset=exc.unknown_keys)
+        except MissionError as again:
+            raise OfflineError(f"{run_dir}: {again}") from again
+
+
 def resolve(
-    run_dir: Path, models: str, odometry: str, points: str, sets: list[str], registry: Any
+    run_dir: Path,
+    models: str,
+    odometry: str,
+    points: str,
+    sets: list[str],
+    registry: Any,
+    drop_unknown_keys: bool = False,
 ) -> dict[str, Any]:
     """One flight re-solved in one variant: its trajectory's and its landmarks' errors."""
     from amslam.apps.multirobot import run_world
     from amslam.apps.report import landmark_accuracy
-    from amslam.errors import MissionError
-    from amslam.mission import load_mission
     from amslam.plugins.gtsam_slam.merge import MergeParams, chain_from_base, merge_measurements
 
-    try:
-        mission = load_mission(str(run_dir / "mission.yaml"), registry, ["slam.plugin=gtsam", *sets])
-    except MissionError as exc:
-        raise OfflineError(f"{run_dir}: {exc}") from exc
+    mission = load_flight_mission(run_dir, sets, registry, drop_unknown_keys)
     slam = mission.backends["slam"].params
     try:
         params = MergeParams(
@@ -166,7 +196,7 @@ def resolve(
     log = read_measurements(run_dir)
     if log.truth is None:
         raise OfflineError(f"{run_dir}: its log has no true key poses (a real flight): nothing to score")
-    world = run_world(run_dir, registry)
+    world = run_world(run_dir, registry, mission)
     vio = trajectory_errors(chain_from_base(log), log.truth)
     if odometry == "true":
         log = with_true_odometry(log)
@@ -257,6 +287,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="mission override (repeatable)"
     )
+    parser.add_argument(
+        "--drop-unknown-keys",
+        action="store_true",
+        help="re-solve a flight whose mission.yaml names parameters this version renamed or removed,"
+        " without them (today's defaults for what replaced them)",
+    )
     parser.add_argument("--json", type=Path, help="write the rows here as well")
     args = parser.parse_args(argv)
     from amslam.registry import build_plugin_manager
@@ -271,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
         registry = build_plugin_manager()
         rows = []
         for run, m, o, p in itertools.product(runs, models, odometry, points):
-            rows.append(resolve(run, m, o, p, args.set, registry))
+            rows.append(resolve(run, m, o, p, args.set, registry, args.drop_unknown_keys))
             done = rows[-1]
             print(
                 f"{run.name} [{variant_name(done['variant'])}]: SLAM RMS {done['slam']['rms_m']:.3f} m",

@@ -8,10 +8,12 @@ class AmslamError(Exception):
 
 
 class MissionError(AmslamError):
-    """A mission file is invalid. ``problems`` holds one line per problem."""
+    """A mission file is invalid. ``problems`` holds one line per problem; ``unknown_keys`` the
+    dotted paths of those that are keys no schema knows."""
 
-    def __init__(self, problems: list[str]):
+    def __init__(self, problems: list[str], unknown_keys: list[str] = ()):
         self.problems = list(problems)
+        self.unknown_keys = list(unknown_keys)
         super().__init__("\n".join(self.problems))
 
 

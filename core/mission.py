@@ -402,6 +402,10 @@ def _check_expansion(root: yaml.Node | None, where: str) -> None:
         raise MissionError([f"{where}: expands to more than {MAX_MISSION_NODES} YAML nodes (aliases)"])
 
 
+#: how a key no schema knows is reported (:attr:`_Problems.unknown_keys` collects them)
+UNKNOWN_KEY = "unknown key "
+
+
 def apply_override(raw: dict[str, Any], assignment: str) -> None:
     """Apply ``key.path=value`` (value parsed as YAML) to a raw mission dict."""
     if "=" not in assignment:
@@ -418,8 +422,14 @@ def apply_override(raw: dict[str, Any], assignment: str) -> None:
     node[parts[-1]] = parse_yaml(value, f"--set {assignment!r}")
 
 
-def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()) -> Mission:
-    """Read, override and validate a mission; raise MissionError listing every problem."""
+def load_mission(
+    spec: str | Path, registry: Registry, overrides: list[str] = (), unset: list[str] = ()
+) -> Mission:
+    """Read, override and validate a mission; raise MissionError listing every problem.
+
+    ``unset``: dotted key paths removed before validation where present (a run folder's mission
+    naming parameters a later version renamed: :attr:`MissionError.unknown_keys`).
+    """
     path = resolve_mission_path(spec)
     text = read_mission_text(path)
     raw = parse_yaml(text, str(path))
@@ -428,6 +438,13 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
     raw = copy.deepcopy(raw)
     for assignment in overrides:
         apply_override(raw, assignment)
+    for dotted in unset:
+        *parents, last = dotted.split(".")
+        node: Any = raw
+        for part in parents:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.pop(last, None)
     problems = _Problems(path, text)
     context = {"mission_dir": path.resolve().parent}  # relative file parameters resolve against it
     try:
@@ -444,7 +461,7 @@ def load_mission(spec: str | Path, registry: Registry, overrides: list[str] = ()
     if model is not None and "platform" in backends:
         _check_waypoints_fit_the_fence(model, backends["platform"].params, problems)
     if problems.lines:
-        raise MissionError(problems.lines)
+        raise MissionError(problems.lines, problems.unknown_keys)
     assert model is not None
     return Mission(model=model, backends=backends, source=path.resolve(), raw=raw)
 
@@ -458,11 +475,15 @@ class _Problems:
     lines: list[str] = field(default_factory=list)
     #: key path -> line, indexed at the first problem (a valid mission needs no second YAML pass)
     line_index: dict[tuple, int] | None = None
+    #: dotted paths of the keys no schema knows (a subset of the problems)
+    unknown_keys: list[str] = field(default_factory=list)
 
     def report(self, loc: tuple, message: str) -> None:
         if self.line_index is None:
             self.line_index = _line_index(self.text)
         dotted = ".".join(str(p) for p in loc) or "(top level)"
+        if message.startswith(UNKNOWN_KEY):
+            self.unknown_keys.append(dotted)
         line = _line_of(self.line_index, loc)
         where = f"{self.path}:{line}" if line else f"{self.path}"
         self.lines.append(f"{where}: {dotted}: {message}")
@@ -586,7 +607,7 @@ def _describe(err: dict, model: type[BaseModel], loc: tuple) -> str:
     if kind == "extra_forbidden":
         allowed = _fields_at(model, loc[:-1])
         hint = f"; expected one of: {', '.join(allowed)}" if allowed else ""
-        return f"unknown key {loc[-1]!r}{hint}"
+        return f"{UNKNOWN_KEY}{loc[-1]!r}{hint}"
     if kind == "missing":
         return "required, but missing"
     if kind == "value_error":  # a rule of ours: its message says what it got

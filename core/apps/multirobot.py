@@ -196,12 +196,14 @@ def index_runs(folders: Sequence[Path], registry: Registry) -> dict[str, dict]:
     return out
 
 
-def run_world(run_dir: Path, registry: Registry) -> WorldSummary:
-    """The world summary of a run, rebuilt from its mission (same seed, same pin)."""
+def run_world(run_dir: Path, registry: Registry, mission: Any = None) -> WorldSummary:
+    """The world summary of a run, rebuilt from its mission (same seed, same pin): its
+    ``mission.yaml``, or ``mission`` when the caller has loaded it already."""
     from amslam.mission import load_mission
     from amslam.runner import started_platform
 
-    mission = load_mission(str(Path(run_dir) / "mission.yaml"), registry, [])
+    if mission is None:
+        mission = load_mission(str(Path(run_dir) / "mission.yaml"), registry, [])
     platform = started_platform(mission, registry, Path(run_dir).parent)
     try:
         return platform.world_summary()

@@ -57,6 +57,20 @@ def test_a_cuboid_variant_and_a_setting_reach_the_solve(flight, registry) -> Non
         b.resolve(flight, "cuboid=box", "logged", "logged", [], registry)
 
 
+def test_a_flight_of_an_older_version_is_re_solved_only_when_asked(flight, registry, tmp_path: Path) -> None:  # noqa: ANN001
+    b = load_benchmark("slam_offline")
+    old = tmp_path / "old"
+    old.mkdir()
+    text = (flight / "mission.yaml").read_text()
+    assert "\nslam:\n" in text
+    (old / "mission.yaml").write_text(text.replace("\nslam:\n", "\nslam:\n  renamed_since: 1\n", 1))
+    (old / "measurements.jsonl").write_text((flight / "measurements.jsonl").read_text())
+    with pytest.raises(b.OfflineError, match=r"slam.renamed_since: unknown key.*--drop-unknown-keys"):
+        b.resolve(old, "centroid", "logged", "logged", [], registry)
+    row = b.resolve(old, "centroid", "logged", "logged", [], registry, drop_unknown_keys=True)
+    assert row == {**b.resolve(flight, "centroid", "logged", "logged", [], registry), "run_dir": str(old)}
+
+
 def _log_with_one_detection(points_body: np.ndarray) -> RobotMeasurements:
     truth = np.eye(4)[None].repeat(2, axis=0)
     truth[1, :3, 3] = [1.0, 0.0, 0.0]

@@ -65,6 +65,32 @@ def test_backend_parameters_validated_by_the_backend(tmp_path, registry):
     assert "planner.no_such_param: unknown key" in info.value.problems[0]
 
 
+def test_unknown_keys_are_named_and_can_be_left_out(tmp_path, registry):
+    # A run folder's mission written by an older version names a parameter since renamed.
+    path = write(
+        tmp_path,
+        """\
+        name: old
+        exploration:
+          replan_perod: 4
+        planner:
+          plugin: greedy
+          no_such_param: 1
+        """,
+    )
+    with pytest.raises(MissionError) as info:
+        load_mission(path, registry)
+    assert sorted(info.value.unknown_keys) == ["exploration.replan_perod", "planner.no_such_param"]
+    mission = load_mission(path, registry, unset=info.value.unknown_keys)
+    assert mission.model.name == "old"
+    assert "no_such_param" not in mission.raw["planner"]
+    # a wrong value is no unknown key: nothing to leave out
+    bad = write(tmp_path, "name: b\nrobot:\n  radius: fat\n")
+    with pytest.raises(MissionError) as info:
+        load_mission(bad, registry)
+    assert info.value.unknown_keys == []
+
+
 def test_overrides_apply_before_validation(tmp_path, registry):
     path = write(tmp_path, "name: o\nseed: 1\n")
     mission = load_mission(path, registry, ["seed=42", "exploration.slc=true"])
