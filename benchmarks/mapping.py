@@ -98,12 +98,21 @@ def agreement(keys_a, st_a, keys_b, st_b) -> tuple[float, int]:
 def main() -> None:
     scene = room_scene()
     depth = render_depth(scene, CAMERA, ROOM_POSE)
-    pts = octomap_points(depth, ROOM_POSE)
-    origin = ROOM_POSE[:3, 3].copy()
     print(
         f"frame: {CAMERA.width}x{CAMERA.height}, {np.mean(depth == 0):.0%} no-return pixels, "
         f"max range {MAX_RANGE} m"
     )
+    integration_table(depth)
+    local_window(depth)
+    numpy_centre_test(depth)
+    frontier_update(scene, depth)
+
+
+def integration_table(depth: np.ndarray) -> None:
+    """One frame into the global map: Open3D (every pixel and strided) against OctoMap and the
+    numpy reference, time and agreement of the voxel states, at 0.1 and 0.25 m."""
+    pts = octomap_points(depth, ROOM_POSE)
+    origin = ROOM_POSE[:3, 3].copy()
     try:
         import pyoctomap  # noqa: F401
 
@@ -156,8 +165,11 @@ def main() -> None:
                     f"{'-':>9} | {t_np:>8.1f} | {agree_np:>14.2%}"
                 )
 
-    # the local window (0.1 m, 10 x 10 x 5 m) on every pixel, as a flight feeds it; with the
-    # forgetting of voxels no recent frame updated (local_memory_frames, the default) and without
+
+def local_window(depth: np.ndarray) -> None:
+    """The local window (0.1 m, 10 x 10 x 5 m) on every pixel, as a flight feeds it; with the
+    forgetting of voxels no recent frame updated (local_memory_frames, the default) and without."""
+
     def run_local(memory: int):
         def setup():
             m = backend(Open3dVoxelMap, 0.25, 1, local_memory_frames=memory)
@@ -171,9 +183,11 @@ def main() -> None:
         f" voxels (local_memory_frames 300), {keeping:.1f} ms keeping them (0): x{forgetting / keeping:.2f}"
     )
 
-    # the numpy reference's centre test (a crossed voxel is free only where its centre lies in front
-    # of the measured surface, lib.voxel_grid.centres_in_front) against plain traversal, which it
-    # replaced in session 44: the test switched off by replacing it for the timing
+
+def numpy_centre_test(depth: np.ndarray) -> None:
+    """The numpy reference's centre test (a crossed voxel is free only where its centre lies in
+    front of the measured surface, lib.voxel_grid.centres_in_front) against plain traversal, which
+    it replaced in session 44: the test switched off by replacing it for the timing."""
     from amslam.lib import voxel_grid
 
     def run_numpy(voxel: float):
@@ -192,7 +206,9 @@ def main() -> None:
             f" {times[False]:.1f} ms plain traversal: x{times[True] / times[False]:.2f}"
         )
 
-    # incremental frontier update after one more frame vs a full recompute, 0.25 m global map
+
+def frontier_update(scene, depth: np.ndarray) -> None:  # noqa: ANN001
+    """Incremental frontier update after one more frame vs a full recompute, 0.25 m global map."""
     second = camera_pose((6.0, 4.5, 1.2), np.radians(-150.0))
     depth2 = render_depth(scene, CAMERA, second)
     inc_ms, full_ms = [], []
