@@ -479,7 +479,8 @@ def planner_table(rows: list[dict]) -> str:
 
 
 def plot_exploration(rows: list[dict], path: Path) -> None:
-    """Explored volume against distance travelled and against time, one line per run."""
+    """Explored volume against distance travelled and against time, one line per run, one row of
+    two panels per world (their volumes differ), a colour per planner named once in the legend."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -489,18 +490,23 @@ def plot_exploration(rows: list[dict], path: Path) -> None:
     drawn = [(row, series) for row in rows if (series := row["metrics"].get("explored_series"))]
     if not drawn:  # no run explored anything (every run failed, say): no empty plot
         return
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    worlds = list(dict.fromkeys(row.get("world", "") for row, _ in drawn))
+    fig, axes = plt.subplots(len(worlds), 2, figsize=(11, 3.6 * len(worlds)), squeeze=False)
     for row, series in drawn:
         s = np.array(series, dtype=float)
+        by_distance, by_time = axes[worlds.index(row.get("world", ""))]
         colour = colours.get(row["planner"])
-        label = f"{row['planner']} (seed {row['seed']})"
-        axes[0].plot(s[:, 1], s[:, 2], color=colour, label=label, alpha=0.8)
-        axes[1].plot(s[:, 0], s[:, 2], color=colour, label=label, alpha=0.8)
-    axes[0].set_xlabel("distance travelled (m)")
-    axes[1].set_xlabel("time (s)")
-    for ax in axes:
-        ax.set_ylabel("explored volume (m³)")
-        ax.legend(fontsize=7)
+        by_distance.plot(s[:, 1], s[:, 2], color=colour, label=row["planner"], alpha=0.7)
+        by_time.plot(s[:, 0], s[:, 2], color=colour, label=row["planner"], alpha=0.7)
+    for world, (by_distance, by_time) in zip(worlds, axes, strict=True):
+        by_distance.set_xlabel("distance travelled (m)")
+        by_time.set_xlabel("time (s)")
+        for ax in (by_distance, by_time):
+            ax.set_ylabel("explored volume (m³)")
+            ax.set_title(f"{world + ': ' if world else ''}one line per seed")
+            handles, labels = ax.get_legend_handles_labels()
+            once = dict(zip(labels, handles, strict=True))  # a planner's seeds share its colour
+            ax.legend(once.values(), once.keys(), fontsize=8, loc="lower right")
     fig.suptitle("Exploration progress by planner")
     fig.tight_layout()
     fig.savefig(path, dpi=100)

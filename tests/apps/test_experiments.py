@@ -132,6 +132,12 @@ def test_planner_table_and_plot(tmp_path):
     assert "| demo | cop | 1 of 1 | 95.0 ± 0.0 | 120.0 ± 0.0 | 50.0 ± 0.0 | 40.0 ± 0.0 |" in table
     plot_exploration(rows, tmp_path / "p.png")
     assert (tmp_path / "p.png").exists()
+    # two worlds: a row of panels each, as tall again as one
+    import matplotlib.image
+
+    plot_exploration([*rows, {**rows[0], "world": "house"}], tmp_path / "two.png")
+    one, two = (matplotlib.image.imread(tmp_path / f) for f in ("p.png", "two.png"))
+    assert two.shape[0] > 1.8 * one.shape[0]
 
 
 def test_slc_tables_read_runs_from_before_the_per_axis_errors():
