@@ -75,6 +75,7 @@ class PlanInputs:
     slc: SlcSchedule | None  # None: SLC off
     cruise_z: float  # the height SLC viewpoints are lifted to at least
     unreachable: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # goals given up there
+    goal: np.ndarray | None = None  # the exploration goal flown to and not reached (PlanRequest.goal)
 
 
 @dataclass(frozen=True)
@@ -262,8 +263,8 @@ class PlanningService:
 
     # -- planning ------------------------------------------------------------------------------
 
-    def inputs(self, cruise_z: float) -> PlanInputs:
-        """The frozen inputs of a plan asked for now."""
+    def inputs(self, cruise_z: float, goal: np.ndarray | None = None) -> PlanInputs:
+        """The frozen inputs of a plan asked for now (``goal``: :attr:`PlanRequest.goal`)."""
         ex = self.exploration
         slc = None
         if ex.slc:
@@ -275,11 +276,13 @@ class PlanningService:
         # with plan_through_unknown spans the mission area) were 90 % of such a run's time.
         viewpoints = tuple(self.candidate_viewpoints()) if self.plans_frontiers else ()
         unreachable = np.array(self.unreachable, float).reshape(-1, 3)
-        return PlanInputs(self.snapshot, viewpoints, slc, cruise_z, unreachable)
+        goal = None if goal is None else np.asarray(goal, float).copy()
+        return PlanInputs(self.snapshot, viewpoints, slc, cruise_z, unreachable, goal)
 
-    def plan_async(self, cruise_z: float) -> PlanJob:
-        """Plan from the latest snapshot; the job holds the tour (or the planner's exception)."""
-        inputs = self.inputs(cruise_z)
+    def plan_async(self, cruise_z: float, goal: np.ndarray | None = None) -> PlanJob:
+        """Plan from the latest snapshot; the job holds the tour (or the planner's exception).
+        ``goal``: the exploration goal flown to and not reached (:attr:`PlanRequest.goal`)."""
+        inputs = self.inputs(cruise_z, goal)
         if not self.threaded:
             return PlanJob(finished(lambda: self.plan(inputs)), self, inputs.snapshot.t)
         if self._executor is None:
@@ -311,6 +314,7 @@ class PlanningService:
             slc_gain=slc_gain,
             landmarks=tuple(self.slam.landmarks()),
             pose_uncertainty=self.slam.pose_uncertainty() if self.planner.needs_pose_uncertainty else None,
+            goal=inputs.goal,
         )
         with self.boundary.calling("planner", "plan()"):
             tour = self.boundary.tour(self.planner.plan(request), request, self.plans_frontiers)

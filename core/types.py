@@ -438,6 +438,10 @@ class PlanRequest:
             views of known objects (paper 2's PAMS) rather than of frontiers.
         pose_uncertainty: the robot's localisation uncertainty, for planners that ask for it
             (``Planner.needs_pose_uncertainty``) from a backend that has one; None otherwise.
+        goal: world position of the exploration goal the robot was flying to and had not reached
+            when this plan was asked for (the tour went stale, or the frontiers changed, on the
+            way); None otherwise. A planner may keep it first, so that plans made every few
+            seconds from a moving robot do not send it back and forth between far viewpoints.
     """
 
     start: np.ndarray
@@ -450,6 +454,7 @@ class PlanRequest:
     slc_gain: SlcGainModel | None = None
     landmarks: tuple[Landmark, ...] = ()
     pose_uncertainty: PoseUncertainty | None = None
+    goal: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

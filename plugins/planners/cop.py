@@ -16,6 +16,12 @@ inserts it into the open tour from the robot at its cheapest place and improves 
 ``S`` flips the sign of its term in every other vertex's value, so values are updated in ``O(|V|)``
 per step instead of recomputed.
 
+**Keeping the goal.** A replan while the robot flies to an exploration viewpoint (every
+``exploration.replan_period`` s, or when the frontiers changed) starts the tour at that goal while
+a reachable viewpoint is within ``commit_radius`` of it (:attr:`PlanRequest.goal`), the rest
+chosen from there with the budget left: the budget follows the robot's position, and without this
+two far groups of viewpoints can take turns at the head of the tour every few seconds.
+
 **Algorithm 1 (uncertainty-reduction planning).** The COP tour is walked in order. For each next
 exploration viewpoint ``VP``: its remaining gain ``r_VP · max(0, 1 − Σ_{u ∈ refined} w(u, VP))``
 (constraint (8) of the paper) and its utility ``IG / cost`` from the previous stop; among the
@@ -93,6 +99,13 @@ class CopParams(BackendParams):
     utility_epsilon: float = Field(
         0.5, gt=0.0, le=1000, description="metres added to a viewpoint's cost in its utility IG/(cost+eps)"
     )
+    commit_radius: float = Field(
+        1.0,
+        ge=0.0,
+        le=100,
+        description="a replan keeps the goal the robot was flying to first while a reachable viewpoint"
+        " is within this of it (m; 0: every plan chooses afresh)",
+    )
 
 
 @dataclass
@@ -124,6 +137,7 @@ def cop_tour(
     budget: float,
     *,
     stop_at_first_violation: bool = False,
+    first: int | None = None,
 ) -> list[int]:
     """Greedy constructive COP heuristic (see module docstring).
 
@@ -133,21 +147,47 @@ def cop_tour(
         w: M×M symmetric correlation, ones on the diagonal.
         budget: maximum length of the open tour from the robot.
         stop_at_first_violation: end at the first best vertex that does not fit.
+        first: a node the tour must start with (the goal the robot is flying to), whatever the
+            budget; the rest is chosen from there with what the budget has left, its views
+            counted as already taken.
 
     Returns:
         The open tour as node indices (1..M), robot excluded.
     """
-    m = len(gains)
     off = w - np.diag(np.diag(w))
     value = gains + off @ gains  # nothing selected yet: every other vertex is in V \ S
-    open_ = np.ones(m, dtype=bool)
+    if first is None:
+        return _construct(costs, gains, off, value, budget, stop_at_first_violation)
+    # The same construction from ``first`` as its start: node 0 of the sub-problem is ``first``.
+    f = first - 1
+    rest = [n for n in range(1, len(gains) + 1) if n != first]
+    order = [first, *rest]
+    idx = np.array(rest, dtype=int) - 1
+    value = value - 2.0 * gains[f] * off[:, f]  # f joined S
+    sub = _construct(
+        costs[np.ix_(order, order)],
+        gains[idx],
+        off[np.ix_(idx, idx)],
+        value[idx],
+        budget - float(costs[0, first]),
+        stop_at_first_violation,
+    )
+    return [first, *(order[k] for k in sub)]
+
+
+def _construct(
+    costs: np.ndarray, gains: np.ndarray, off: np.ndarray, value: np.ndarray, budget: float, stop: bool
+) -> list[int]:
+    """:func:`cop_tour`'s greedy construction from node 0 with each vertex's starting ``value``."""
+    value = value.copy()
+    open_ = np.ones(len(gains), dtype=bool)
     tour: list[int] = []
     length = 0.0
     while open_.any():
         v = int(np.flatnonzero(open_)[np.argmax(value[open_])])
         open_[v] = False
         if costs[0, v + 1] > budget + _EPS:  # no open tour through v is shorter (metric costs)
-            if stop_at_first_violation:
+            if stop:
                 break
             continue
         pos, delta = cheapest_insertion(costs, tour, v + 1)
@@ -158,7 +198,7 @@ def cop_tour(
             candidate = two_opt(costs, candidate)
             new_length = tour_cost(costs, candidate)
         if new_length > budget + _EPS:
-            if stop_at_first_violation:
+            if stop:
                 break
             continue
         tour = two_opt(costs, candidate)
@@ -294,6 +334,24 @@ def _best_closure(
     return (best if ig[best] > params.slc_min_gain else -1), ig
 
 
+def _committed(graph: PlanningGraph, goal: np.ndarray | None, radius: float) -> int | None:
+    """The node of the reachable viewpoint nearest the goal the robot was flying to, within
+    ``radius``; None without such a goal or viewpoint.
+
+    The budget is set from the robot's position (its nearest viewpoints), so a plan made a few
+    metres on can choose another far group of viewpoints, and the next one the first again: on
+    one floor (seed 7, exploration alone) the tour's first stop jumped between two clusters 14 m
+    apart every 6 s for 600 s, 340 m flown for 100 m³. Keeping the goal first while a viewpoint is
+    still there (its frontier not yet seen) lets the robot finish what it set out for.
+    """
+    if goal is None or radius <= 0 or graph.size == 0:
+        return None
+    d = np.linalg.norm(np.array([vp.position for vp in graph.viewpoints]) - np.asarray(goal, float), axis=1)
+    d[~np.isfinite(graph.costs[0, 1:])] = np.inf
+    best = int(np.argmin(d))
+    return best + 1 if d[best] <= radius else None
+
+
 class _ClosureChain:
     """The loop closures of a refined tour so far, as the chain of virtual odometry factors whose
     eq. (10) scores the next candidate (Algorithm 1, line 6)."""
@@ -363,7 +421,12 @@ class CopPlanner(Planner):
         )
         budget = budget_from_nearest(graph.costs[0, 1:], p.budget_k, p.budget_factor, p.min_budget)
         tour = cop_tour(
-            graph.costs, graph.gains, w, budget, stop_at_first_violation=p.stop_at_first_violation
+            graph.costs,
+            graph.gains,
+            w,
+            budget,
+            stop_at_first_violation=p.stop_at_first_violation,
+            first=_committed(graph, request.goal, p.commit_radius),
         )
         s = self.summary
         s.selected, s.budget = len(tour), budget

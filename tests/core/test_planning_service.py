@@ -76,6 +76,16 @@ def test_an_unreachable_view_is_replaced_by_a_reachable_alternative() -> None:
     assert s.wants_view_near(IN_SHAFT, 0.3)
 
 
+def test_the_goal_not_reached_reaches_the_planner() -> None:
+    s, planner = service([viewpoint(IN_SHAFT, 30.0)])
+    s.plan_async(1.2).result()
+    goal = IN_SHAFT + [0.2, 0.0, 0.0]
+    s.plan_async(1.2, goal=goal).result()
+    goal[0] = 99.0  # the request holds its own copy
+    assert planner.requests[0].goal is None
+    np.testing.assert_allclose(planner.requests[1].goal, IN_SHAFT + [0.2, 0.0, 0.0])
+
+
 def test_a_reachable_view_is_kept_and_unreachable_alternatives_change_nothing() -> None:
     s, _ = service([viewpoint(IN_SHAFT, 30.0, (viewpoint(UPSTAIRS, 40.0),))])
     tour = s.plan_async(1.2).result()

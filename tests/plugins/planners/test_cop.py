@@ -67,6 +67,37 @@ def test_planner_uses_budget_from_nearest_viewpoints(camera):
     assert q.summary.budget == pytest.approx(8.0) and q.summary.selected == 3
 
 
+def test_a_replan_keeps_the_goal_the_robot_was_flying_to(camera):
+    # West: one viewpoint 7 m away; east: two 6 m away. A budget of 2 × the nearest cost (12 m)
+    # takes the east pair, whatever the robot was doing; the robot was flying west.
+    positions = [[-7.0, 0, 1], [6.0, 0, 1], [6.0, 0.5, 1]]
+    req = make_request(positions, [30.0, 30.0, 30.0], camera, yaws=[np.pi, 0.0, 0.0])
+    fresh = planner(budget_factor=2.0, budget_k=1, slc=False).plan(req)
+    assert {t.ref for t in fresh} == {1, 2}
+    flying_west = dataclasses.replace(req, goal=np.array([-7.3, 0.2, 1.0]))
+    kept = planner(budget_factor=2.0, budget_k=1, slc=False).plan(flying_west)
+    assert kept[0].ref == 0  # the goal stays first though it breaks the budget; nothing fits after it
+    assert [t.ref for t in kept] == [0]
+    # its viewpoint gone (the frontier was seen), or commitment off: the plan chooses afresh
+    gone = dataclasses.replace(req, goal=np.array([-5.0, 3.0, 1.0]))
+    assert [t.ref for t in planner(budget_factor=2.0, budget_k=1, slc=False).plan(gone)] == [
+        t.ref for t in fresh
+    ]
+    off = planner(budget_factor=2.0, budget_k=1, slc=False, commit_radius=0.0).plan(flying_west)
+    assert [t.ref for t in off] == [t.ref for t in fresh]
+
+
+def test_the_kept_goal_counts_its_views_as_taken(camera):
+    # The kept goal A and A' see the same place: the rest of the budget goes to B (A then B: 6.0 m),
+    # not to A' (worth more alone, 49 against 40, but its view is A's).
+    req = redundant_pair_request(camera)
+    w = fov_correlation(np.array([v.position for v in req.viewpoints]), np.zeros(3) + [0, 0, np.pi], camera)
+    tour = cop_tour(req.costs, np.array([50.0, 49.0, 40.0]), w, 6.05, first=1)
+    assert tour == [1, 3]
+    blind = cop_tour(req.costs, np.array([50.0, 49.0, 40.0]), np.eye(3), 6.05, first=1)
+    assert blind == [1, 2]  # without the correlation A' comes first and B no longer fits
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_random_tours_respect_budget_and_are_valid_open_tours(camera, seed):
     rng = np.random.default_rng(seed)
