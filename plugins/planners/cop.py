@@ -16,9 +16,10 @@ inserts it into the open tour from the robot at its cheapest place and improves 
 ``S`` flips the sign of its term in every other vertex's value, so values are updated in ``O(|V|)``
 per step instead of recomputed.
 
-**Keeping the goal.** A replan while the robot flies to an exploration viewpoint (every
-``exploration.replan_period`` s, or when the frontiers changed) starts the tour at that goal while
-a reachable viewpoint is within ``commit_radius`` of it (:attr:`PlanRequest.goal`), the rest
+**Keeping the goal** (``commit_radius`` > 0; off by default). A replan while the robot flies to an
+exploration viewpoint (every ``exploration.replan_period`` s, or when the frontiers changed)
+starts the tour at that goal while a reachable viewpoint is within ``commit_radius`` of it
+(:attr:`PlanRequest.goal`), the rest
 chosen from there with the budget left: the budget follows the robot's position, and without this
 two far groups of viewpoints can take turns at the head of the tour every few seconds.
 
@@ -99,8 +100,12 @@ class CopParams(BackendParams):
     utility_epsilon: float = Field(
         0.5, gt=0.0, le=1000, description="metres added to a viewpoint's cost in its utility IG/(cost+eps)"
     )
+    # Off by default: on ten held-out flights exploring alone it made COP faster than TSP, but
+    # with SLC on `make demo`'s flight (demo seed 7) ended with SLAM 0.90 m RMS off (0.165 m
+    # without), every loop closure ambiguous, and four one-floor SLC flights were no better
+    # (docs/experiments.md, "COP vs TSP vs greedy on held-out seeds").
     commit_radius: float = Field(
-        1.0,
+        0.0,
         ge=0.0,
         le=100,
         description="a replan keeps the goal the robot was flying to first while a reachable viewpoint"

@@ -75,7 +75,7 @@ def test_a_replan_keeps_the_goal_the_robot_was_flying_to(camera):
     fresh = planner(budget_factor=2.0, budget_k=1, slc=False).plan(req)
     assert {t.ref for t in fresh} == {1, 2}
     flying_west = dataclasses.replace(req, goal=np.array([-7.3, 0.2, 1.0]))
-    kept = planner(budget_factor=2.0, budget_k=1, slc=False).plan(flying_west)
+    kept = planner(budget_factor=2.0, budget_k=1, slc=False, commit_radius=1.0).plan(flying_west)
     assert kept[0].ref == 0  # the goal stays first though it breaks the budget; nothing fits after it
     assert [t.ref for t in kept] == [0]
     # its viewpoint gone (the frontier was seen), or commitment off: the plan chooses afresh
@@ -83,7 +83,7 @@ def test_a_replan_keeps_the_goal_the_robot_was_flying_to(camera):
     assert [t.ref for t in planner(budget_factor=2.0, budget_k=1, slc=False).plan(gone)] == [
         t.ref for t in fresh
     ]
-    off = planner(budget_factor=2.0, budget_k=1, slc=False, commit_radius=0.0).plan(flying_west)
+    off = planner(budget_factor=2.0, budget_k=1, slc=False).plan(flying_west)  # the default: off
     assert [t.ref for t in off] == [t.ref for t in fresh]
 
 
