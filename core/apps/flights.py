@@ -15,7 +15,10 @@ given, for the experiment's tables:
   (its record, written atomically). ``--resume FOLDER`` flies in that experiment folder again
   and skips each flight whose record is there, so an experiment stopped half-way (a killed
   process, a lost node) goes on where it stopped. The key is the mission as given and the sorted
-  overrides, so the same command finds the same flights.
+  overrides, so the same command finds the same flights. Each record notes the code it was
+  flown with (:func:`source_revision`); a resume says how many kept flights were flown with
+  other code (their figures stand as flown: re-using unchanged flights is legitimate, mixing
+  changed ones silently is not).
 
 A flight that raises is recorded with verdict ``failed`` and its error, and the others go on:
 nothing already flown is lost to one bad flight. Progress is one line per finished flight.
@@ -59,6 +62,32 @@ class Flight:
 
     def label(self) -> str:
         return " ".join(self.overrides) or Path(self.mission).stem
+
+
+def source_revision() -> str:
+    """The code flights are flown with: the git commit of amslam's source checkout, with
+    ``+changes`` when its tracked files differ from it; ``amslam X.Y.Z`` when amslam is not run from
+    its own checkout (an installed wheel)."""
+    import subprocess
+
+    from amslam import __version__
+
+    package = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> str:
+        out = subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True, timeout=20)
+        if out.returncode:
+            raise OSError(out.stderr.strip())
+        return out.stdout.strip()
+
+    try:
+        top = Path(git("rev-parse", "--show-toplevel")).resolve()
+        if top / "core" != package:  # a checkout of something else that happens to hold the install
+            raise OSError("not amslam's checkout")
+        changed = git("status", "--porcelain", "--untracked-files=no")
+        return git("rev-parse", "--short=12", "HEAD") + ("+changes" if changed else "")
+    except (OSError, subprocess.SubprocessError):
+        return f"amslam {__version__}"
 
 
 def flight_arguments(parser: argparse.ArgumentParser) -> None:
@@ -147,7 +176,7 @@ def fly_all(
     Serial flights use ``registry`` (default: the installed plugins); a Ray worker loads the
     installed plugins itself (a registry holds modules, which do not travel between processes).
 
-    A record is ``{"overrides", "run_dir", "metrics", "wall_s"}``; a flight that raised has
+    A record is ``{"overrides", "run_dir", "metrics", "wall_s", "code"}``; a flight that raised has
     ``metrics == {"verdict": "failed", "error": ...}`` and ``run_dir`` None.
     """
     records_dir = Path(folder) / "flights"
@@ -162,13 +191,21 @@ def fly_all(
                 continue  # a record that does not read is flown again
     todo = list({f.key: f for f in flights if f.key not in done}.values())
     total = len(todo)
+    code = source_revision()
     if len(done):
         log(f"  {len(done)} flight(s) already flown in {folder}, {total} to fly")
+        other = [str(r.get("code", "an unrecorded version")) for r in done.values() if r.get("code") != code]
+        if other:
+            log(
+                f"  {len(other)} of them flown with other code ({', '.join(sorted(set(other)))}), this is"
+                f" {code}: their figures stand as flown"
+            )
     finished = 0
 
     def record(flight: Flight, rec: dict[str, Any]) -> None:
         nonlocal finished
         finished += 1
+        rec = {**rec, "code": code}
         done[flight.key] = rec
         write_atomically(records_dir / f"{flight.key}.json", json.dumps(rec, indent=2, default=str) + "\n")
         verdict = rec["metrics"].get("verdict", "?")

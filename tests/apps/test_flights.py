@@ -20,8 +20,10 @@ def _flights(mission: Path, seeds) -> list[Flight]:
 def test_a_resumed_experiment_flies_only_what_it_had_not_flown(tmp_path: Path, monkeypatch) -> None:
     mission = small_mission(tmp_path, max_time=4)
     folder = experiment_folder(tmp_path / "out", "test", str(mission))
+    monkeypatch.setattr(flights_module, "source_revision", lambda: "0123abcd")
     first = fly_all(_flights(mission, [1, 2]), folder, log=lambda line: None)
     assert [r["metrics"]["verdict"] for r in first] == ["completed", "completed"]
+    assert {r["code"] for r in first} == {"0123abcd"}
     assert len(list((folder / "flights").glob("*.json"))) == 2
 
     flown = []
@@ -29,14 +31,20 @@ def test_a_resumed_experiment_flies_only_what_it_had_not_flown(tmp_path: Path, m
     monkeypatch.setattr(
         flights_module, "fly_one", lambda m, o, runs, reg=None: flown.append(list(o)) or real(m, o, runs, reg)
     )
+    monkeypatch.setattr(flights_module, "source_revision", lambda: "4567ef01")  # the code changed since
     again = experiment_folder(tmp_path / "out", "test", str(mission), resume=str(folder))
     lines: list[str] = []
     records = fly_all(_flights(mission, [2, 3, 1]), again, log=lines.append)
     assert flown == [["seed=3"]]  # seeds 1 and 2 are found in the folder
     assert [r["overrides"] for r in records] == [["seed=2"], ["seed=3"], ["seed=1"]]
-    assert records[0] == first[1] and records[2] == first[0]
+    assert records[0] == first[1] and records[2] == first[0]  # kept as flown, their code with them
+    assert records[1]["code"] == "4567ef01"
     assert lines[0].startswith("  2 flight(s) already flown")
-    assert "[1/1] seed=3" in lines[1]
+    assert (
+        lines[1]
+        == "  2 of them flown with other code (0123abcd), this is 4567ef01: their figures stand as flown"
+    )
+    assert "[1/1] seed=3" in lines[2]
 
 
 def test_a_flight_that_raises_is_its_own_failed_row(tmp_path: Path) -> None:
@@ -115,3 +123,19 @@ def test_flights_run_as_tasks_on_a_local_two_cpu_ray(tmp_path: Path) -> None:
     for r in records:
         assert Path(r["run_dir"]).parent == folder / "runs"
         assert json.loads((Path(r["run_dir"]) / "metrics.json").read_text())["verdict"] == "completed"
+
+
+def test_the_code_a_flight_is_flown_with(monkeypatch) -> None:
+    import re
+    import subprocess
+
+    from amslam import __version__
+
+    here = flights_module.source_revision()
+    assert re.fullmatch(r"[0-9a-f]{12}(\+changes)?", here) or here == f"amslam {__version__}"
+
+    def no_git(*args, **kwargs):
+        raise FileNotFoundError("git")
+
+    monkeypatch.setattr(subprocess, "run", no_git)  # an installed wheel, or no git on the machine
+    assert flights_module.source_revision() == f"amslam {__version__}"
