@@ -234,15 +234,19 @@ class PlanningService:
         return out
 
     def _worth_visiting(self, vps: list[Viewpoint]) -> np.ndarray:
-        """Which viewpoints have enough gain, are not near a goal found unreachable
-        (``UNREACHABLE_RADIUS``) and not near one visited (0.5 m)."""
+        """Which viewpoints have enough gain and are not :meth:`_done_with`."""
         ok = np.array([vp.gain >= self.exploration.min_viewpoint_gain for vp in vps])
-        pos = np.array([vp.position for vp in vps])
+        return ok & ~self._done_with(np.array([vp.position for vp in vps]))
+
+    def _done_with(self, positions: np.ndarray) -> np.ndarray:
+        """Which positions (N×3) are near a goal found unreachable (``UNREACHABLE_RADIUS``) or
+        one visited (0.5 m)."""
+        done = np.zeros(len(positions), bool)
         for near, within in ((self.unreachable, UNREACHABLE_RADIUS), (self.visited, 0.5)):
             if near:
-                d = np.linalg.norm(pos[:, None] - np.asarray(near)[None], axis=2)
-                ok &= ~np.any(d < within, axis=1)
-        return ok
+                d = np.linalg.norm(positions[:, None] - np.asarray(near)[None], axis=2)
+                done |= np.any(d < within, axis=1)
+        return done
 
     def wants_view_near(self, position: np.ndarray, within: float) -> bool:
         """Whether some candidate viewpoint, or an alternative of one, lies within ``within`` m."""
@@ -264,7 +268,9 @@ class PlanningService:
     # -- planning ------------------------------------------------------------------------------
 
     def inputs(self, cruise_z: float, goal: np.ndarray | None = None) -> PlanInputs:
-        """The frozen inputs of a plan asked for now (``goal``: :attr:`PlanRequest.goal`)."""
+        """The frozen inputs of a plan asked for now. ``goal``, the exploration goal the robot was
+        flying to, becomes :attr:`PlanRequest.goal` unless the robot arrived there (visited) or
+        gave it up (unreachable)."""
         ex = self.exploration
         slc = None
         if ex.slc:
@@ -276,12 +282,14 @@ class PlanningService:
         # with plan_through_unknown spans the mission area) were 90 % of such a run's time.
         viewpoints = tuple(self.candidate_viewpoints()) if self.plans_frontiers else ()
         unreachable = np.array(self.unreachable, float).reshape(-1, 3)
-        goal = None if goal is None else np.asarray(goal, float).copy()
+        if goal is not None:
+            goal = np.asarray(goal, float).copy()
+            goal = None if self._done_with(goal[None])[0] else goal
         return PlanInputs(self.snapshot, viewpoints, slc, cruise_z, unreachable, goal)
 
     def plan_async(self, cruise_z: float, goal: np.ndarray | None = None) -> PlanJob:
         """Plan from the latest snapshot; the job holds the tour (or the planner's exception).
-        ``goal``: the exploration goal flown to and not reached (:attr:`PlanRequest.goal`)."""
+        ``goal``: the exploration goal the robot was flying to (:meth:`inputs`)."""
         inputs = self.inputs(cruise_z, goal)
         if not self.threaded:
             return PlanJob(finished(lambda: self.plan(inputs)), self, inputs.snapshot.t)

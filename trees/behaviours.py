@@ -148,10 +148,8 @@ class Replan(RobotBehaviour):
         replan_fraction: float = DEFAULTS.replan_fraction,
         replan_period: float = DEFAULTS.replan_period,
         frontier_change: float = DEFAULTS.frontier_change,
-        goal_tolerance: float = DEFAULTS.goal_tolerance,
     ):
         super().__init__(name)
-        self.goal_tolerance = goal_tolerance
         self.replan_fraction = replan_fraction
         self.replan_period = replan_period
         self.frontier_change = frontier_change
@@ -190,18 +188,12 @@ class Replan(RobotBehaviour):
         self.reason = self._replan_reason(tour)
         if self.reason:
             cruise = cruise_height(self.bb, self.flight)
-            self.job = self.planning.plan_async(cruise, goal=self._unreached(goal))
+            # The exploration goal the robot was flying to; the planning service, which GoTo told
+            # of arrivals (mark_visited) and give-ups, hands it on only if neither happened.
+            explore = goal is not None and goal.kind == TourItemKind.EXPLORE
+            self.job = self.planning.plan_async(cruise, goal=goal.position if explore else None)
         else:
             self.job = None
-
-    def _unreached(self, goal: TourItem | None) -> np.ndarray | None:
-        """The exploration goal the last flight leg ended short of (early: the tour went stale or
-        the frontiers changed), for the planner to keep (:attr:`PlanRequest.goal`); None when it
-        was reached or is no exploration goal."""
-        if goal is None or goal.kind != TourItemKind.EXPLORE:
-            return None
-        reached = np.linalg.norm(self.flight.position_world() - goal.position) <= self.goal_tolerance
-        return None if reached else np.asarray(goal.position, float)
 
     def update(self) -> Status:
         if self.job is None:

@@ -88,7 +88,6 @@ def build_exploration_tree(model: MissionModel, behaviours: Behaviours) -> py_tr
         replan_fraction=ex.replan_fraction,
         replan_period=ex.replan_period,
         frontier_change=ex.frontier_change,
-        goal_tolerance=ex.goal_tolerance,
     )
     step = Sequence(
         "ExploreStep",

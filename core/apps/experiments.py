@@ -307,9 +307,9 @@ def _summary(rows: list[dict], figures: list[dict]) -> list[str]:
         "landmark tr(Σ) |",
         "|---|---|---|---|---|---|---|---|",
     ]
+    pairs = (("vio_p", "slam_p"), ("off_p", "slam_p"), ("vio_y", "slam_y"), ("off_y", "slam_y"))
+    pairs += (("p_off", "p_on"), ("l_off", "l_on"))
     for name, fs in groups:
-        pairs = (("vio_p", "slam_p"), ("off_p", "slam_p"), ("vio_y", "slam_y"), ("off_y", "slam_y"))
-        pairs += (("p_off", "p_on"), ("l_off", "l_on"))
         pooled = [_pooled_reduction(fs, before, after) for before, after in pairs]
         cells = [f"{x:.1f} %" if np.isfinite(x) else "—" for x in pooled]
         lines.append(f"| {name} | {len(fs)} | " + " | ".join(cells) + " |")

@@ -351,8 +351,8 @@ def _committed(graph: PlanningGraph, goal: np.ndarray | None, radius: float) -> 
     """
     if goal is None or radius <= 0 or graph.size == 0:
         return None
+    # the planning graph holds the viewpoints reachable from the robot only
     d = np.linalg.norm(np.array([vp.position for vp in graph.viewpoints]) - np.asarray(goal, float), axis=1)
-    d[~np.isfinite(graph.costs[0, 1:])] = np.inf
     best = int(np.argmin(d))
     return best + 1 if d[best] <= radius else None
 

@@ -84,6 +84,13 @@ def test_the_goal_not_reached_reaches_the_planner() -> None:
     goal[0] = 99.0  # the request holds its own copy
     assert planner.requests[0].goal is None
     np.testing.assert_allclose(planner.requests[1].goal, IN_SHAFT + [0.2, 0.0, 0.0])
+    # a goal the robot arrived at (GoTo marks it visited), or gave up, is no goal to keep
+    away = np.array([3.0, 0.0, 1.2])
+    assert s.inputs(1.2, goal=away).goal is not None
+    s.mark_visited(IN_SHAFT + [0.2, 0.0, 0.0])
+    assert s.inputs(1.2, goal=IN_SHAFT + [0.3, 0.0, 0.0]).goal is None
+    s.mark_unreachable(away)
+    assert s.inputs(1.2, goal=away).goal is None
 
 
 def test_a_reachable_view_is_kept_and_unreachable_alternatives_change_nothing() -> None:
