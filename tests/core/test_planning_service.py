@@ -175,3 +175,56 @@ def test_a_loop_closure_place_found_unreachable_is_not_offered_again() -> None:
     s.mark_unreachable(np.array([1.68, 6.94, 1.2]))  # GoToSLC gave it up
     s.plan_async(1.2).result()
     assert [c.keypose_id for c in planner.requests[-1].slc_candidates] == [9]
+
+
+def test_a_loop_closure_place_whose_panorama_saw_too_few_objects_is_not_offered_again() -> None:
+    # session 49's one-floor seed 2 flew three times to a key pose whose panoramas saw one object
+    from amslam.types import LoopClosureResult, SlcCandidate
+
+    answers = []
+
+    class SlamWithCandidates(NoSlam):
+        def slc_candidates(self, sensing_range):
+            return [
+                SlcCandidate(3, np.array([1.68, 6.94, 1.2]), 0.0, (1, 2, 4), 0.5),
+                SlcCandidate(9, np.array([4.0, 2.0, 1.2]), 0.0, (5, 6, 7), 0.2),
+            ]
+
+        def slc_gain_model(self, keypose_ids):
+            return None
+
+        def try_loop_closure(self, odometry, T_body_cam, detections):
+            return answers.pop(0)
+
+    s, planner = service([viewpoint(IN_SHAFT, 30.0)])
+    s.slam, s.exploration = SlamWithCandidates(), ExplorationSection(slc=True, slc_min_travel=1.0)
+
+    def attempt_at(keypose_id: int, result: LoopClosureResult) -> None:
+        s.snapshot = dataclasses.replace(s.snapshot, distance=s.snapshot.distance + 50.0)
+        tour = s.plan_async(1.2).result()
+        (goal,) = [item for item in tour if item.kind == TourItemKind.SLC and item.ref == keypose_id]
+        answers.append(result)
+        assert s.request_loop_closure(goal).result() is result
+
+    s.planner = planner = OffersSlc()
+    # a registration that failed for another reason may succeed from the same place later
+    attempt_at(3, LoopClosureResult(False, "ambiguous: another alignment matches 3 of 4 landmarks"))
+    attempt_at(3, LoopClosureResult(False, "only 1 objects in view", too_few_in_view=True))
+    s.snapshot = dataclasses.replace(s.snapshot, distance=s.snapshot.distance + 50.0)
+    s.plan_async(1.2).result()
+    assert [c.keypose_id for c in planner.requests[-1].slc_candidates] == [9]
+    # a panorama elsewhere (home: no SLC goal) that saw too few blinds no place
+    answers.append(LoopClosureResult(False, "only 0 objects in view", too_few_in_view=True))
+    s.request_loop_closure(None).result()
+    assert len(s.slc_blind) == 1
+
+
+class OffersSlc(Recorder):
+    """Tours every SLC candidate offered, then the viewpoints."""
+
+    def plan(self, request):
+        slc = [
+            TourItem(TourItemKind.SLC, c.position, c.yaw, c.info_gain, c.keypose_id)
+            for c in request.slc_candidates
+        ]
+        return slc + super().plan(request)
