@@ -23,7 +23,15 @@ import numpy as np
 
 import amslam
 from amslam.apps import calibration
-from amslam.apps.flights import SERIAL, Flight, FlightRunner, experiment_folder, flight_arguments, fly_all
+from amslam.apps.flights import (
+    SERIAL,
+    Flight,
+    FlightRunner,
+    code_note,
+    experiment_folder,
+    flight_arguments,
+    fly_all,
+)
 from amslam.apps.tables import mean_std
 from amslam.cli import Experiment
 from amslam.registry import Registry
@@ -75,7 +83,7 @@ def slc_ablation(
             }
             rows.append({"world": Path(spec).stem, "seed": seed, **pair})
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
-    (folder / "table.md").write_text(slc_tables(rows))
+    (folder / "table.md").write_text(slc_tables(rows) + code_note(flown))
     plot_fig7(rows, folder / "uncertainty_slc_on_off.png")
     plot_trajectories(rows, folder / "trajectories.png")
     return folder
@@ -395,7 +403,7 @@ def planner_comparison(
         for (spec, seed, planner), rec in zip(cases, flown, strict=True)
     ]
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
-    (folder / "table.md").write_text(planner_table(rows))
+    (folder / "table.md").write_text(planner_table(rows) + code_note(flown))
     plot_exploration(rows, folder / "explored_vs_distance.png")
     return folder
 
@@ -563,7 +571,8 @@ def pams_comparison(
             rows.append({"world": Path(m).stem, "seed": s, "planner": p, "survey": survey["run_dir"], **rec})
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     surveys_md = survey_table([(Path(m).stem, s) for m, s in worlds], surveyed)
-    (folder / "table.md").write_text(pams_table(rows, planners) + "\n" + surveys_md)
+    flown_all = [*surveyed, *flown.values()]
+    (folder / "table.md").write_text(pams_table(rows, planners) + "\n" + surveys_md + code_note(flown_all))
     return folder
 
 

@@ -64,6 +64,21 @@ class Flight:
         return " ".join(self.overrides) or Path(self.mission).stem
 
 
+def code_note(records: Sequence[dict[str, Any]]) -> str:
+    """The line under a table saying which code its flights were flown with (records' ``code``):
+    a table is "at the final code" only if this names one commit, and a resumed folder's kept
+    flights may have been flown with another."""
+    counts: dict[str, int] = {}
+    for r in records:
+        code = str(r.get("code", "unrecorded"))
+        counts[code] = counts.get(code, 0) + 1
+    parts = [
+        f"{code} ({n} flight{'s' if n != 1 else ''})"
+        for code, n in sorted(counts.items(), key=lambda kv: -kv[1])
+    ]
+    return f"\nFlown with code: {', '.join(parts) or 'no flights'}.\n"
+
+
 def source_revision() -> str:
     """The code flights are flown with: the git commit of amslam's source checkout, with
     ``+changes`` when its tracked files differ from it; ``amslam X.Y.Z`` when amslam is not run from

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from amslam.apps import flights as flights_module
-from amslam.apps.flights import Flight, FlightRunner, experiment_folder, fly_all
+from amslam.apps.flights import Flight, FlightRunner, code_note, experiment_folder, fly_all
 from amslam.errors import AmslamError
 from tests.e2e.missions import small_mission
 
@@ -45,6 +45,9 @@ def test_a_resumed_experiment_flies_only_what_it_had_not_flown(tmp_path: Path, m
         == "  2 of them flown with other code (0123abcd), this is 4567ef01: their figures stand as flown"
     )
     assert "[1/1] seed=3" in lines[2]
+    # the table under the records says so: most flights' code first
+    assert code_note(records) == "\nFlown with code: 0123abcd (2 flights), 4567ef01 (1 flight).\n"
+    assert code_note([{"metrics": {}}]) == "\nFlown with code: unrecorded (1 flight).\n"
 
 
 def test_a_flight_that_raises_is_its_own_failed_row(tmp_path: Path) -> None:

@@ -131,6 +131,7 @@ def test_the_planners_visit_the_map_of_an_overhead_survey_flown_first(tmp_path, 
     table = (folder / "table.md").read_text()
     assert "| lot | 1 | completed | car: 5 / 3 of 4 / 1 |" in table
     assert "| lot | 2 | failed | — |" in table
+    assert "Flown with code: " in table and "(4 flights)" in table  # two surveys, two planner flights
 
 
 def test_the_simulators_truth_is_refused_as_a_prior_map():
