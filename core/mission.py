@@ -189,6 +189,15 @@ class WaypointsSection(_Strict):
     tolerance: float = Field(
         0.2, gt=0, le=100, description="distance at which a waypoint counts as reached, m"
     )
+    # A PAMS overhead survey hovered 770 s before a light pole its lawnmower leg crossed: the
+    # setpoint guards held it (rightly) and nothing gave the leg up before the time limit.
+    skip_after: float = Field(
+        15.0,
+        ge=0,
+        le=3600,
+        description="a waypoint the vehicle comes no closer to for this long (held by the setpoint guards,"
+        " a wind it cannot beat) is skipped, event waypoint_skipped, s; 0: fly on until a limit ends it",
+    )
     land_timeout: float = Field(
         60.0, gt=0, le=3600, description="how long a failsafe waits to see the vehicle touch down, s"
     )

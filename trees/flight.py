@@ -169,8 +169,11 @@ class FailsafeEnd(RobotBehaviour):
 class FlyWaypoints(RobotBehaviour):
     """Fly straight to each waypoint in turn (positions relative to the take-off point).
 
-    SUCCESS after the last one. No obstacle checks: waypoint missions are for open spaces the
-    operator has looked at (see docs/flight.md).
+    SUCCESS after the last one. No obstacle checks beyond the setpoint guards every flight has:
+    waypoint missions are for open spaces the operator has looked at (see docs/flight.md). A
+    waypoint the vehicle comes no nearer to (by 0.1 m) for ``skip_after`` seconds — the guards
+    holding it back from something in the way — is skipped (event ``waypoint_skipped``) and the
+    next one flown to from where the vehicle is.
     """
 
     uses = ("flight", "events")
@@ -184,6 +187,21 @@ class FlyWaypoints(RobotBehaviour):
         self.index = 0
         self.yaw = self.flight.yaw_world()
         self.bb.set("/waypoint", 0)
+        self._closest = (np.inf, self.flight.time())  # nearest to the waypoint so far, and since when
+        self.skipped = 0
+
+    def _next(self, event: str, **fields: object) -> None:
+        self.events.emit(event, index=self.index, **fields)
+        self.index += 1
+        self.bb.set("/waypoint", self.index)
+        self._closest = (np.inf, self.flight.time())
+
+    def _stalled(self, distance: float) -> bool:
+        """Whether the vehicle has come no nearer the waypoint by 0.1 m for ``skip_after`` s."""
+        now = self.flight.time()
+        if distance < self._closest[0] - 0.1:
+            self._closest = (distance, now)
+        return self.section.skip_after > 0 and now - self._closest[1] >= self.section.skip_after
 
     def _target(self, i: int) -> np.ndarray:
         return self.flight.home_world + np.asarray(self.section.points[i], float)
@@ -193,13 +211,22 @@ class FlyWaypoints(RobotBehaviour):
         while self.index < len(points):
             target = self._target(self.index)
             here = self.flight.position_world()
-            if np.linalg.norm(target - here) >= self.section.tolerance:
+            distance = float(np.linalg.norm(target - here))
+            if distance < self.section.tolerance:
+                self._next("waypoint_reached", position=np.round(target, 3).tolist())
+            elif self._stalled(distance):
+                self.skipped += 1
+                self._next(
+                    "waypoint_skipped",
+                    position=np.round(target, 3).tolist(),
+                    at=np.round(here, 3).tolist(),
+                    reason=f"no nearer than {distance:.2f} m for {self.section.skip_after:.0f} s",
+                )
+            else:
                 break
-            self.events.emit("waypoint_reached", index=self.index, position=np.round(target, 3).tolist())
-            self.index += 1
-            self.bb.set("/waypoint", self.index)
         if self.index >= len(points):
-            self.feedback_message = f"all {len(points)} waypoints reached"
+            skipped = f" ({self.skipped} skipped)" if self.skipped else ""
+            self.feedback_message = f"all {len(points)} waypoints flown{skipped}"
             return Status.SUCCESS
         yaw = self.yaw
         if self.section.heading == "travel":

@@ -48,3 +48,30 @@ def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
     # it came back over the take-off point before landing (the return home, as exploration does)
     truth = np.loadtxt(result.run_dir / "ground_truth.tum", ndmin=2)
     assert np.linalg.norm(truth[-1, 1:3] - truth[0, 1:3]) < 0.5
+
+
+def test_a_waypoint_the_guards_hold_the_vehicle_back_from_is_skipped(tmp_path):
+    # the same waypoint above the area's ceiling, with a third one behind it: the vehicle comes
+    # no nearer for skip_after seconds, gives the second up and flies on to the third
+    overrides = [
+        "tree=waypoints",
+        "waypoints.points=[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0], [0.0, 0.0, 1.2]]",
+        "waypoints.skip_after=4",
+        "area.lo=[-100.0, -100.0, -1.0]",
+        "area.hi=[100.0, 100.0, 2.2]",
+        "limits.max_time=60",
+        "platform.camera.width=64",
+        "platform.camera.height=48",
+    ]
+    registry = build_plugin_manager()
+    result = Runner(load_mission("demo", registry, overrides), registry, tmp_path).run()
+
+    events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
+    assert result.verdict == "completed", result.verdict
+    assert [e["index"] for e in events if e["event"] == "waypoint_reached"] == [0, 2]
+    (skipped,) = [e for e in events if e["event"] == "waypoint_skipped"]
+    assert skipped["index"] == 1 and skipped["reason"].endswith("for 4 s")
+    assert skipped["at"][2] <= 2.2  # held under the ceiling
+    assert not [e for e in events if e["event"] == "limit_reached"]
+    (end,) = [e for e in events if e["event"] == "mission_end"]
+    assert end["landing"] == "landed"
