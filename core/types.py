@@ -255,9 +255,6 @@ class LoopClosureResult:
     residual: float = float("nan")
     yaw_correction: float = 0.0
     translation_correction: float = 0.0
-    #: the panorama saw fewer objects than a registration needs: a place to look from again only
-    #: if what it can see has changed (the planning service stops offering SLC viewpoints there)
-    too_few_in_view: bool = False
 
 
 @dataclass(frozen=True)

@@ -163,7 +163,7 @@ class LoopCloser:
             return LoopClosureResult(False, "no key poses yet")
         groups, B, cb = self._panorama(odom)
         if len(groups) < p.min_matches:
-            return LoopClosureResult(False, f"only {len(groups)} objects in view", too_few_in_view=True)
+            return LoopClosureResult(False, f"only {len(groups)} objects in view")
         now = front.distance
         old = [lm for lm in self.graph.graph_landmarks() if lm.first_distance <= now - p.min_age]
         if len(old) < p.min_matches:

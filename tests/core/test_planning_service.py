@@ -177,8 +177,9 @@ def test_a_loop_closure_place_found_unreachable_is_not_offered_again() -> None:
     assert [c.keypose_id for c in planner.requests[-1].slc_candidates] == [9]
 
 
-def test_a_loop_closure_place_whose_panorama_saw_too_few_objects_is_not_offered_again() -> None:
-    # session 49's one-floor seed 2 flew three times to a key pose whose panoramas saw one object
+def test_a_loop_closure_place_whose_attempt_failed_is_not_offered_again() -> None:
+    # retried after a failure, 1 of 9 places was accepted (sessions 48-51); one one-floor flight
+    # flew three times to a key pose whose panoramas saw one object
     from amslam.types import LoopClosureResult, SlcCandidate
 
     answers = []
@@ -198,6 +199,7 @@ def test_a_loop_closure_place_whose_panorama_saw_too_few_objects_is_not_offered_
 
     s, planner = service([viewpoint(IN_SHAFT, 30.0)])
     s.slam, s.exploration = SlamWithCandidates(), ExplorationSection(slc=True, slc_min_travel=1.0)
+    s.planner = planner = OffersSlc()
 
     def attempt_at(keypose_id: int, result: LoopClosureResult) -> None:
         s.snapshot = dataclasses.replace(s.snapshot, distance=s.snapshot.distance + 50.0)
@@ -206,17 +208,22 @@ def test_a_loop_closure_place_whose_panorama_saw_too_few_objects_is_not_offered_
         answers.append(result)
         assert s.request_loop_closure(goal).result() is result
 
-    s.planner = planner = OffersSlc()
-    # a registration that failed for another reason may succeed from the same place later
-    attempt_at(3, LoopClosureResult(False, "ambiguous: another alignment matches 3 of 4 landmarks"))
-    attempt_at(3, LoopClosureResult(False, "only 1 objects in view", too_few_in_view=True))
-    s.snapshot = dataclasses.replace(s.snapshot, distance=s.snapshot.distance + 50.0)
-    s.plan_async(1.2).result()
-    assert [c.keypose_id for c in planner.requests[-1].slc_candidates] == [9]
-    # a panorama elsewhere (home: no SLC goal) that saw too few blinds no place
-    answers.append(LoopClosureResult(False, "only 0 objects in view", too_few_in_view=True))
+    def offered() -> list[int]:
+        s.snapshot = dataclasses.replace(s.snapshot, distance=s.snapshot.distance + 50.0)
+        s.plan_async(1.2).result()
+        return [c.keypose_id for c in planner.requests[-1].slc_candidates]
+
+    # a place whose loop closure was accepted is offered again once the schedule allows
+    attempt_at(3, LoopClosureResult(True, "matched 3 landmarks, rms 0.1 m", 3, 0.1))
+    assert offered() == [3, 9]
+    attempt_at(3, LoopClosureResult(False, "only 1 objects in view"))
+    assert offered() == [9]
+    attempt_at(9, LoopClosureResult(False, "ambiguous: another alignment matches 3 of 4 landmarks"))
+    assert offered() == []
+    # a panorama elsewhere (home: no SLC goal) that failed marks no place
+    answers.append(LoopClosureResult(False, "only 0 objects in view"))
     s.request_loop_closure(None).result()
-    assert len(s.slc_blind) == 1
+    assert len(s.slc_failed) == 2
 
 
 class OffersSlc(Recorder):
