@@ -13,20 +13,25 @@ from amslam.runner import Runner
 MAX_TIME = 12.0
 
 
+def fly_waypoints(tmp_path, points: str, *overrides: str):
+    """The demo building under a flight area whose ceiling is 2.2 m (under the first floor's slab)."""
+    registry = build_plugin_manager()
+    overrides = (
+        "tree=waypoints",
+        f"waypoints.points={points}",
+        "area.lo=[-100.0, -100.0, -1.0]",
+        "area.hi=[100.0, 100.0, 2.2]",
+        "platform.camera.width=64",
+        "platform.camera.height=48",
+        *overrides,
+    )
+    return Runner(load_mission("demo", registry, list(overrides)), registry, tmp_path).run()
+
+
 def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
     # 100 m up, above the flight area's ceiling (2.2 m, under the first floor's slab): the
     # setpoint guard holds the vehicle under it, so the second waypoint is never reached
-    overrides = [
-        "tree=waypoints",
-        "waypoints.points=[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0]]",
-        "area.lo=[-100.0, -100.0, -1.0]",
-        "area.hi=[100.0, 100.0, 2.2]",
-        f"limits.max_time={MAX_TIME}",
-        "platform.camera.width=64",
-        "platform.camera.height=48",
-    ]
-    registry = build_plugin_manager()
-    result = Runner(load_mission("demo", registry, overrides), registry, tmp_path).run()
+    result = fly_waypoints(tmp_path, "[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0]]", f"limits.max_time={MAX_TIME}")
 
     events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
     assert result.verdict == "completed", result.verdict
@@ -53,18 +58,8 @@ def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
 def test_a_waypoint_the_guards_hold_the_vehicle_back_from_is_skipped(tmp_path):
     # the same waypoint above the area's ceiling, with a third one behind it: the vehicle comes
     # no nearer for skip_after seconds, gives the second up and flies on to the third
-    overrides = [
-        "tree=waypoints",
-        "waypoints.points=[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0], [0.0, 0.0, 1.2]]",
-        "waypoints.skip_after=4",
-        "area.lo=[-100.0, -100.0, -1.0]",
-        "area.hi=[100.0, 100.0, 2.2]",
-        "limits.max_time=60",
-        "platform.camera.width=64",
-        "platform.camera.height=48",
-    ]
-    registry = build_plugin_manager()
-    result = Runner(load_mission("demo", registry, overrides), registry, tmp_path).run()
+    points = "[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0], [0.0, 0.0, 1.2]]"
+    result = fly_waypoints(tmp_path, points, "waypoints.skip_after=4", "limits.max_time=60")
 
     events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
     assert result.verdict == "completed", result.verdict
