@@ -42,8 +42,6 @@ from amslam.types import (
 
 #: a viewpoint or loop-closure place this near (m) to where a goal was given up is not offered again
 UNREACHABLE_RADIUS = 0.75
-#: an SLC viewpoint this near (m) to one whose loop closure failed is not offered again
-SLC_FAILED_RADIUS = 1.0
 
 
 @dataclass(frozen=True)
@@ -77,7 +75,6 @@ class PlanInputs:
     slc: SlcSchedule | None  # None: SLC off
     cruise_z: float  # the height SLC viewpoints are lifted to at least
     unreachable: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # goals given up there
-    slc_failed: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # PlanningService.slc_failed
     goal: np.ndarray | None = None  # the exploration goal flown to and not reached (PlanRequest.goal)
 
 
@@ -137,17 +134,9 @@ class LoopClosureJob:
     """A loop-closure attempt queued behind what perception handed SLAM; :meth:`result` logs it
     (``PlanningService.slc_log``) the first time it is read, on the control thread."""
 
-    def __init__(
-        self,
-        future: Future,
-        service: PlanningService,
-        t: float,
-        distance: float,
-        at: np.ndarray | None = None,
-    ):
+    def __init__(self, future: Future, service: PlanningService, t: float, distance: float):
         self._future, self._service = future, service
         self._t, self._distance = t, distance
-        self._at = at  # the SLC viewpoint flown to for it (None: a panorama elsewhere, e.g. home)
         self._logged = False
 
     def done(self) -> bool:
@@ -159,8 +148,6 @@ class LoopClosureJob:
         if not self._logged:
             self._logged = True
             self._service.slc_log.append((self._t, self._distance, result))
-            if not result.accepted and self._at is not None:
-                self._service.slc_failed.append(self._at)
         return result
 
 
@@ -187,8 +174,6 @@ class PlanningService:
     slc_log: list[tuple[float, float, LoopClosureResult]] = field(
         default_factory=list
     )  # (t, distance, result)
-    #: SLC viewpoints flown to whose loop closure failed (not offered again)
-    slc_failed: list[np.ndarray] = field(default_factory=list)
     boundary: Boundary = field(default_factory=Boundary)  # checks the planner's tours, names it
     failures: int = 0  # plans that failed in a row
     last_error: str = ""  # why the last one failed
@@ -297,11 +282,10 @@ class PlanningService:
         # with plan_through_unknown spans the mission area) were 90 % of such a run's time.
         viewpoints = tuple(self.candidate_viewpoints()) if self.plans_frontiers else ()
         unreachable = np.array(self.unreachable, float).reshape(-1, 3)
-        failed = np.array(self.slc_failed, float).reshape(-1, 3)
         if goal is not None:
             goal = np.asarray(goal, float).copy()
             goal = None if self._done_with(goal[None])[0] else goal
-        return PlanInputs(self.snapshot, viewpoints, slc, cruise_z, unreachable, failed, goal)
+        return PlanInputs(self.snapshot, viewpoints, slc, cruise_z, unreachable, goal)
 
     def plan_async(self, cruise_z: float, goal: np.ndarray | None = None) -> PlanJob:
         """Plan from the latest snapshot; the job holds the tour (or the planner's exception).
@@ -391,13 +375,7 @@ class PlanningService:
         the air), minus those at a place a goal was found unreachable (as viewpoints are):
         offered again, an unreachable one came back at every replan — one-floor seed 10 gave it
         up eight times in 0.7 s and exploration stopped at 77 % ("8 goals in a row
-        unreachable"); and minus those within ``SLC_FAILED_RADIUS`` of an SLC viewpoint whose
-        loop closure failed. The schedule offered such a place again after ``slc_min_travel``
-        and it failed again: of the retries after a failure in sessions 48–51's SLC flights, 1
-        of 9 was accepted (a panorama that saw too few objects sees as few again, one one-floor
-        flight flew three times to a key pose whose panoramas saw one object; an ambiguous
-        layout stays ambiguous), where 10 of 12 retries after an accepted closure were accepted
-        again."""
+        unreachable")."""
         lifted = (
             dataclasses.replace(c, position=np.array([*c.position[:2], max(c.position[2], inputs.cruise_z)]))
             for c in self.slam.slc_candidates(self.exploration.slc_sensing_range)
@@ -407,7 +385,6 @@ class PlanningService:
             c
             for c in lifted
             if not np.any(np.linalg.norm(inputs.unreachable - c.position, axis=1) < UNREACHABLE_RADIUS)
-            and not np.any(np.linalg.norm(inputs.slc_failed - c.position, axis=1) < SLC_FAILED_RADIUS)
         )
 
     def _adopt(self, plan: Plan) -> None:
@@ -435,8 +412,7 @@ class PlanningService:
             for i in candidate.landmark_ids:
                 self.slc_tried_at[i] = now.distance
         future = self.slam_jobs(lambda: self.slam.try_loop_closure(now.odometry, self.camera.T_body_cam, []))
-        at = np.asarray(goal.position, float).copy() if candidate is not None else None
-        job = LoopClosureJob(future, self, now.t, now.distance, at)
+        job = LoopClosureJob(future, self, now.t, now.distance)
         self._loop_closures.append(job)
         return job
 

@@ -88,11 +88,11 @@ class ActiveSlam:
         """DBSCAN clusters of landmarks per floor → oldest key pose seeing the cluster → IG.
 
         A cluster needs ``cluster_min_landmarks`` landmarks (three fix position and yaw). Its
-        viewpoint is the oldest key pose from which a panorama saw enough of them within
-        ``sensing_range`` (:meth:`_viewpoint`). The candidate's information gain here uses the
-        straight-line distance from the current pose as the travel distance, a first estimate:
-        the planner re-scores each candidate with the map's path costs and the loop closures
-        already in its tour (:meth:`slc_gain_model`).
+        viewpoint is the oldest key pose from which any landmark of the cluster lies within
+        ``sensing_range``. The candidate's information gain here uses the straight-line distance
+        from the current pose as the travel distance, a first estimate: the planner re-scores
+        each candidate with the map's path costs and the loop closures already in its tour
+        (:meth:`slc_gain_model`).
         """
         from sklearn.cluster import DBSCAN
 
@@ -134,16 +134,13 @@ class ActiveSlam:
         kp_pos: np.ndarray,
         sensing_range: float,
     ) -> int | None:
-        """The oldest key pose a panorama from which would see enough of the cluster, or None.
+        """The oldest key pose a panorama from which would see enough of the cluster.
 
         Paper 1 takes the oldest key pose within sensing range of a landmark of the cluster. An
         SLC needs ``min_matches`` landmarks in one panorama, and range alone ignores walls: so
-        take the oldest key pose where the landmarks actually *observed* from key poses within
-        ``panorama_radius`` of it (what a panorama there would see) number enough and lie within
-        ``sensing_range``. A cluster no key pose qualifies for is not offered: the paper's rule
-        alone, the fallback until session 51, sent demo seeds 4 and 5 to the take-off spot, whose
-        panoramas see no object through its walls (session 50's demo flights: 1 of 32 SLC
-        attempts, and 4 of 30 with COP keeping its goal, saw 0–1 objects there).
+        prefer the oldest key pose where the landmarks actually *observed* from key poses within
+        ``panorama_radius`` of it (what a panorama there would see) number enough; fall back to
+        the paper's rule when no key pose qualifies.
         """
         need = min(self.min_matches, len(members))
         observed_from: dict[int, set[int]] = {}
@@ -159,4 +156,6 @@ class ActiveSlam:
                 close = np.linalg.norm(pos[list(seen)] - kp_pos[k], axis=1) <= sensing_range
                 if close.sum() >= need:
                     return int(k)
-        return None
+        d = np.linalg.norm(kp_pos[:, None, :] - pos[members][None], axis=2)
+        seen_any = np.flatnonzero((d <= sensing_range).any(axis=1))
+        return int(seen_any[0]) if len(seen_any) else None
