@@ -8,10 +8,13 @@ same child again after a failure and forgets its count when it starts, ``Timeout
   the exploration loop, with a new plan in between, so a new goal each time) and only a goal
   reached resets the count;
 * :class:`GiveUpGoal` measures the child's *progress along its path* on the run's clock (the
-  simulator's in a simulation), which no status and no wall clock shows.
+  simulator's in a simulation), which no status and no wall clock shows;
+* :class:`SkipStalledWaypoint` measures a waypoint flight's progress the same way and skips the
+  waypoint it comes no nearer to.
 
 The leaves under them keep no counters and no timers: a follower only says how far it got
-(:class:`PathProgress`) and what giving its goal up means (:meth:`FollowsPath.give_up`).
+(:class:`PathProgress`, :class:`WaypointProgress`) and what giving its goal up means
+(:meth:`FollowsPath.give_up`, :meth:`FliesWaypoints.skip`).
 """
 
 from __future__ import annotations
@@ -207,3 +210,62 @@ class SkipUnreachable(Decorator):
             return Status.FAILURE
         self.feedback_message = f"skipped ({self.in_a_row} in a row)"
         return Status.SUCCESS
+
+
+class WaypointProgress(NamedTuple):
+    """How far a waypoint flight has got: the waypoint flown to, and the distance left to it, m."""
+
+    index: int
+    distance: float
+
+
+class FliesWaypoints(Protocol):
+    """What :class:`SkipStalledWaypoint` needs of its child (the ``FlyWaypoints`` leaf)."""
+
+    def progress(self, here) -> WaypointProgress: ...
+
+    def skip(self, why: str) -> None:
+        """Give the current waypoint up, say why, fly on to the next."""
+
+
+class SkipStalledWaypoint(Decorator):
+    """Skip the waypoint its child comes no nearer to (by ``min_gain`` m) for ``after`` seconds of
+    the run's clock: the setpoint guards holding the vehicle back from something in its way (a
+    PAMS overhead survey hovered 770 s before a light pole), or a wind it cannot beat.
+
+    The check runs before the child's tick; the child then flies to the next waypoint from where
+    the vehicle is, in the same tick. A waypoint reached restarts the clock.
+    """
+
+    uses = ("flight",)
+    flight: Flight
+
+    def __init__(
+        self, name: str, child: py_trees.behaviour.Behaviour, after: float = 15.0, min_gain: float = 0.1
+    ):
+        super().__init__(name=name, child=child)
+        self.after = after
+        self.min_gain = min_gain
+        #: the best progress so far and since when: (index, distance, time)
+        self.best: tuple[int, float, float] | None = None
+
+    def setup(self, **kwargs) -> None:
+        require_services(self, self.uses, kwargs)
+
+    def initialise(self) -> None:
+        self.best = None
+
+    def tick(self):
+        if self.status == Status.RUNNING:
+            now = self.flight.time()
+            index, distance = self.decorated.progress(self.flight.position_world())
+            if self.best is None or index != self.best[0] or distance < self.best[1] - self.min_gain:
+                self.best = (index, distance, now)
+            elif now - self.best[2] >= self.after:
+                self.decorated.skip(f"no nearer than {distance:.2f} m for {self.after:.0f} s")
+                self.best = None
+        yield from super().tick()
+
+    def update(self) -> Status:
+        self.feedback_message = self.decorated.feedback_message
+        return self.decorated.status

@@ -18,7 +18,8 @@ them, built from py_trees composites only::
         ├── TakeOff
         ├── FlyWaypointsInTime (selector)
         │   ├── WithinLimits         the mission's time and distance limits (event limit_reached)
-        │   │   └── FlyWaypoints     straight lines through ``waypoints.points`` (from take-off)
+        │   │   └── FlyWaypointsOrSkip  SkipStalledWaypoint: a waypoint come no nearer to is skipped
+        │   │       └── FlyWaypoints     straight lines through ``waypoints.points`` (from take-off)
         │   └── ReturnHome           once a limit cut the waypoints short, as exploration does
         └── Land
 
@@ -48,6 +49,7 @@ from py_trees.decorators import Inverter
 from amslam.geometry import wrap_angle
 from amslam.mission import MissionModel, WaypointsSection
 from amslam.trees.behaviours import RobotBehaviour, return_home
+from amslam.trees.decorators import WaypointProgress
 from amslam.types import Failsafe
 
 
@@ -170,10 +172,9 @@ class FlyWaypoints(RobotBehaviour):
     """Fly straight to each waypoint in turn (positions relative to the take-off point).
 
     SUCCESS after the last one. No obstacle checks beyond the setpoint guards every flight has:
-    waypoint missions are for open spaces the operator has looked at (see docs/flight.md). A
-    waypoint the vehicle comes no nearer to (by 0.1 m) for ``skip_after`` seconds — the guards
-    holding it back from something in the way — is skipped (event ``waypoint_skipped``) and the
-    next one flown to from where the vehicle is.
+    waypoint missions are for open spaces the operator has looked at (see docs/flight.md). When
+    to give a waypoint up is the :class:`~amslam.trees.decorators.SkipStalledWaypoint`
+    decorator's decision (:meth:`progress`, :meth:`skip`).
     """
 
     uses = ("flight", "events")
@@ -187,21 +188,31 @@ class FlyWaypoints(RobotBehaviour):
         self.index = 0
         self.yaw = self.flight.yaw_world()
         self.bb.set("/waypoint", 0)
-        self._closest = (np.inf, self.flight.time())  # nearest to the waypoint so far, and since when
         self.skipped = 0
 
     def _next(self, event: str, **fields: object) -> None:
         self.events.emit(event, index=self.index, **fields)
         self.index += 1
         self.bb.set("/waypoint", self.index)
-        self._closest = (np.inf, self.flight.time())
 
-    def _stalled(self, distance: float) -> bool:
-        """Whether the vehicle has come no nearer the waypoint by 0.1 m for ``skip_after`` s."""
-        now = self.flight.time()
-        if distance < self._closest[0] - 0.1:
-            self._closest = (distance, now)
-        return self.section.skip_after > 0 and now - self._closest[1] >= self.section.skip_after
+    def progress(self, here: np.ndarray) -> WaypointProgress:
+        """The waypoint flown to and the distance left to it (for ``SkipStalledWaypoint``)."""
+        if self.index >= len(self.section.points):
+            return WaypointProgress(self.index, 0.0)
+        return WaypointProgress(self.index, float(np.linalg.norm(self._target(self.index) - here)))
+
+    def skip(self, why: str) -> None:
+        """Give the current waypoint up (event ``waypoint_skipped``); the next tick flies on."""
+        if self.index >= len(self.section.points):
+            return
+        here = self.flight.position_world()
+        self.skipped += 1
+        self._next(
+            "waypoint_skipped",
+            position=np.round(self._target(self.index), 3).tolist(),
+            at=np.round(here, 3).tolist(),
+            reason=why,
+        )
 
     def _target(self, i: int) -> np.ndarray:
         return self.flight.home_world + np.asarray(self.section.points[i], float)
@@ -211,19 +222,9 @@ class FlyWaypoints(RobotBehaviour):
         while self.index < len(points):
             target = self._target(self.index)
             here = self.flight.position_world()
-            distance = float(np.linalg.norm(target - here))
-            if distance < self.section.tolerance:
-                self._next("waypoint_reached", position=np.round(target, 3).tolist())
-            elif self._stalled(distance):
-                self.skipped += 1
-                self._next(
-                    "waypoint_skipped",
-                    position=np.round(target, 3).tolist(),
-                    at=np.round(here, 3).tolist(),
-                    reason=f"no nearer than {distance:.2f} m for {self.section.skip_after:.0f} s",
-                )
-            else:
+            if np.linalg.norm(target - here) >= self.section.tolerance:
                 break
+            self._next("waypoint_reached", position=np.round(target, 3).tolist())
         if self.index >= len(points):
             skipped = f" ({self.skipped} skipped)" if self.skipped else ""
             self.feedback_message = f"all {len(points)} waypoints flown{skipped}"
@@ -271,7 +272,11 @@ def build_waypoint_tree(
     # same WithinLimits guard and return home): a waypoint the vehicle cannot reach (a drifting
     # estimate, a wind it cannot beat) otherwise held it hovering until the battery or the
     # operator ended the flight (a lot_team overhead robot hovered 110 s past its 240 s budget).
-    within = b["WithinLimits"]("WithinLimits", b["FlyWaypoints"]("FlyWaypoints", section=model.waypoints))
+    waypoints = b["FlyWaypoints"]("FlyWaypoints", section=model.waypoints)
+    if model.waypoints.skip_after > 0:
+        after = model.waypoints.skip_after
+        waypoints = b["SkipStalledWaypoint"]("FlyWaypointsOrSkip", waypoints, after=after)
+    within = b["WithinLimits"]("WithinLimits", waypoints)
     fly = Selector("FlyWaypointsInTime", memory=True, children=[within, return_home(b, model.exploration)])
     return Sequence("Mission", memory=True, children=[b["TakeOff"]("TakeOff"), fly, b["Land"]("Land")])
 

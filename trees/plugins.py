@@ -40,7 +40,12 @@ class Behaviours:
             },
         )
         decorators = _named(
-            "amslam.trees.decorators", {"GiveUpGoal": "GiveUpGoal", "SkipUnreachable": "SkipUnreachable"}
+            "amslam.trees.decorators",
+            {
+                "GiveUpGoal": "GiveUpGoal",
+                "SkipUnreachable": "SkipUnreachable",
+                "SkipStalledWaypoint": "SkipStalledWaypoint",
+            },
         )
         return {**stock, **decorators}
 

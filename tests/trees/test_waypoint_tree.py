@@ -37,7 +37,7 @@ def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
     assert result.verdict == "completed", result.verdict
     assert [e["index"] for e in events if e["event"] == "waypoint_reached"] == [0]
     (limit,) = [e for e in events if e["event"] == "limit_reached"]
-    assert limit["reason"] == f"time limit {MAX_TIME:.0f} s" and limit["behaviour"] == "FlyWaypoints"
+    assert limit["reason"] == f"time limit {MAX_TIME:.0f} s" and limit["behaviour"] == "FlyWaypointsOrSkip"
     assert MAX_TIME <= limit["t"] < MAX_TIME + 1.0
     (end,) = [e for e in events if e["event"] == "mission_end"]
     assert end["exploration"] == f"stopped: time limit {MAX_TIME:.0f} s" and end["landing"] == "landed"
