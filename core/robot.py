@@ -227,13 +227,15 @@ class Robot:
 
     def landing_spot_world(self) -> np.ndarray | None:
         """Where to land: the nearest point at this height whose straight-down descent the fresh
-        local map shows clear (:meth:`amslam.setpoints.SetpointFilter.landing_spot`), world frame;
-        here when here is clear, None when nothing within reach is."""
+        local map shows clear, the global map filling in below the local map's reach
+        (:meth:`amslam.setpoints.SetpointFilter.landing_spot`), world frame; here when here is
+        clear, None when nothing within reach is."""
         here = self.platform.odometry().T_odom_body[:3, 3]
-        spot = self.setpoints.landing_spot(here)
+        T_world_odom = self.correction()
+        spot = self.setpoints.landing_spot(here, T_world_odom)
         if spot is None:
             return None
-        return transform_points(self.correction(), spot[None])[0]
+        return transform_points(T_world_odom, spot[None])[0]
 
     # -- navigation ----------------------------------------------------------------------------
 

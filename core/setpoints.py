@@ -175,10 +175,30 @@ class SetpointFilter:
     LANDING_RING = 0.25
     #: how far below the vehicle the surface it would land on is looked for in the local map, m
     DESCENT_REACH = 3.0
+    #: as deep, m, the global map is read below a vehicle whose local map shows no surface within
+    #: ``DESCENT_REACH`` (a PAMS overhead survey at 6 m landed blind, its local map's window ending
+    #: 3.5 m above the lot, onto a bench the survey had mapped moments before)
+    GLOBAL_DESCENT_REACH = 12.0
     #: a surface the local map shows free space under, with another surface at most this far
     #: below, is furniture (a table, a counter), not the floor: landing there is landing on it, m.
     #: Furniture stands lower; the room under a slab is taller (the demo's: 2.35 m)
     RAISED_MAX = 1.6
+
+    def _look(self, T_world_odom: np.ndarray | None):
+        """The voxel states a descent is judged on (odometry-frame points): the local map's, and
+        with ``T_world_odom`` the global map's where the local map has nothing."""
+        mapping = self.mapping
+
+        def look(points: np.ndarray) -> np.ndarray:
+            states = mapping.states(points, local=True)
+            unseen = states == VoxelState.UNKNOWN
+            if T_world_odom is not None and unseen.any():
+                world = points[unseen] @ T_world_odom[:3, :3].T + T_world_odom[:3, 3]
+                states = states.copy()
+                states[unseen] = mapping.states(world, local=False)
+            return states
+
+        return look
 
     def descent_clear(self, p_odom: np.ndarray) -> bool:
         """Whether a vertical descent from ``p_odom`` to the floor below keeps clear of the local map.
@@ -192,15 +212,27 @@ class SetpointFilter:
         """
         return self._descent(p_odom)[0]
 
-    def _descent(self, p_odom: np.ndarray) -> tuple[bool, float, bool]:
+    def _descent(
+        self, p_odom: np.ndarray, T_world_odom: np.ndarray | None = None
+    ) -> tuple[bool, float, bool]:
         """(descent clear, height of the floor below — the surface landed on, or the one under
         the furniture the column meets first — or +inf when none is in reach, the column within
         reach free: nothing within the radius plus margin of it, down to the first surface or as
-        deep as the search looks)."""
+        deep as the search looks).
+
+        The local map judges it; when it shows no surface within ``DESCENT_REACH`` and
+        ``T_world_odom`` is given, the global map fills in what the local map has not seen, down
+        to ``GLOBAL_DESCENT_REACH`` (what stands on the ground was mapped on the way there, in
+        the estimate's frame of moments ago)."""
         p = np.asarray(p_odom, float)
         step = self.GUARD_STEP
+        look = self._look(None)
         depth = np.arange(step, self.DESCENT_REACH + 1e-9, step)
-        states = self.mapping.states(p - np.outer(depth, [0.0, 0.0, 1.0]), local=True)
+        states = look(p - np.outer(depth, [0.0, 0.0, 1.0]))
+        if T_world_odom is not None and not np.any(states == VoxelState.OCCUPIED):
+            look = self._look(np.asarray(T_world_odom, float))
+            depth = np.arange(step, self.GLOBAL_DESCENT_REACH + 1e-9, step)
+            states = look(p - np.outer(depth, [0.0, 0.0, 1.0]))
         below = states == VoxelState.OCCUPIED
         found = bool(below.any())
         first = int(np.argmax(below))
@@ -225,10 +257,12 @@ class SetpointFilter:
         # from a voxel above the first surface (an occupied voxel's top face) up to the vehicle
         heights = np.append(np.arange(top + 1.5 * step, p[2] - 1e-9, step), p[2])
         column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
-        free = not bool(np.any(self.mapping.states(column, local=True) == VoxelState.OCCUPIED))
+        free = not bool(np.any(look(column) == VoxelState.OCCUPIED))
         return free and found and not raised, (surface if found else float("inf")), free
 
-    def landing_spot(self, here_odom: np.ndarray) -> np.ndarray | None:
+    def landing_spot(
+        self, here_odom: np.ndarray, T_world_odom: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """The nearest point at the vehicle's height whose descent is clear (:meth:`descent_clear`),
         onto a surface no higher than the one below the vehicle (the floor beside a table, never the
         table top), reached in a straight line clear of the local map; ``here_odom`` itself when
@@ -237,9 +271,11 @@ class SetpointFilter:
         When the local map does not reach the surface below the vehicle (outdoors at 3.5 m its
         window ends about a metre above the ground), a surface it does reach nearby is higher than
         that ground — a car's roof — and never a landing spot: the vehicle lands where it is if
-        its column is free as deep as the map sees, else at the nearest point whose column is."""
+        its column is free as deep as the map sees, else at the nearest point whose column is.
+        With ``T_world_odom`` the global map sees what the local map does not reach
+        (:meth:`_descent`)."""
         here = np.asarray(here_odom, float)
-        clear, surface_here, free_here = self._descent(here)
+        clear, surface_here, free_here = self._descent(here, T_world_odom)
         if clear:
             return here
         unseen_ground = not np.isfinite(surface_here)
@@ -249,7 +285,7 @@ class SetpointFilter:
             n = max(8, int(np.ceil(2 * np.pi * r / self.LANDING_RING)))
             for a in np.arange(n) * (2 * np.pi / n):
                 spot = here + np.array([r * np.cos(a), r * np.sin(a), 0.0])
-                clear, surface, free = self._descent(spot)
+                clear, surface, free = self._descent(spot, T_world_odom)
                 if unseen_ground:
                     ok = free and not np.isfinite(surface)
                 else:

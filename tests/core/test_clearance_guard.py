@@ -296,3 +296,43 @@ def test_over_ground_the_map_cannot_see_a_car_roof_beside_is_no_landing_spot() -
     assert spot is not None and spot[0] < 0.6 - RADIUS - SetpointFilter.GUARD_MARGIN + 1e-9
     column = [spot - np.array([0, 0, dz]) for dz in np.arange(0.0, 3.45, 0.05)]
     assert min(BoxMap([car]).clearance(p) for p in column) > RADIUS
+
+
+class WindowedMap:
+    """The local map's window ends ``bottom`` m above the ground (odometry frame, unknown below);
+    the global map (world frame, ``shift`` from the odometry frame) holds the ground and a bench."""
+
+    def __init__(self, world: BoxMap, shift, bottom: float):
+        self.world, self.shift, self.bottom = world, np.asarray(shift, float), bottom
+
+    def states(self, points, *, local=False):
+        points = np.asarray(points, float)
+        if not local:
+            return self.world.states(points)
+        out = self.world.states(points + self.shift)
+        out[points[:, 2] < self.bottom] = VoxelState.UNKNOWN
+        return out
+
+
+def test_at_altitude_the_global_map_sees_below_the_local_maps_reach() -> None:
+    # a PAMS overhead survey ended its lawnmower 6 m over the lot, its local map's window ending
+    # 3.5 m above the ground, and landed straight down onto a bench it had mapped on the way
+    shift = np.array([10.0, -2.0, 0.0])  # world = odometry + shift (the SLAM correction)
+    bench = ((9.8, -2.3, 0.0), (11.3, -1.7, 0.5))
+    ground = ((-50.0, -50.0, -0.3), (50.0, 50.0, 0.0))
+    world = WindowedMap(BoxMap([ground, bench]), shift, bottom=3.5)
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    here = np.array([0.5, 0.45, 6.3])  # 0.15 m beside the bench's long side (world y -1.55)
+    T_world_odom = np.eye(4)
+    T_world_odom[:3, 3] = shift
+    np.testing.assert_allclose(guard.landing_spot(here), here)  # blind: the column looks free
+    assert not guard._descent(here, T_world_odom)[2]  # the global map shows the bench beside it
+    spot = guard.landing_spot(here, T_world_odom)
+    assert spot is not None and spot[2] == pytest.approx(6.3)
+    column = [spot + shift - np.array([0, 0, dz]) for dz in np.arange(0.0, 6.3, 0.05)]
+    assert min(BoxMap([bench]).clearance(p) for p in column) > RADIUS
+    assert np.linalg.norm(spot - here) <= SetpointFilter.LANDING_SEARCH
+    # away from the bench the robot lands where it is, the ground seen in the global map
+    open_lot = here + np.array([0.0, 3.0, 0.0])
+    np.testing.assert_allclose(guard.landing_spot(open_lot, T_world_odom), open_lot)
+    assert guard._descent(open_lot, T_world_odom)[1] == pytest.approx(0.0, abs=0.11)
