@@ -183,6 +183,7 @@ class FlyWaypoints(RobotBehaviour):
         super().__init__(name)
         self.section = section or WaypointsSection()
         self.bb.register_key("/waypoint", access=Access.WRITE)
+        self.bb.register_key("/exploration", access=Access.WRITE)  # how the flight ended: metrics, report
 
     def initialise(self) -> None:
         self.index = 0
@@ -226,8 +227,9 @@ class FlyWaypoints(RobotBehaviour):
                 break
             self._next("waypoint_reached", position=np.round(target, 3).tolist())
         if self.index >= len(points):
-            skipped = f" ({self.skipped} skipped)" if self.skipped else ""
-            self.feedback_message = f"all {len(points)} waypoints flown{skipped}"
+            skipped = f", {self.skipped} skipped" if self.skipped else ""
+            self.feedback_message = f"complete: {len(points)} waypoints{skipped}"
+            self.bb.set("/exploration", self.feedback_message)
             return Status.SUCCESS
         yaw = self.yaw
         if self.section.heading == "travel":

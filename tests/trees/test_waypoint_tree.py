@@ -69,4 +69,10 @@ def test_a_waypoint_the_guards_hold_the_vehicle_back_from_is_skipped(tmp_path):
     assert skipped["at"][2] <= 2.2  # held under the ceiling
     assert not [e for e in events if e["event"] == "limit_reached"]
     (end,) = [e for e in events if e["event"] == "mission_end"]
-    assert end["landing"] == "landed"
+    assert end["landing"] == "landed" and end["exploration"] == "complete: 3 waypoints, 1 skipped"
+    # metrics and report say a waypoint was skipped
+    assert result.metrics["exploration_end"] == "complete: 3 waypoints, 1 skipped"
+    assert (
+        "| exploration ended | complete: 3 waypoints, 1 skipped |"
+        in (result.run_dir / "report.md").read_text()
+    )
