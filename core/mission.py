@@ -189,6 +189,12 @@ class WaypointsSection(_Strict):
     tolerance: float = Field(
         0.2, gt=0, le=100, description="distance at which a waypoint counts as reached, m"
     )
+    follow: Literal["straight", "paths"] = Field(
+        "straight",
+        description="straight: straight legs (the setpoint guards hold the vehicle back from what is in"
+        " the way, skip_after gives such a waypoint up); paths: each leg a path through the map, as"
+        " exploration flies (round what the map shows; a waypoint with no path is skipped)",
+    )
     # A PAMS overhead survey hovered 770 s before a light pole its lawnmower leg crossed: the
     # setpoint guards held it (rightly) and nothing gave the leg up before the time limit.
     skip_after: float = Field(

@@ -48,9 +48,9 @@ from py_trees.decorators import Inverter
 
 from amslam.geometry import wrap_angle
 from amslam.mission import MissionModel, WaypointsSection
-from amslam.trees.behaviours import RobotBehaviour, return_home
+from amslam.trees.behaviours import RobotBehaviour, go_to, return_home
 from amslam.trees.decorators import WaypointProgress
-from amslam.types import Failsafe
+from amslam.types import Failsafe, TourItem, TourItemKind
 
 
 class FailsafeTriggered(RobotBehaviour):
@@ -265,6 +265,108 @@ def failsafe_branch(
     return Selector("FailsafeGuard", memory=False, children=[no_failsafe, answer])
 
 
+class SetWaypointGoal(RobotBehaviour):
+    """Write waypoint ``index`` (relative to the take-off point) as ``/waypoint_goal``, facing
+    the way there (``heading: travel``) or the take-off heading (``keep``), for the ``GoTo``
+    after it (``waypoints.follow: paths``)."""
+
+    uses = ("flight",)
+
+    def __init__(self, name: str, index: int, section: WaypointsSection):
+        super().__init__(name)
+        self.index, self.section = index, section
+        self.bb.register_key("/waypoint", access=Access.WRITE)
+        self.bb.register_key("/waypoint_goal", access=Access.WRITE)
+        self.bb.register_key("/waypoints_skipped", access=Access.WRITE)
+
+    def update(self) -> Status:
+        target = self.flight.home_world + np.asarray(self.section.points[self.index], float)
+        if self.index == 0:
+            self.bb.set("/waypoints_skipped", 0)
+        yaw = self.flight.yaw_world()
+        way = target - self.flight.position_world()
+        if self.section.heading == "travel" and np.linalg.norm(way[:2]) > self.section.tolerance:
+            yaw = float(np.arctan2(way[1], way[0]))
+        self.bb.set("/waypoint", self.index)
+        self.bb.set("/waypoint_goal", TourItem(TourItemKind.EXPLORE, target, yaw, 0.0, -1))
+        return Status.SUCCESS
+
+
+class WaypointOutcome(RobotBehaviour):
+    """Log waypoint ``index`` reached, or skipped (its ``GoTo`` found no path or gave it up)."""
+
+    uses = ("events",)
+
+    def __init__(self, name: str, index: int, reached: bool):
+        super().__init__(name)
+        self.index, self.reached = index, reached
+        self.bb.register_key("/waypoint_goal", access=Access.READ)
+        self.bb.register_key("/waypoints_skipped", access=Access.WRITE)
+
+    def update(self) -> Status:
+        position = np.round(self.bb.get("/waypoint_goal").position, 3).tolist()
+        if self.reached:
+            self.events.emit("waypoint_reached", index=self.index, position=position)
+        else:
+            self.bb.set("/waypoints_skipped", self.bb.get("/waypoints_skipped") + 1)
+            self.events.emit("waypoint_skipped", index=self.index, position=position, reason="no way there")
+        return Status.SUCCESS
+
+
+class WaypointsFlown(RobotBehaviour):
+    """SUCCESS, saying how the waypoint flight ended (``/exploration``: metrics, report)."""
+
+    def __init__(self, name: str, count: int):
+        super().__init__(name)
+        self.count = count
+        self.bb.register_key("/waypoints_skipped", access=Access.READ)
+        self.bb.register_key("/exploration", access=Access.WRITE)
+
+    def update(self) -> Status:
+        skipped = self.bb.get("/waypoints_skipped")
+        self.feedback_message = f"complete: {self.count} waypoints" + (
+            f", {skipped} skipped" if skipped else ""
+        )
+        self.bb.set("/exploration", self.feedback_message)
+        return Status.SUCCESS
+
+
+def waypoint_paths(
+    model: MissionModel, behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]]
+) -> py_trees.behaviour.Behaviour:
+    """``waypoints.follow: paths``: each waypoint a goal flown to along a path through the map
+    (``GoTo`` under ``GiveUpGoal``, as exploration flies), skipped when there is none."""
+    b, section, ex = behaviours, model.waypoints, model.exploration
+    legs = []
+    for i in range(len(section.points)):
+        go = go_to(
+            b,
+            f"GoToWaypoint{i}",
+            goal_key="/waypoint_goal",
+            early_exit=False,
+            goal_tolerance=section.tolerance,
+            yaw_tolerance=ex.yaw_tolerance,
+            replan_period=ex.replan_period,
+        )
+        flown = Sequence(
+            f"Waypoint{i}",
+            memory=True,
+            children=[
+                SetWaypointGoal(f"SetWaypoint{i}", i, section),
+                go,
+                WaypointOutcome(f"Reached{i}", i, True),
+            ],
+        )
+        legs.append(
+            Selector(
+                f"Waypoint{i}OrSkip", memory=True, children=[flown, WaypointOutcome(f"Skip{i}", i, False)]
+            )
+        )
+    return Sequence(
+        "FlyWaypointPaths", memory=True, children=[*legs, WaypointsFlown("WaypointsFlown", len(legs))]
+    )
+
+
 def build_waypoint_tree(
     model: MissionModel, behaviours: dict[str, Callable[..., py_trees.behaviour.Behaviour]]
 ) -> py_trees.behaviour.Behaviour:
@@ -274,8 +376,11 @@ def build_waypoint_tree(
     # same WithinLimits guard and return home): a waypoint the vehicle cannot reach (a drifting
     # estimate, a wind it cannot beat) otherwise held it hovering until the battery or the
     # operator ended the flight (a lot_team overhead robot hovered 110 s past its 240 s budget).
-    waypoints = b["FlyWaypoints"]("FlyWaypoints", section=model.waypoints)
-    if model.waypoints.skip_after > 0:
+    if model.waypoints.follow == "paths":
+        waypoints = waypoint_paths(model, b)
+    else:
+        waypoints = b["FlyWaypoints"]("FlyWaypoints", section=model.waypoints)
+    if model.waypoints.follow == "straight" and model.waypoints.skip_after > 0:
         after = model.waypoints.skip_after
         waypoints = b["SkipStalledWaypoint"]("FlyWaypointsOrSkip", waypoints, after=after)
     within = b["WithinLimits"]("WithinLimits", waypoints)

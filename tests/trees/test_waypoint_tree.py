@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from amslam.mission import load_mission
 from amslam.registry import build_plugin_manager
@@ -76,3 +77,29 @@ def test_a_waypoint_the_guards_hold_the_vehicle_back_from_is_skipped(tmp_path):
         "| exploration ended | complete: 3 waypoints, 1 skipped |"
         in (result.run_dir / "report.md").read_text()
     )
+
+
+@pytest.mark.parametrize("follow", ["straight", "paths"])
+def test_a_waypoint_behind_a_wall_is_reached_along_a_path_and_skipped_in_a_straight_line(tmp_path, follow):
+    # the second waypoint is in the room south of the corridor: a straight leg meets the wall
+    # (the guards hold the vehicle, and it skips the waypoint); a path goes round through the door
+    points = "[[2.2, 0.0, 1.2], [3.0, -2.2, 1.2]]"
+    result = fly_waypoints(
+        tmp_path,
+        points,
+        f"waypoints.follow={follow}",
+        "mapping.plan_through_unknown=true",
+        "limits.max_time=120",
+    )
+    events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
+    assert result.verdict == "completed", result.verdict
+    reached = [e["index"] for e in events if e["event"] == "waypoint_reached"]
+    skipped = [e["index"] for e in events if e["event"] == "waypoint_skipped"]
+    if follow == "paths":
+        assert (reached, skipped) == ([0, 1], [])
+        assert result.metrics["exploration_end"] == "complete: 2 waypoints"
+        truth = np.loadtxt(result.run_dir / "ground_truth.tum", ndmin=2)
+        assert np.min(np.linalg.norm(truth[:, 1:3] - [4.2, 2.8], axis=1)) < 0.5  # it got into the room
+    else:
+        assert (reached, skipped) == ([0], [1])
+    assert result.metrics["closest_approach"]["clearance_m"] > 0.25  # no contact either way
