@@ -266,9 +266,10 @@ def failsafe_branch(
 
 
 class SetWaypointGoal(RobotBehaviour):
-    """Write waypoint ``index`` (relative to the take-off point) as ``/waypoint_goal``, facing
-    the way there (``heading: travel``) or the take-off heading (``keep``), for the ``GoTo``
-    after it (``waypoints.follow: paths``)."""
+    """Write waypoint ``index`` (relative to the take-off point) as ``/waypoint_goal`` for the
+    ``GoTo`` after it (``waypoints.follow: paths``), its heading on arrival the way there
+    (``heading: travel``) or the heading the vehicle has now (``keep``; in between, ``GoTo``
+    faces the way it flies)."""
 
     uses = ("flight",)
 
