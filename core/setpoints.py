@@ -223,13 +223,15 @@ class SetpointFilter:
         The local map judges it; when it shows no surface within ``DESCENT_REACH`` and
         ``T_world_odom`` is given, the global map fills in what the local map has not seen, down
         to ``GLOBAL_DESCENT_REACH`` (what stands on the ground was mapped on the way there, in
-        the estimate's frame of moments ago)."""
+        the estimate's frame of moments ago), and then the column counts as free only where
+        seen free."""
         p = np.asarray(p_odom, float)
         step = self.GUARD_STEP
         look = self._look(None)
         depth = np.arange(step, self.DESCENT_REACH + 1e-9, step)
         states = look(p - np.outer(depth, [0.0, 0.0, 1.0]))
-        if T_world_odom is not None and not np.any(states == VoxelState.OCCUPIED):
+        global_map = T_world_odom is not None and not np.any(states == VoxelState.OCCUPIED)
+        if global_map:
             look = self._look(np.asarray(T_world_odom, float))
             depth = np.arange(step, self.GLOBAL_DESCENT_REACH + 1e-9, step)
             states = look(p - np.outer(depth, [0.0, 0.0, 1.0]))
@@ -257,7 +259,13 @@ class SetpointFilter:
         # from a voxel above the first surface (an occupied voxel's top face) up to the vehicle
         heights = np.append(np.arange(top + 1.5 * step, p[2] - 1e-9, step), p[2])
         column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
-        free = not bool(np.any(look(column) == VoxelState.OCCUPIED))
+        seen = look(column)
+        free = not bool(np.any(seen == VoxelState.OCCUPIED))
+        if global_map:
+            # From altitude the pitched camera may never have looked below the vehicle (a survey's
+            # last waypoint: 73 % of the box under it unknown when its landing began, and clutter
+            # there): a column the global map judges must have been seen free, not merely unseen.
+            free = free and not bool(np.any(seen == VoxelState.UNKNOWN))
         return free and found and not raised, (surface if found else float("inf")), free
 
     def landing_spot(

@@ -302,13 +302,18 @@ class WindowedMap:
     """The local map's window ends ``bottom`` m above the ground (odometry frame, unknown below);
     the global map (world frame, ``shift`` from the odometry frame) holds the ground and a bench."""
 
-    def __init__(self, world: BoxMap, shift, bottom: float):
+    def __init__(self, world: BoxMap, shift, bottom: float, unseen=None):
         self.world, self.shift, self.bottom = world, np.asarray(shift, float), bottom
+        self.unseen = unseen  # a box (world frame) the global map never saw
 
     def states(self, points, *, local=False):
         points = np.asarray(points, float)
         if not local:
-            return self.world.states(points)
+            out = self.world.states(points)
+            if self.unseen is not None:
+                lo, hi = (np.asarray(b, float) for b in self.unseen)
+                out[np.all((points >= lo) & (points <= hi), axis=1)] = VoxelState.UNKNOWN
+            return out
         out = self.world.states(points + self.shift)
         out[points[:, 2] < self.bottom] = VoxelState.UNKNOWN
         return out
@@ -336,3 +341,23 @@ def test_at_altitude_the_global_map_sees_below_the_local_maps_reach() -> None:
     open_lot = here + np.array([0.0, 3.0, 0.0])
     np.testing.assert_allclose(guard.landing_spot(open_lot, T_world_odom), open_lot)
     assert guard._descent(open_lot, T_world_odom)[1] == pytest.approx(0.0, abs=0.11)
+
+
+def test_from_altitude_a_column_the_global_map_never_saw_is_no_landing_column() -> None:
+    # the survey's last waypoint: 73 % of the box under it unknown when the landing began (the
+    # pitched camera had looked ahead, not below), clutter there; the ground around was seen
+    shift = np.array([10.0, -2.0, 0.0])
+    ground = ((-50.0, -50.0, -0.3), (50.0, 50.0, 0.0))
+    unseen = ((10.0, -2.5, 0.0), (11.0, -1.5, 2.0))  # 1 m square under the vehicle, up to 2 m
+    world = WindowedMap(BoxMap([ground]), shift, bottom=3.5, unseen=unseen)
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    T_world_odom = np.eye(4)
+    T_world_odom[:3, 3] = shift
+    here = np.array([0.5, 0.0, 6.3])  # over the unseen square's middle
+    assert not guard._descent(here, T_world_odom)[2]
+    spot = guard.landing_spot(here, T_world_odom)
+    assert spot is not None and np.linalg.norm(spot - here) <= SetpointFilter.LANDING_SEARCH
+    lo, hi = (np.asarray(b) for b in unseen)
+    margin = RADIUS + SetpointFilter.GUARD_MARGIN
+    world_xy = spot[:2] + shift[:2]
+    assert np.any((world_xy < lo[:2] - margin) | (world_xy > hi[:2] + margin))  # clear of it
