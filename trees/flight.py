@@ -168,6 +168,12 @@ class FailsafeEnd(RobotBehaviour):
         return Status.FAILURE
 
 
+def waypoints_ended(count: int, skipped: int) -> str:
+    """How a waypoint flight ended (``/exploration``: metrics' ``exploration_end``, the report),
+    the same for straight legs and paths."""
+    return f"complete: {count} waypoints" + (f", {skipped} skipped" if skipped else "")
+
+
 class FlyWaypoints(RobotBehaviour):
     """Fly straight to each waypoint in turn (positions relative to the take-off point).
 
@@ -227,8 +233,7 @@ class FlyWaypoints(RobotBehaviour):
                 break
             self._next("waypoint_reached", position=np.round(target, 3).tolist())
         if self.index >= len(points):
-            skipped = f", {self.skipped} skipped" if self.skipped else ""
-            self.feedback_message = f"complete: {len(points)} waypoints{skipped}"
+            self.feedback_message = waypoints_ended(len(points), self.skipped)
             self.bb.set("/exploration", self.feedback_message)
             return Status.SUCCESS
         yaw = self.yaw
@@ -324,10 +329,7 @@ class WaypointsFlown(RobotBehaviour):
         self.bb.register_key("/exploration", access=Access.WRITE)
 
     def update(self) -> Status:
-        skipped = self.bb.get("/waypoints_skipped")
-        self.feedback_message = f"complete: {self.count} waypoints" + (
-            f", {skipped} skipped" if skipped else ""
-        )
+        self.feedback_message = waypoints_ended(self.count, self.bb.get("/waypoints_skipped"))
         self.bb.set("/exploration", self.feedback_message)
         return Status.SUCCESS
 
