@@ -59,6 +59,7 @@ class Flight(Protocol):
     def takeoff(self) -> None: ...
     def land(self) -> None: ...
     def landing_spot_world(self) -> np.ndarray | None: ...
+    def seen_free_below(self) -> float: ...
 
 
 class PathHandle(Protocol):
@@ -236,6 +237,12 @@ class Robot:
         if spot is None:
             return None
         return transform_points(T_world_odom, spot[None])[0]
+
+    def seen_free_below(self) -> float:
+        """How far below the robot its descent column has been seen free, m
+        (:meth:`amslam.setpoints.SetpointFilter.seen_free_below`)."""
+        here = self.platform.odometry().T_odom_body[:3, 3]
+        return self.setpoints.seen_free_below(here, self.correction())
 
     # -- navigation ----------------------------------------------------------------------------
 

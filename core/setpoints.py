@@ -251,11 +251,7 @@ class SetpointFilter:
                 lower = np.flatnonzero(below[under[0] :]) + under[0]
                 if len(lower) and depth[lower[0]] - depth[first] <= self.RAISED_MAX:
                     raised, surface = True, float(p[2] - depth[lower[0]])
-        reach = self.radius + self.GUARD_MARGIN
-        k = int(np.ceil(reach / step))
-        axis = np.arange(-k, k + 1) * step
-        ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
-        ring = ring[np.linalg.norm(ring, axis=1) <= reach]
+        ring = self._column_ring()
         # from a voxel above the first surface (an occupied voxel's top face) up to the vehicle
         heights = np.append(np.arange(top + 1.5 * step, p[2] - 1e-9, step), p[2])
         column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
@@ -267,6 +263,41 @@ class SetpointFilter:
             # there): a column the global map judges must have been seen free, not merely unseen.
             free = free and not bool(np.any(seen == VoxelState.UNKNOWN))
         return free and found and not raised, (surface if found else float("inf")), free
+
+    def _column_ring(self) -> np.ndarray:
+        """Horizontal offsets (k×2) covering a disc of the robot radius plus ``GUARD_MARGIN``, on
+        the ``GUARD_STEP`` grid: the cross-section of a descent column."""
+        reach, step = self.radius + self.GUARD_MARGIN, self.GUARD_STEP
+        k = int(np.ceil(reach / step))
+        axis = np.arange(-k, k + 1) * step
+        ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
+        return ring[np.linalg.norm(ring, axis=1) <= reach]
+
+    def seen_free_below(self, p_odom: np.ndarray, T_world_odom: np.ndarray | None = None) -> float:
+        """How far below ``p_odom`` the descent column (robot radius plus ``GUARD_MARGIN`` around
+        the vertical) has been seen free, m: every voxel of it down to there FREE in the local map
+        or, with ``T_world_odom``, in the global map where the local one has nothing; at most
+        ``GLOBAL_DESCENT_REACH``.
+
+        A vehicle that cannot judge its landing from altitude (the surface below out of its maps'
+        reach: a PAMS survey at 6 m maps only 5 m deep) may descend through this much, and look
+        again (``trees.behaviours.Land``)."""
+        p = np.asarray(p_odom, float)
+        step = self.GUARD_STEP
+        depth = np.arange(step, self.GLOBAL_DESCENT_REACH + 1e-9, step)
+        ring = self._column_ring()
+        levels = (p[None, None, :] - depth[:, None, None] * np.array([0.0, 0.0, 1.0])).repeat(len(ring), 1)
+        levels[:, :, :2] += ring[None]
+        states = self._look(T_world_odom)(levels.reshape(-1, 3)).reshape(len(depth), len(ring))
+        seen_free = np.all(states == VoxelState.FREE, axis=1)
+        # the vehicle's own body fills the top of its column, where a camera pitched down (or its
+        # minimum range) never looks: there, nothing occupied is enough
+        body = depth <= self.radius + self.GUARD_MARGIN
+        seen_free[body] = ~np.any(states[body] == VoxelState.OCCUPIED, axis=1)
+        if seen_free.all():
+            return float(depth[-1])
+        first = int(np.argmin(seen_free))  # the highest level not seen free throughout
+        return float(depth[first - 1]) if first else 0.0
 
     def landing_spot(
         self, here_odom: np.ndarray, T_world_odom: np.ndarray | None = None

@@ -682,48 +682,95 @@ class Land(RobotBehaviour):
     below (a table edge, a window sill), the robot first flies to the nearest point at its height
     whose column is clear (``Flight.landing_spot_world``): a turtlebot3 house flight that could
     not find its way home landed in place beside a piece of furniture and touched it at 0.72 m.
-    When nothing within reach is clear it lands where it is and says so.
+    When the maps do not reach the surface below (a PAMS survey ends 6 m over the lot and maps 5 m
+    deep: every survey's landing went unchecked, one onto clutter), the robot first steps down
+    through the part of its column it has seen free (``Flight.seen_free_below``), hovers while the
+    camera looks, and judges again. When nothing within reach is clear it lands where it is and
+    says so.
     """
 
     uses = ("flight", "events")
-    #: close enough to the landing spot to descend, m
+    #: close enough to the landing spot (or a step's end) to go on, m
     ARRIVED = 0.1
-    #: the move to the landing spot gives up (and lands) after this long, s
+    #: the move to the landing spot or a step down gives up (and goes on) after this long, s
     MOVE_TIMEOUT = 20.0
+    #: a step down ends this far above the part of the column not seen free, m (the guard's
+    #: radius-sized look plus a voxel: the unseen part may begin with a surface)
+    STEP_MARGIN = 0.6
+    #: the least step down worth taking, m
+    STEP_MIN = 0.8
+    #: the hover after a step before the column is judged again: a few camera frames reach the maps, s
+    SETTLE = 1.5
+    #: steps down before landing unchecked
+    MAX_STEPS = 4
 
     def __init__(self, name: str = "Land"):
         super().__init__(name)
         self.spot: np.ndarray | None = None
+        self.phase: str | None = None  # "move" to a spot, "step" down, "settle" after a step
         self.started = 0.0
+        self.steps = 0
 
     def initialise(self) -> None:
-        self.spot = None
-        if not self.flight.airborne():
-            return
+        self.spot, self.phase, self.steps = None, None, 0
+        if self.flight.airborne():
+            self._judge()
+
+    def _judge(self) -> None:
+        """Where to go from here: to a clear spot, a step down, or straight down (``land``)."""
         spot = self.flight.landing_spot_world()
         here = self.flight.position_world()
         if spot is None:
+            depth = self.flight.seen_free_below()
+            if self.steps < self.MAX_STEPS and depth - self.STEP_MARGIN >= self.STEP_MIN:
+                self.steps += 1
+                target = here - np.array([0.0, 0.0, depth - self.STEP_MARGIN])
+                self.spot, self.phase, self.started = target, "step", self.flight.time()
+                self.events.emit(
+                    "landing_step_down",
+                    height=round(float(here[2]), 2),
+                    to=round(float(target[2]), 2),
+                    why=f"no clear descent column judged from here; the column seen free {depth:.1f} m down",
+                )
+                return
             self.events.emit(
                 "landing_unchecked", why="no clear descent column within reach", behaviour=self.name
             )
         elif np.linalg.norm(spot - here) > self.ARRIVED:
-            self.spot, self.started = spot, self.flight.time()
+            self.spot, self.phase, self.started = spot, "move", self.flight.time()
             self.events.emit(
                 "landing_spot",
                 spot=np.round(spot, 2).tolist(),
                 moved=round(float(np.linalg.norm(spot - here)), 2),
             )
             return
+        self.spot, self.phase = None, None
         self.flight.land()
 
     def update(self) -> Status:
-        if self.spot is not None:
+        if self.phase == "settle":
+            if self.flight.time() - self.started < self.SETTLE:
+                self.flight.send_setpoint_world(self.spot, self.flight.yaw_world())
+                self.feedback_message = "looking below before landing"
+                return Status.RUNNING
+            self._judge()
+            if self.phase is not None:
+                return Status.RUNNING
+        if self.phase in ("move", "step"):
             arrived = np.linalg.norm(self.flight.position_world() - self.spot) <= self.ARRIVED
             if not arrived and self.flight.time() - self.started < self.MOVE_TIMEOUT:
                 self.flight.send_setpoint_world(self.spot, self.flight.yaw_world())
-                self.feedback_message = "moving to a clear landing spot"
+                self.feedback_message = (
+                    "moving to a clear landing spot"
+                    if self.phase == "move"
+                    else "stepping down through seen-free space"
+                )
                 return Status.RUNNING
-            self.spot = None
+            if self.phase == "step":
+                self.spot = self.flight.position_world()
+                self.phase, self.started = "settle", self.flight.time()
+                return Status.RUNNING
+            self.spot, self.phase = None, None
             self.flight.land()
         if self.flight.airborne():
             self.feedback_message = "descending"

@@ -305,6 +305,7 @@ class WindowedMap:
     def __init__(self, world: BoxMap, shift, bottom: float, unseen=None):
         self.world, self.shift, self.bottom = world, np.asarray(shift, float), bottom
         self.unseen = unseen  # a box (world frame) the global map never saw
+        self.local_unseen = None  # one (world frame) the local map never saw
 
     def states(self, points, *, local=False):
         points = np.asarray(points, float)
@@ -316,6 +317,10 @@ class WindowedMap:
             return out
         out = self.world.states(points + self.shift)
         out[points[:, 2] < self.bottom] = VoxelState.UNKNOWN
+        if self.local_unseen is not None:
+            lo, hi = (np.asarray(b, float) for b in self.local_unseen)
+            world = points + self.shift
+            out[np.all((world >= lo) & (world <= hi), axis=1)] = VoxelState.UNKNOWN
         return out
 
 
@@ -361,3 +366,31 @@ def test_from_altitude_a_column_the_global_map_never_saw_is_no_landing_column() 
     margin = RADIUS + SetpointFilter.GUARD_MARGIN
     world_xy = spot[:2] + shift[:2]
     assert np.any((world_xy < lo[:2] - margin) | (world_xy > hi[:2] + margin))  # clear of it
+
+
+def test_how_far_below_the_column_was_seen_free() -> None:
+    # the survey's last waypoint again: the global map saw the air under the vehicle down to 2 m
+    # and not below (the map reaches 5 m deep from 6.3 m), the local window to 3.5 m
+    shift = np.array([10.0, -2.0, 0.0])
+    ground = ((-50.0, -50.0, -0.3), (50.0, 50.0, 0.0))
+    unseen = ((9.0, -3.5, -0.3), (12.0, -0.5, 2.0))
+    world = WindowedMap(BoxMap([ground]), shift, bottom=3.5, unseen=unseen)
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    T_world_odom = np.eye(4)
+    T_world_odom[:3, 3] = shift
+    here = np.array([0.5, 0.0, 6.3])
+    assert guard.landing_spot(here, T_world_odom) is None  # no surface judged from up here
+    assert guard.seen_free_below(here) == pytest.approx(6.3 - 3.5, abs=0.11)  # the local window
+    assert guard.seen_free_below(here, T_world_odom) == pytest.approx(6.3 - 2.0, abs=0.11)
+    # a pole beside the column stops what counts as seen free at its top
+    pole = ((10.6, -2.0, 0.0), (10.8, -1.8, 4.0))
+    world = WindowedMap(BoxMap([ground, pole]), shift, bottom=3.5, unseen=unseen)
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    assert guard.seen_free_below(here, T_world_odom) == pytest.approx(6.3 - 4.0, abs=0.11)
+    # the top of the column, where the vehicle's body is, was never looked at (the camera pitched
+    # down): it is free all the same
+    unlooked = ((10.0, -2.5, 6.0), (11.0, -1.5, 6.7))
+    world = WindowedMap(BoxMap([ground]), shift, bottom=3.5, unseen=unlooked)
+    world.local_unseen = unlooked
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    assert guard.seen_free_below(here, T_world_odom) == pytest.approx(6.3, abs=0.11)  # to the ground

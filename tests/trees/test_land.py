@@ -11,12 +11,15 @@ from amslam.trees.behaviours import Land
 
 
 class FakeFlight:
-    """Moves 0.1 m per setpoint towards it; lands when asked; knows one clear landing spot."""
+    """Moves 0.1 m per setpoint towards it; lands when asked; knows one clear landing spot; has
+    seen its column free down to ``seen_free_to`` m (none of it by default)."""
 
-    def __init__(self, spot):
-        self.p = np.array([0.0, 0.0, 1.2])
+    def __init__(self, spot, height=1.2, seen_free_to=None):
+        self.p = np.array([0.0, 0.0, height])
         self.spot = None if spot is None else np.asarray(spot, float)
+        self.seen_free_to = height if seen_free_to is None else seen_free_to
         self.landed_at = None
+        self.lowest = height  # the lowest point flown before landing
         self.t = 0.0
 
     def airborne(self):
@@ -35,10 +38,14 @@ class FakeFlight:
     def landing_spot_world(self):
         return None if self.spot is None else self.spot.copy()
 
+    def seen_free_below(self):
+        return max(0.0, float(self.p[2] - self.seen_free_to))
+
     def send_setpoint_world(self, position, yaw):
         step = np.asarray(position, float) - self.p
         n = np.linalg.norm(step)
         self.p = self.p + (step if n <= 0.1 else step * 0.1 / n)
+        self.lowest = min(self.lowest, float(self.p[2]))
         return position
 
     def land(self):
@@ -53,7 +60,7 @@ class Events:
         self.seen.append(name)
 
 
-def run(flight, ticks=50):
+def run(flight, ticks=300):
     leaf, events = Land(), Events()
     leaf.setup(flight=flight, events=events)
     status = None
@@ -81,6 +88,31 @@ def test_lands_in_place_when_here_is_clear_or_nothing_is():
     status, seen = run(nothing)
     assert status == Status.SUCCESS and "landing_unchecked" in seen
     np.testing.assert_allclose(nothing.landed_at, [0.0, 0.0, 1.2])
+
+
+def test_from_altitude_steps_down_through_seen_free_space_then_judges_again():
+    # a PAMS survey ends 6 m over the lot and maps 5 m deep: from up there no landing column can
+    # be judged (no surface below in reach); its column was seen free down to 1.7 m
+    class Survey(FakeFlight):
+        def landing_spot_world(self):
+            # judged once the ground is in the maps' reach: a clear column 0.4 m aside
+            return None if self.p[2] > 3.0 else np.array([0.4, 0.0, self.p[2]])
+
+    flight = Survey(spot=None, height=6.0, seen_free_to=1.7)
+    status, seen = run(flight)
+    assert status == Status.SUCCESS
+    assert seen[:2] == ["landing_step_down", "landing_spot"] and "landing_unchecked" not in seen
+    # stepped down no lower than the seen-free part allows, then moved to the judged spot
+    assert flight.lowest >= 1.7 + Land.STEP_MARGIN - 0.11
+    np.testing.assert_allclose(flight.landed_at[:2], [0.4, 0.0], atol=0.11)
+    assert flight.landed_at[2] < 3.0
+
+
+def test_a_column_never_seen_below_is_no_step_down():
+    flight = FakeFlight(spot=None, height=6.0)  # nothing below seen free
+    status, seen = run(flight)
+    assert status == Status.SUCCESS and seen == ["landing_unchecked"]
+    np.testing.assert_allclose(flight.landed_at, [0.0, 0.0, 6.0])
 
 
 def test_home_goal_moves_off_an_occupied_take_off_point():
