@@ -147,6 +147,38 @@ def test_object_accuracy_fig9_error_is_length_and_width_of_vehicles_only() -> No
     assert overall["mapped"] == 3
 
 
+def test_objects_discovered_count_a_drifted_map_once_its_drift_is_taken_out() -> None:
+    """An overhead survey's map sits ~1 m off the world (its odometry's drift): ``mapped`` pairs
+    in place, ``discovered`` after one rigid 2-D alignment — a missing car stays missing and a
+    spurious landmark stays unpaired."""
+    R = np.eye(3)
+    cars = {
+        f"c{k}": shapes.cuboid_shape(R, [3.0 * k, 2.5 * (k % 3), 0.75], [4.5, 1.8, 1.5]) for k in range(8)
+    }
+    world = objects_world({k: ("car", s["center"]) for k, s in cars.items()})
+    world = dataclasses.replace(world, object_shapes=cars)
+    turn = np.radians(3.0)
+    Rz = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    drift = np.array([1.3, -0.9, 0.0])
+    est = [
+        shapes.cuboid_shape(Rz, Rz @ np.asarray(cars[f"c{k}"]["center"]) + drift, [4.4, 1.9, 1.5])
+        for k in range(7)
+    ]
+    est.append(shapes.cuboid_shape(R, [40.0, 40.0, 0.75], [4.5, 1.8, 1.5]))  # spurious, far away
+    lms = [
+        Landmark(i, "car", np.asarray(shapes.shape_center(s)), np.eye(3), 5, 0, s) for i, s in enumerate(est)
+    ]
+    car = object_accuracy(lms, world)["car"]
+    assert car["mapped"] < 7 and car["discovered"] == 7  # c7 was never mapped
+    assert object_accuracy(lms, world)["overall"]["fig9_discovered"] == 7
+    # a map in place: discovered is mapped
+    in_place = [
+        Landmark(i, "car", np.asarray(s["center"]), np.eye(3), 5, 0, s) for i, s in enumerate(cars.values())
+    ]
+    acc = object_accuracy(in_place[:5], world)["car"]
+    assert acc["mapped"] == acc["discovered"] == 5
+
+
 class _Map:
     """What the top view reads of a mapping backend."""
 

@@ -40,6 +40,26 @@ def test_table_has_a_column_per_world_and_all_data():
     assert "| measure | w1 | w2 | all data |" in text
     assert "| Err. mean | 0.20 m / 0.60 m | 0.40 m / 0.50 m | 0.30 m / 0.53 m |" in text
     assert "| Obj. mapped — car | 100 % / 50 % | 100 % / 100 % | 100 % / 75 % |" in text
+    assert "| Obj. discovered — car | — / — | — / — | — / — |" in text  # runs from before it
+
+
+def test_table_counts_objects_discovered_with_the_maps_drift_taken_out():
+    def run(planner, mapped, discovered):
+        car = {
+            "objects": 4,
+            "mapped": mapped,
+            "discovered": discovered,
+            "dims_error_mean_m": 0.2,
+            "dims_error_std_m": 0.1,
+        }
+        overall = {**car, "fig9_objects": 4, "fig9_mapped": mapped, "fig9_discovered": discovered}
+        overall.update(fig9_error_mean_m=0.2, fig9_error_std_m=0.1)
+        return {"world": "w", "planner": planner, "metrics": {"objects": {"car": car, "overall": overall}}}
+
+    text = pams_table([run("pams", 2, 4), run("prior_visit", 3, 3)])
+    assert "| Obj. mapped | 50 % / 75 % | 50 % / 75 % |" in text
+    assert "| Obj. discovered | 100 % / 75 % | 100 % / 75 % |" in text
+    assert "| Obj. discovered — car | 100 % / 75 % | 100 % / 75 % |" in text
 
 
 def test_table_scores_vehicles_by_the_fig9_error_and_cylinders_by_their_diameter():
