@@ -170,6 +170,11 @@ class SetpointFilter:
             step = step - slack[worst] * normals[worst]
         return here + step
 
+    #: distance a descent column keeps from occupied voxels beyond the robot radius, m: twice the
+    #: clearance guard's, for nothing guards a landing on its way down (a PAMS survey, its column
+    #: judged clear with 0.1 m, descended onto a 1 m post beside it — thin, half seen, 0.25 m
+    #: voxels in the global map — and touched it at 0.59 m)
+    LANDING_MARGIN = 0.2
     #: how far from the vehicle a clear landing column is looked for, m, and the ring spacing
     LANDING_SEARCH = 1.5
     LANDING_RING = 0.25
@@ -204,7 +209,7 @@ class SetpointFilter:
         """Whether a vertical descent from ``p_odom`` to the floor below keeps clear of the local map.
 
         A platform lands straight down (PX4's land mode, the simulator's): anything the fresh local
-        map shows within the robot radius plus ``GUARD_MARGIN`` of that column, between the surface
+        map shows within the robot radius plus ``LANDING_MARGIN`` of that column, between the surface
         it lands on and the vehicle, would be touched on the way (a table's edge, a window sill).
         The surface is the first occupied voxel straight below; without one in reach the column is
         not judged clear, nor when that surface is furniture (``RAISED_MAX``: free space under it,
@@ -265,16 +270,16 @@ class SetpointFilter:
         return free and found and not raised, (surface if found else float("inf")), free
 
     def _column_ring(self) -> np.ndarray:
-        """Horizontal offsets (k×2) covering a disc of the robot radius plus ``GUARD_MARGIN``, on
+        """Horizontal offsets (k×2) covering a disc of the robot radius plus ``LANDING_MARGIN``, on
         the ``GUARD_STEP`` grid: the cross-section of a descent column."""
-        reach, step = self.radius + self.GUARD_MARGIN, self.GUARD_STEP
+        reach, step = self.radius + self.LANDING_MARGIN, self.GUARD_STEP
         k = int(np.ceil(reach / step))
         axis = np.arange(-k, k + 1) * step
         ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
         return ring[np.linalg.norm(ring, axis=1) <= reach]
 
     def seen_free_below(self, p_odom: np.ndarray, T_world_odom: np.ndarray | None = None) -> float:
-        """How far below ``p_odom`` the descent column (robot radius plus ``GUARD_MARGIN`` around
+        """How far below ``p_odom`` the descent column (robot radius plus ``LANDING_MARGIN`` around
         the vertical) has been seen free, m: every voxel of it down to there FREE in the local map
         or, with ``T_world_odom``, in the global map where the local one has nothing; at most
         ``GLOBAL_DESCENT_REACH``.

@@ -684,9 +684,9 @@ class Land(RobotBehaviour):
     not find its way home landed in place beside a piece of furniture and touched it at 0.72 m.
     When the maps do not reach the surface below (a PAMS survey ends 6 m over the lot and maps 5 m
     deep: every survey's landing went unchecked, one onto clutter), the robot first steps down
-    through the part of its column it has seen free (``Flight.seen_free_below``), hovers while the
-    camera looks, and judges again. When nothing within reach is clear it lands where it is and
-    says so.
+    through the part of its column it has seen free (``Flight.seen_free_below``), turns half round
+    there so the camera sees all of the column, and judges again. When nothing within reach is
+    clear it lands where it is and says so.
     """
 
     uses = ("flight", "events")
@@ -699,16 +699,19 @@ class Land(RobotBehaviour):
     STEP_MARGIN = 0.6
     #: the least step down worth taking, m
     STEP_MIN = 0.8
-    #: the hover after a step before the column is judged again: a few camera frames reach the maps, s
-    SETTLE = 1.5
+    #: the hover after a step, turning half round, before the column is judged again, s: a camera
+    #: pitched down sees only the half of the column ahead of it (after a survey's step to 1.9 m,
+    #: 6 of the 9 cells around the column behind it were unknown and the landing went unchecked)
+    LOOK = 4.0
     #: steps down before landing unchecked
     MAX_STEPS = 4
 
     def __init__(self, name: str = "Land"):
         super().__init__(name)
         self.spot: np.ndarray | None = None
-        self.phase: str | None = None  # "move" to a spot, "step" down, "settle" after a step
+        self.phase: str | None = None  # "move" to a spot, "step" down, "look" round after a step
         self.started = 0.0
+        self.yaw = 0.0  # the heading a look starts from
         self.steps = 0
 
     def initialise(self) -> None:
@@ -748,10 +751,11 @@ class Land(RobotBehaviour):
         self.flight.land()
 
     def update(self) -> Status:
-        if self.phase == "settle":
-            if self.flight.time() - self.started < self.SETTLE:
-                self.flight.send_setpoint_world(self.spot, self.flight.yaw_world())
-                self.feedback_message = "looking below before landing"
+        if self.phase == "look":
+            turned = (self.flight.time() - self.started) / self.LOOK
+            if turned < 1.0:
+                self.flight.send_setpoint_world(self.spot, self.yaw + np.pi * turned)
+                self.feedback_message = "looking round below before landing"
                 return Status.RUNNING
             self._judge()
             if self.phase is not None:
@@ -767,8 +771,8 @@ class Land(RobotBehaviour):
                 )
                 return Status.RUNNING
             if self.phase == "step":
-                self.spot = self.flight.position_world()
-                self.phase, self.started = "settle", self.flight.time()
+                self.spot, self.yaw = self.flight.position_world(), self.flight.yaw_world()
+                self.phase, self.started = "look", self.flight.time()
                 return Status.RUNNING
             self.spot, self.phase = None, None
             self.flight.land()

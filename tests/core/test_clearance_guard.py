@@ -363,7 +363,7 @@ def test_from_altitude_a_column_the_global_map_never_saw_is_no_landing_column() 
     spot = guard.landing_spot(here, T_world_odom)
     assert spot is not None and np.linalg.norm(spot - here) <= SetpointFilter.LANDING_SEARCH
     lo, hi = (np.asarray(b) for b in unseen)
-    margin = RADIUS + SetpointFilter.GUARD_MARGIN
+    margin = RADIUS + SetpointFilter.LANDING_MARGIN
     world_xy = spot[:2] + shift[:2]
     assert np.any((world_xy < lo[:2] - margin) | (world_xy > hi[:2] + margin))  # clear of it
 

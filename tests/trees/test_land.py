@@ -20,6 +20,7 @@ class FakeFlight:
         self.seen_free_to = height if seen_free_to is None else seen_free_to
         self.landed_at = None
         self.lowest = height  # the lowest point flown before landing
+        self.yaws = [0.0]  # the headings asked for
         self.t = 0.0
 
     def airborne(self):
@@ -46,6 +47,7 @@ class FakeFlight:
         n = np.linalg.norm(step)
         self.p = self.p + (step if n <= 0.1 else step * 0.1 / n)
         self.lowest = min(self.lowest, float(self.p[2]))
+        self.yaws.append(float(yaw))
         return position
 
     def land(self):
@@ -104,6 +106,7 @@ def test_from_altitude_steps_down_through_seen_free_space_then_judges_again():
     assert seen[:2] == ["landing_step_down", "landing_spot"] and "landing_unchecked" not in seen
     # stepped down no lower than the seen-free part allows, then moved to the judged spot
     assert flight.lowest >= 1.7 + Land.STEP_MARGIN - 0.11
+    assert max(flight.yaws) > 0.9 * np.pi  # turned half round down there: the camera saw all the column
     np.testing.assert_allclose(flight.landed_at[:2], [0.4, 0.0], atol=0.11)
     assert flight.landed_at[2] < 3.0
 
