@@ -48,6 +48,11 @@ def test_small_mission_completes_and_explores(small_run):
     assert "**Verdict: completed**" in report and "top_view.png" in report
     events = [json.loads(line) for line in (small_run.run_dir / "events.jsonl").read_text().splitlines()]
     assert events[-1]["event"] == "run_end" and any(e["event"] == "replan" for e in events)
+    # which environment flew it: the same code and seed fly differently on other numerics
+    from importlib.metadata import version
+
+    start = next(e for e in events if e["event"] == "run_start")
+    assert start["packages"]["numpy"] == version("numpy") and start["packages"]["gtsam"] == version("gtsam")
 
 
 def test_same_seed_same_trajectory(tmp_path):
