@@ -56,13 +56,16 @@ system-deps:
 	  fi; \
 	fi
 
-$(STAMP): pyproject.toml | system-deps
+$(STAMP): pyproject.toml constraints.txt | system-deps
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
 	  || { echo "amslam needs Python >= 3.11 (found $$($(PYTHON) --version))"; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV) \
 	  || { echo "could not create $(VENV): install python3-venv (sudo apt-get install -y python3-venv)"; exit 1; }
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[dev]'
+	$(BIN)/python -m pip install -q -c constraints.txt -e '.[dev]' \
+	  || { echo "warning: the pinned versions of constraints.txt do not install here; installing the newest"; \
+	       echo "         allowed instead: flights may give other numbers than docs/ records"; \
+	       $(BIN)/python -m pip install -q -e '.[dev]'; }
 	@touch $(STAMP)
 
 demo: setup
