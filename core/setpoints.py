@@ -256,11 +256,9 @@ class SetpointFilter:
                 lower = np.flatnonzero(below[under[0] :]) + under[0]
                 if len(lower) and depth[lower[0]] - depth[first] <= self.RAISED_MAX:
                     raised, surface = True, float(p[2] - depth[lower[0]])
-        ring = self._column_ring()
         # from a voxel above the first surface (an occupied voxel's top face) up to the vehicle
         heights = np.append(np.arange(top + 1.5 * step, p[2] - 1e-9, step), p[2])
-        column = np.array([[p[0] + dx, p[1] + dy, z] for z in heights for dx, dy in ring])
-        seen = look(column)
+        seen = look(self._column(p, heights).reshape(-1, 3))
         free = not bool(np.any(seen == VoxelState.OCCUPIED))
         if global_map:
             # From altitude the pitched camera may never have looked below the vehicle (a survey's
@@ -269,14 +267,18 @@ class SetpointFilter:
             free = free and not bool(np.any(seen == VoxelState.UNKNOWN))
         return free and found and not raised, (surface if found else float("inf")), free
 
-    def _column_ring(self) -> np.ndarray:
-        """Horizontal offsets (k×2) covering a disc of the robot radius plus ``LANDING_MARGIN``, on
-        the ``GUARD_STEP`` grid: the cross-section of a descent column."""
+    def _column(self, p: np.ndarray, heights: np.ndarray) -> np.ndarray:
+        """The descent column under ``p`` at ``heights`` (len(heights) × k × 3): at each height,
+        a disc of the robot radius plus ``LANDING_MARGIN`` on the ``GUARD_STEP`` grid."""
         reach, step = self.radius + self.LANDING_MARGIN, self.GUARD_STEP
         k = int(np.ceil(reach / step))
         axis = np.arange(-k, k + 1) * step
         ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
-        return ring[np.linalg.norm(ring, axis=1) <= reach]
+        ring = ring[np.linalg.norm(ring, axis=1) <= reach]
+        column = np.empty((len(heights), len(ring), 3))
+        column[:, :, :2] = np.asarray(p, float)[:2] + ring
+        column[:, :, 2] = np.asarray(heights, float)[:, None]
+        return column
 
     def seen_free_below(self, p_odom: np.ndarray, T_world_odom: np.ndarray | None = None) -> float:
         """How far below ``p_odom`` the descent column (robot radius plus ``LANDING_MARGIN`` around
@@ -290,10 +292,8 @@ class SetpointFilter:
         p = np.asarray(p_odom, float)
         step = self.GUARD_STEP
         depth = np.arange(step, self.GLOBAL_DESCENT_REACH + 1e-9, step)
-        ring = self._column_ring()
-        levels = (p[None, None, :] - depth[:, None, None] * np.array([0.0, 0.0, 1.0])).repeat(len(ring), 1)
-        levels[:, :, :2] += ring[None]
-        states = self._look(T_world_odom)(levels.reshape(-1, 3)).reshape(len(depth), len(ring))
+        column = self._column(p, p[2] - depth)
+        states = self._look(T_world_odom)(column.reshape(-1, 3)).reshape(column.shape[:2])
         seen_free = np.all(states == VoxelState.FREE, axis=1)
         # the vehicle's own body fills the top of its column, where a camera pitched down (or its
         # minimum range) never looks: there, nothing occupied is enough
