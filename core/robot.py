@@ -60,6 +60,7 @@ class Flight(Protocol):
     def land(self) -> None: ...
     def landing_spot_world(self) -> np.ndarray | None: ...
     def seen_free_below(self) -> float: ...
+    def landing_surface_seen(self) -> bool: ...
 
 
 class PathHandle(Protocol):
@@ -243,6 +244,12 @@ class Robot:
         (:meth:`amslam.setpoints.SetpointFilter.seen_free_below`)."""
         here = self.platform.odometry().T_odom_body[:3, 3]
         return self.setpoints.seen_free_below(here, self.correction())
+
+    def landing_surface_seen(self) -> bool:
+        """Whether the fresh local map shows the surface below the robot, so that a landing is
+        judged in the frame it flies in (:meth:`amslam.setpoints.SetpointFilter.surface_seen_locally`)."""
+        here = self.platform.odometry().T_odom_body[:3, 3]
+        return self.setpoints.surface_seen_locally(here)
 
     # -- navigation ----------------------------------------------------------------------------
 

@@ -188,6 +188,16 @@ class SetpointFilter:
     #: below, is furniture (a table, a counter), not the floor: landing there is landing on it, m.
     #: Furniture stands lower; the room under a slab is taller (the demo's: 2.35 m)
     RAISED_MAX = 1.6
+    #: how deep under the surface below the centre each cell of the vehicle's footprint is looked at
+    #: for support, m: a cell seen free from that surface's height down to this far below it is over
+    #: a void — past a slab's edge (a PAMS survey landed half off the lot's ground slab, its
+    #: column judged at the centre only), off a table's side — and the landing would tip or fall
+    SUPPORT_DEPTH = 0.3
+    #: a landing is judged on the local map from at most this high over the surface, m: the local
+    #: window reaches 1.5 m or more below the camera (5 m tall by default, re-centred once 1 m off
+    #: centre), so that it holds ``SUPPORT_DEPTH`` and a voxel under the surface. A survey whose
+    #: window ended right at the ground judged its spot on the global map and landed off an edge
+    LOCAL_JUDGE_REACH = 1.1
 
     def _look(self, T_world_odom: np.ndarray | None):
         """The voxel states a descent is judged on (odometry-frame points): the local map's, and
@@ -213,7 +223,9 @@ class SetpointFilter:
         it lands on and the vehicle, would be touched on the way (a table's edge, a window sill).
         The surface is the first occupied voxel straight below; without one in reach the column is
         not judged clear, nor when that surface is furniture (``RAISED_MAX``: free space under it,
-        the floor not far below). Unknown voxels count as free, as for the clearance guard.
+        the floor not far below), nor when part of the footprint (the robot radius) is over a void
+        at that surface's height (``SUPPORT_DEPTH``). Unknown voxels count as free, as for the
+        clearance guard, and as no evidence of a void.
         """
         return self._descent(p_odom)[0]
 
@@ -265,12 +277,26 @@ class SetpointFilter:
             # last waypoint: 73 % of the box under it unknown when its landing began, and clutter
             # there): a column the global map judges must have been seen free, not merely unseen.
             free = free and not bool(np.any(seen == VoxelState.UNKNOWN))
-        return free and found and not raised, (surface if found else float("inf")), free
+        supported = found and not raised and self._supported(look, p, top)
+        return free and supported, (surface if found else float("inf")), free
 
-    def _column(self, p: np.ndarray, heights: np.ndarray) -> np.ndarray:
+    def _supported(self, look, p: np.ndarray, top: float) -> bool:
+        """Whether no cell of the footprint (the robot-radius disc under ``p``) is over a void at
+        ``top``, the height of the surface found below the centre: a cell is over a void when the
+        maps saw it free from there down ``SUPPORT_DEPTH`` (where the surface should be, nothing —
+        a slab's edge, whose void the rays past it carve free). Unknown cells are no evidence:
+        below a floor nothing is ever seen."""
+        heights = top - np.arange(0.0, self.SUPPORT_DEPTH + 1e-9, self.GUARD_STEP)
+        footprint = self._column(p, heights, reach=self.radius)
+        states = look(footprint.reshape(-1, 3)).reshape(footprint.shape[:2])
+        return not bool(np.any(np.all(states == VoxelState.FREE, axis=0)))
+
+    def _column(self, p: np.ndarray, heights: np.ndarray, reach: float | None = None) -> np.ndarray:
         """The descent column under ``p`` at ``heights`` (len(heights) × k × 3): at each height,
-        a disc of the robot radius plus ``LANDING_MARGIN`` on the ``GUARD_STEP`` grid."""
-        reach, step = self.radius + self.LANDING_MARGIN, self.GUARD_STEP
+        a disc of ``reach`` (default the robot radius plus ``LANDING_MARGIN``) on the
+        ``GUARD_STEP`` grid."""
+        step = self.GUARD_STEP
+        reach = self.radius + self.LANDING_MARGIN if reach is None else reach
         k = int(np.ceil(reach / step))
         axis = np.arange(-k, k + 1) * step
         ring = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
@@ -304,6 +330,20 @@ class SetpointFilter:
         first = int(np.argmin(seen_free))  # the highest level not seen free throughout
         return float(depth[first - 1]) if first else 0.0
 
+    def surface_seen_locally(self, p_odom: np.ndarray) -> bool:
+        """Whether the local map shows a surface within ``LOCAL_JUDGE_REACH`` below ``p_odom``.
+
+        A landing judged otherwise was judged on the global map, built in the estimate's frame of
+        minutes ago (a PAMS survey's put the lot's ground slab edge 0.3 m from where the vehicle,
+        landing by it, met it), or at the bottom of the local window, where what lies under the
+        surface (the void past a slab's edge, ``SUPPORT_DEPTH``) is out of the window. Only the
+        local map is in the frame the vehicle flies in now (``trees.behaviours.Land`` steps down
+        until this holds)."""
+        p = np.asarray(p_odom, float)
+        depth = np.arange(self.GUARD_STEP, self.LOCAL_JUDGE_REACH + 1e-9, self.GUARD_STEP)
+        states = self.mapping.states(p - np.outer(depth, [0.0, 0.0, 1.0]), local=True)
+        return bool(np.any(states == VoxelState.OCCUPIED))
+
     def landing_spot(
         self, here_odom: np.ndarray, T_world_odom: np.ndarray | None = None
     ) -> np.ndarray | None:
@@ -315,7 +355,9 @@ class SetpointFilter:
         When the local map does not reach the surface below the vehicle (outdoors at 3.5 m its
         window ends about a metre above the ground), a surface it does reach nearby is higher than
         that ground — a car's roof — and never a landing spot: the vehicle lands where it is if
-        its column is free as deep as the map sees, else at the nearest point whose column is.
+        its column is free as deep as the map sees, else at the nearest point whose column is;
+        unless the vehicle is low over that surface and past its edge, seen free under it
+        (``_over_void``): then the surface is the landing spot, not the drop beside it.
         With ``T_world_odom`` the global map sees what the local map does not reach
         (:meth:`_descent`)."""
         here = np.asarray(here_odom, float)
@@ -331,12 +373,25 @@ class SetpointFilter:
                 spot = here + np.array([r * np.cos(a), r * np.sin(a), 0.0])
                 clear, surface, free = self._descent(spot, T_world_odom)
                 if unseen_ground:
-                    ok = free and not np.isfinite(surface)
+                    # past the edge of a surface it is low over (a survey's drift took it 0.05 m
+                    # past the lot's ground slab, seen free below it): that surface, over the drop
+                    ok = (free and not np.isfinite(surface)) or (
+                        clear
+                        and here[2] - surface <= self.LOCAL_JUDGE_REACH
+                        and self._over_void(here, surface)
+                    )
                 else:
                     ok = clear and surface <= surface_here + 1.5 * self.GUARD_STEP
                 if ok and self._straight_clear(here, spot):
                     return spot
         return None
+
+    def _over_void(self, p: np.ndarray, height: float) -> bool:
+        """Whether the local map saw the vertical under ``p`` free from ``height`` down
+        ``SUPPORT_DEPTH``: ``p`` is past the edge of a surface at that height."""
+        depth = np.arange(0.0, self.SUPPORT_DEPTH + 1e-9, self.GUARD_STEP)
+        points = np.column_stack([np.full((len(depth), 2), p[:2]), height - depth])
+        return bool(np.all(self.mapping.states(points, local=True) == VoxelState.FREE))
 
     def _straight_clear(self, a: np.ndarray, b: np.ndarray) -> bool:
         """No occupied local voxel within the robot radius plus ``GUARD_MARGIN`` of segment a–b."""

@@ -685,8 +685,11 @@ class Land(RobotBehaviour):
     When the maps do not reach the surface below (a PAMS survey ends 6 m over the lot and maps 5 m
     deep: every survey's landing went unchecked, one onto clutter), the robot first steps down
     through the part of its column it has seen free (``Flight.seen_free_below``), turns half round
-    there so the camera sees all of the column, and judges again. When nothing within reach is
-    clear it lands where it is and says so.
+    there so the camera sees all of the column, and judges again. A column judged on the global
+    map alone (its surface out of the local map's reach) is stepped down through the same way
+    before the vehicle lands, so that the last judgement is the local map's, in the frame it flies
+    in now (``Flight.landing_surface_seen``). When nothing within reach is clear it lands where
+    it is and says so.
     """
 
     uses = ("flight", "events")
@@ -724,17 +727,7 @@ class Land(RobotBehaviour):
         spot = self.flight.landing_spot_world()
         here = self.flight.position_world()
         if spot is None:
-            depth = self.flight.seen_free_below()
-            if self.steps < self.MAX_STEPS and depth - self.STEP_MARGIN >= self.STEP_MIN:
-                self.steps += 1
-                target = here - np.array([0.0, 0.0, depth - self.STEP_MARGIN])
-                self.spot, self.phase, self.started = target, "step", self.flight.time()
-                self.events.emit(
-                    "landing_step_down",
-                    height=round(float(here[2]), 2),
-                    to=round(float(target[2]), 2),
-                    why=f"no clear descent column judged from here; the column seen free {depth:.1f} m down",
-                )
+            if self._step_down("no clear descent column judged from here"):
                 return
             self.events.emit(
                 "landing_unchecked", why="no clear descent column within reach", behaviour=self.name
@@ -747,8 +740,37 @@ class Land(RobotBehaviour):
                 moved=round(float(np.linalg.norm(spot - here)), 2),
             )
             return
+        elif self._step_down_to_see():
+            return
         self.spot, self.phase = None, None
         self.flight.land()
+
+    def _step_down_to_see(self) -> bool:
+        """Step down when the column here was judged on the global map only: its surface is out
+        of the local map's reach, and the global map, built in the estimate's frame of minutes
+        ago, may place it off by more than the footprint (a survey landed half off the lot's ground
+        slab whose edge its global map put 0.3 m further out)."""
+        if self.flight.landing_surface_seen():
+            return False
+        return self._step_down("the surface below seen in the global map only")
+
+    def _step_down(self, why: str) -> bool:
+        """Descend through the part of the column seen free, less ``STEP_MARGIN``, if that is
+        ``STEP_MIN`` or more and fewer than ``MAX_STEPS`` steps were taken; whether it does."""
+        depth = self.flight.seen_free_below()
+        if self.steps >= self.MAX_STEPS or depth - self.STEP_MARGIN < self.STEP_MIN:
+            return False
+        self.steps += 1
+        here = self.flight.position_world()
+        target = here - np.array([0.0, 0.0, depth - self.STEP_MARGIN])
+        self.spot, self.phase, self.started = target, "step", self.flight.time()
+        self.events.emit(
+            "landing_step_down",
+            height=round(float(here[2]), 2),
+            to=round(float(target[2]), 2),
+            why=f"{why}; the column seen free {depth:.1f} m down",
+        )
+        return True
 
     def update(self) -> Status:
         if self.phase == "look":
@@ -773,6 +795,8 @@ class Land(RobotBehaviour):
             if self.phase == "step":
                 self.spot, self.yaw = self.flight.position_world(), self.flight.yaw_world()
                 self.phase, self.started = "look", self.flight.time()
+                return Status.RUNNING
+            if self._step_down_to_see():
                 return Status.RUNNING
             self.spot, self.phase = None, None
             self.flight.land()

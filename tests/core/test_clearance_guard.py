@@ -230,6 +230,43 @@ def test_a_counter_top_with_free_space_under_it_is_no_landing_surface() -> None:
     assert upper.descent_clear(np.array([0.0, 0.0, 3.95]))
 
 
+def test_a_column_half_off_a_slabs_edge_is_no_landing_column() -> None:
+    # a PAMS survey landed half off the lot's ground slab (its edge 0.1 m from the column's centre,
+    # the void past it seen free by the rays that went by): the surface under the centre is no
+    # support for the whole vehicle
+    slab = ((-5, -5, -0.3), (0.1, 5, 0.0))
+    guard = SetpointFilter(BoxMap([slab]), RADIUS, min_height=0.0, min_headroom=0.0)
+    here = np.array([0.0, 0.0, 1.5])
+    assert guard._descent(here)[2]  # nothing beside the column to touch on the way down
+    assert not guard.descent_clear(here)
+    spot = guard.landing_spot(here)
+    assert spot is not None and spot[2] == pytest.approx(1.5)
+    assert spot[0] <= 0.1 - RADIUS + 1e-9  # the whole footprint over the slab
+    assert guard.descent_clear(spot)
+    # the same edge unseen beyond (unknown, not free) is no evidence of a void: a floor's far
+    # side is never seen
+    unseen_beyond = WindowedMap(BoxMap([slab]), np.zeros(3), bottom=-10.0)
+    unseen_beyond.local_unseen = ((0.1, -5, -5), (5, 5, 0.0))
+    guard = SetpointFilter(unseen_beyond, RADIUS, min_height=0.0, min_headroom=0.0)
+    assert guard.descent_clear(here)
+
+
+def test_low_past_a_slabs_edge_the_slab_is_the_landing_spot() -> None:
+    # the same survey, stepped down to 0.8 m over the slab, found itself 0.05 m past its edge (the
+    # global map had placed the edge further out): below it the local map sees free space to the
+    # window's bottom and nothing under that; the slab beside it is where to land
+    slab = ((-5, -5, -0.3), (0.1, 5, 0.0))
+    world = WindowedMap(BoxMap([slab]), np.zeros(3), bottom=-1.0, unseen=((0.1, -5, -20), (5, 5, -1.0)))
+    guard = SetpointFilter(world, RADIUS, min_height=0.0, min_headroom=0.0)
+    T_world_odom = np.eye(4)
+    here = np.array([0.15, 0.0, 0.8])
+    assert not np.isfinite(guard._descent(here, T_world_odom)[1])  # no surface under it in reach
+    spot = guard.landing_spot(here, T_world_odom)
+    assert spot is not None and spot[0] <= 0.1 - RADIUS + 1e-9 and guard.descent_clear(spot)
+    # from higher up, the surface beside is no landing spot (a car's roof over unseen ground)
+    assert guard.landing_spot(here + np.array([0.0, 0.0, 1.5]), T_world_odom) is None
+
+
 def test_no_floor_in_reach_or_no_clear_spot_gives_none() -> None:
     here = np.array([0.0, 0.0, 1.2])
     no_floor = SetpointFilter(BoxMap([TABLE]), RADIUS, min_height=0.0, min_headroom=0.0)
@@ -346,6 +383,12 @@ def test_at_altitude_the_global_map_sees_below_the_local_maps_reach() -> None:
     open_lot = here + np.array([0.0, 3.0, 0.0])
     np.testing.assert_allclose(guard.landing_spot(open_lot, T_world_odom), open_lot)
     assert guard._descent(open_lot, T_world_odom)[1] == pytest.approx(0.0, abs=0.11)
+    # judged on the global map only: the local map sees no surface below from up here
+    assert not guard.surface_seen_locally(open_lot)
+    lower = WindowedMap(BoxMap([ground]), shift, bottom=-1.0)  # a window that reaches the ground
+    nearer = SetpointFilter(lower, RADIUS, min_height=0.0, min_headroom=0.0)
+    assert nearer.surface_seen_locally(open_lot - np.array([0.0, 0.0, 5.3]))  # 1 m over it
+    assert not nearer.surface_seen_locally(open_lot - np.array([0.0, 0.0, 4.0]))  # 2.3 m over it
 
 
 def test_from_altitude_a_column_the_global_map_never_saw_is_no_landing_column() -> None:

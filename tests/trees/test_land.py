@@ -12,10 +12,12 @@ from amslam.trees.behaviours import Land
 
 class FakeFlight:
     """Moves 0.1 m per setpoint towards it; lands when asked; knows one clear landing spot; has
-    seen its column free down to ``seen_free_to`` m (none of it by default)."""
+    seen its column free down to ``seen_free_to`` m (none of it by default); its local map sees
+    the surface below once it is lower than ``local_reach`` (always by default)."""
 
-    def __init__(self, spot, height=1.2, seen_free_to=None):
+    def __init__(self, spot, height=1.2, seen_free_to=None, local_reach=np.inf):
         self.p = np.array([0.0, 0.0, height])
+        self.local_reach = local_reach
         self.spot = None if spot is None else np.asarray(spot, float)
         self.seen_free_to = height if seen_free_to is None else seen_free_to
         self.landed_at = None
@@ -41,6 +43,9 @@ class FakeFlight:
 
     def seen_free_below(self):
         return max(0.0, float(self.p[2] - self.seen_free_to))
+
+    def landing_surface_seen(self):
+        return bool(self.p[2] < self.local_reach)
 
     def send_setpoint_world(self, position, yaw):
         step = np.asarray(position, float) - self.p
@@ -109,6 +114,30 @@ def test_from_altitude_steps_down_through_seen_free_space_then_judges_again():
     assert max(flight.yaws) > 0.9 * np.pi  # turned half round down there: the camera saw all the column
     np.testing.assert_allclose(flight.landed_at[:2], [0.4, 0.0], atol=0.11)
     assert flight.landed_at[2] < 3.0
+
+
+def test_a_spot_judged_on_the_global_map_only_is_stepped_down_to_and_judged_again():
+    # a PAMS survey, stepped down to 3.3 m over the lot, judged a spot 0.25 m aside on the global
+    # map (the local map's window ends above the ground) and landed half off the ground slab's edge,
+    # which the global map had put 0.3 m further out; its local map sees the ground below 2.5 m
+    class Survey(FakeFlight):
+        def landing_spot_world(self):
+            if self.p[2] > 2.5:
+                return np.array([0.25, 0.0, self.p[2]])  # the global map's judgement
+            return np.array([-0.3, 0.0, self.p[2]])  # the local map's: the edge is nearer
+
+    flight = Survey(spot=None, height=3.3, seen_free_to=0.6, local_reach=2.5)
+    status, seen = run(flight)
+    assert status == Status.SUCCESS
+    assert seen == ["landing_spot", "landing_step_down", "landing_spot"]
+    assert flight.lowest >= 0.6 + Land.STEP_MARGIN - 0.11
+    assert max(flight.yaws) > 0.9 * np.pi
+    np.testing.assert_allclose(flight.landed_at[:2], [-0.3, 0.0], atol=0.11)
+    # with no room to step down it lands on the global map's judgement
+    low = Survey(spot=None, height=3.3, seen_free_to=3.0, local_reach=2.5)
+    status, seen = run(low)
+    assert status == Status.SUCCESS and seen == ["landing_spot"]
+    np.testing.assert_allclose(low.landed_at[:2], [0.25, 0.0], atol=0.11)
 
 
 def test_a_column_never_seen_below_is_no_step_down():
