@@ -329,12 +329,14 @@ def packaged_missions() -> list[str]:
 
 
 def resolve_mission_path(spec: str | Path) -> Path:
-    """A file path, or the name of a packaged mission (``demo``)."""
+    """A file path, or the name of a packaged mission (``demo``). A folder of that name (a run's
+    output folder: ``amslam run demo --out demo`` made one) does not hide the packaged mission."""
     path = Path(spec)
-    if path.exists():
-        return path
     name = str(spec).removesuffix(".yaml")
-    if name in packaged_missions():
+    packaged = name in packaged_missions()
+    if path.exists() and not (packaged and path.is_dir()):
+        return path
+    if packaged:
         with importlib.resources.as_file(importlib.resources.files("amslam.missions") / f"{name}.yaml") as p:
             return Path(p)
     shipped = ", ".join(packaged_missions())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import jsonschema
 import pytest
@@ -125,3 +126,14 @@ def test_schema_knows_each_backends_parameters(schema, registry):
         refs = {ref["$ref"].split("/")[-1] for ref in schema["properties"][kind]["anyOf"]}
         assert refs == {f"{kind}_{plugin}" for plugin in registry.backends[kind]}
     assert "global_voxel" in schema["definitions"]["mapping_open3d"]["properties"]
+
+
+def test_a_folder_named_like_a_packaged_mission_does_not_hide_it(tmp_path, monkeypatch):
+    # `amslam run demo --out demo` makes a folder `demo`; the next `amslam run demo` there
+    # failed with "demo: a directory; a mission is a YAML file"
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo").mkdir()
+    path = resolve_mission_path("demo")
+    assert path.is_file() and path.name == "demo.yaml"
+    (tmp_path / "mine").mkdir()  # a folder no packaged mission is named after stays an error
+    assert resolve_mission_path("mine") == Path("mine")
