@@ -301,7 +301,7 @@ class SetWaypointGoal(RobotBehaviour):
 class WaypointOutcome(RobotBehaviour):
     """Log waypoint ``index`` reached, or skipped (its ``GoTo`` found no path or gave it up)."""
 
-    uses = ("events",)
+    uses = ("flight", "events")
 
     def __init__(self, name: str, index: int, reached: bool):
         super().__init__(name)
@@ -315,7 +315,10 @@ class WaypointOutcome(RobotBehaviour):
             self.events.emit("waypoint_reached", index=self.index, position=position)
         else:
             self.bb.set("/waypoints_skipped", self.bb.get("/waypoints_skipped") + 1)
-            self.events.emit("waypoint_skipped", index=self.index, position=position, reason="no way there")
+            at = np.round(self.flight.position_world(), 3).tolist()
+            self.events.emit(
+                "waypoint_skipped", index=self.index, position=position, at=at, reason="no way there"
+            )
         return Status.SUCCESS
 
 

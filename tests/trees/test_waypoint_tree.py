@@ -56,17 +56,22 @@ def test_an_unreachable_waypoint_ends_the_mission_at_the_time_limit(tmp_path):
     assert np.linalg.norm(truth[-1, 1:3] - truth[0, 1:3]) < 0.5
 
 
-def test_a_waypoint_the_guards_hold_the_vehicle_back_from_is_skipped(tmp_path):
+@pytest.mark.parametrize("follow", ["straight", "paths"])
+def test_a_waypoint_the_guards_hold_the_vehicle_back_from_is_skipped(tmp_path, follow):
     # the same waypoint above the area's ceiling, with a third one behind it: the vehicle comes
-    # no nearer for skip_after seconds, gives the second up and flies on to the third
+    # no nearer for skip_after seconds (straight legs) or finds no path there (paths), gives the
+    # second up and flies on to the third; either way the event says where it was
     points = "[[1.0, 0.0, 1.2], [1.0, 0.0, 100.0], [0.0, 0.0, 1.2]]"
-    result = fly_waypoints(tmp_path, points, "waypoints.skip_after=4", "limits.max_time=60")
+    result = fly_waypoints(
+        tmp_path, points, "waypoints.skip_after=4", "limits.max_time=60", f"waypoints.follow={follow}"
+    )
 
     events = [json.loads(line) for line in (result.run_dir / "events.jsonl").read_text().splitlines()]
     assert result.verdict == "completed", result.verdict
     assert [e["index"] for e in events if e["event"] == "waypoint_reached"] == [0, 2]
     (skipped,) = [e for e in events if e["event"] == "waypoint_skipped"]
-    assert skipped["index"] == 1 and skipped["reason"].endswith("for 4 s")
+    reason = "for 4 s" if follow == "straight" else "no way there"
+    assert skipped["index"] == 1 and skipped["reason"].endswith(reason)
     assert skipped["at"][2] <= 2.2  # held under the ceiling
     assert not [e for e in events if e["event"] == "limit_reached"]
     (end,) = [e for e in events if e["event"] == "mission_end"]
