@@ -100,7 +100,13 @@ class ShapeParams(BaseModel):
     max_points: int = Field(
         6000, ge=100, le=1_000_000, description="window points kept per landmark (random thinning)"
     )
-    voxel: float = Field(0.04, gt=0, le=10, description="ground buffer voxel size, m")
+    voxel: float = Field(
+        0.1,
+        gt=0,
+        le=10,
+        description="ground buffer voxel size, m: one point per voxel across frames (0.04 per frame held"
+        " 7x the points for the same plane within 0.5 mm: benchmarks/ground_buffer.py)",
+    )
     ground_radius: float = Field(
         4.0, gt=0, le=1000, description="ground points within this of an object count, m"
     )

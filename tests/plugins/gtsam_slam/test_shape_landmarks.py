@@ -372,3 +372,21 @@ def test_model_sigmas_measure_a_characterised_class_with_its_best_look() -> None
     near = own.view_scale("chair", chair, np.array([[1.5, 1.5, 1.4]]))
     far = own.view_scale("chair", chair, np.array([[4.0, 3.5, 1.4]]))
     assert far > near >= 1.0
+
+
+def test_the_ground_buffer_keeps_one_point_per_voxel_across_frames() -> None:
+    from amslam.plugins.gtsam_slam.shape_landmarks import GroundBuffer
+
+    rng = np.random.default_rng(3)
+    buffer = GroundBuffer(voxel=0.1, window=10.0)
+    patch = lambda n: np.column_stack([rng.uniform(0, 2, (n, 2)), np.zeros(n)])  # noqa: E731
+    for t in range(20):  # the same 2 x 2 m patch in 20 frames: 400 voxels, not 20 copies of them
+        buffer.add(float(t), patch(3000))
+    assert len(buffer) == 400
+    assert np.all(buffer.stamps >= 15.0)  # each voxel's newest point (all seen in the last frames)
+    # a voxel not seen again within the window is forgotten; one seen again stays
+    buffer.add(30.0, np.array([[0.05, 0.05, 0.0]]))
+    assert len(buffer) == 1 and buffer.stamps[0] == 30.0
+    # far off (or hostile) coordinates do not overflow the packed voxel index
+    buffer.add(31.0, np.array([[1e9, -1e9, 5.0], [1e9, -1e9, 5.0]]))
+    assert len(buffer) == 2
