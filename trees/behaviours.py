@@ -746,13 +746,14 @@ class Land(RobotBehaviour):
         self.flight.land()
 
     def _step_down_to_see(self) -> bool:
-        """Step down when the column here was judged on the global map only: its surface is out
-        of the local map's reach, and the global map, built in the estimate's frame of minutes
-        ago, may place it off by more than the footprint (a survey landed half off the lot's ground
-        slab whose edge its global map put 0.3 m further out)."""
+        """Step down when the local map does not show the surface close below (its window does
+        not reach under it): the column was judged on the global map, built in the estimate's
+        frame of minutes ago, which may place it off by more than the footprint (a survey landed
+        half off the lot's ground slab whose edge its global map put 0.3 m further out), or at
+        the local window's bottom, where a void past an edge is out of sight."""
         if self.flight.landing_surface_seen():
             return False
-        return self._step_down("the surface below seen in the global map only")
+        return self._step_down("the surface below not seen close in the local map")
 
     def _step_down(self, why: str) -> bool:
         """Descend through the part of the column seen free, less ``STEP_MARGIN``, if that is
