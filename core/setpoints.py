@@ -280,14 +280,14 @@ class SetpointFilter:
         supported = found and not raised and self._supported(look, p, top)
         return free and supported, (surface if found else float("inf")), free
 
-    def _supported(self, look, p: np.ndarray, top: float) -> bool:
-        """Whether no cell of the footprint (the robot-radius disc under ``p``) is over a void at
-        ``top``, the height of the surface found below the centre: a cell is over a void when the
-        maps saw it free from there down ``SUPPORT_DEPTH`` (where the surface should be, nothing —
-        a slab's edge, whose void the rays past it carve free). Unknown cells are no evidence:
-        below a floor nothing is ever seen."""
+    def _supported(self, look, p: np.ndarray, top: float, reach: float | None = None) -> bool:
+        """Whether no cell of the footprint (the disc of ``reach``, default the robot radius,
+        under ``p``) is over a void at ``top``, the height of the surface found below the centre:
+        a cell is over a void when the maps saw it free from there down ``SUPPORT_DEPTH`` (where
+        the surface should be, nothing — a slab's edge, whose void the rays past it carve free).
+        Unknown cells are no evidence: below a floor nothing is ever seen."""
         heights = top - np.arange(0.0, self.SUPPORT_DEPTH + 1e-9, self.GUARD_STEP)
-        footprint = self._column(p, heights, reach=self.radius)
+        footprint = self._column(p, heights, reach=self.radius if reach is None else reach)
         states = look(footprint.reshape(-1, 3)).reshape(footprint.shape[:2])
         return not bool(np.any(np.all(states == VoxelState.FREE, axis=0)))
 
@@ -356,8 +356,9 @@ class SetpointFilter:
         window ends about a metre above the ground), a surface it does reach nearby is higher than
         that ground — a car's roof — and never a landing spot: the vehicle lands where it is if
         its column is free as deep as the map sees, else at the nearest point whose column is;
-        unless the vehicle is low over that surface and past its edge, seen free under it
-        (``_over_void``): then the surface is the landing spot, not the drop beside it.
+        unless the vehicle is low over that surface and past its edge, its own vertical seen free
+        where the surface would be (``_supported`` of the vertical alone): then the surface is
+        the landing spot, not the drop beside it.
         With ``T_world_odom`` the global map sees what the local map does not reach
         (:meth:`_descent`)."""
         here = np.asarray(here_odom, float)
@@ -378,20 +379,13 @@ class SetpointFilter:
                     ok = (free and not np.isfinite(surface)) or (
                         clear
                         and here[2] - surface <= self.LOCAL_JUDGE_REACH
-                        and self._over_void(here, surface)
+                        and not self._supported(self._look(None), here, surface, reach=0.0)
                     )
                 else:
                     ok = clear and surface <= surface_here + 1.5 * self.GUARD_STEP
                 if ok and self._straight_clear(here, spot):
                     return spot
         return None
-
-    def _over_void(self, p: np.ndarray, height: float) -> bool:
-        """Whether the local map saw the vertical under ``p`` free from ``height`` down
-        ``SUPPORT_DEPTH``: ``p`` is past the edge of a surface at that height."""
-        depth = np.arange(0.0, self.SUPPORT_DEPTH + 1e-9, self.GUARD_STEP)
-        points = np.column_stack([np.full((len(depth), 2), p[:2]), height - depth])
-        return bool(np.all(self.mapping.states(points, local=True) == VoxelState.FREE))
 
     def _straight_clear(self, a: np.ndarray, b: np.ndarray) -> bool:
         """No occupied local voxel within the robot radius plus ``GUARD_MARGIN`` of segment a–b."""
