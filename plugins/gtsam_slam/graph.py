@@ -225,6 +225,12 @@ class SlamGraph:
         self._new_graph = gtsam.NonlinearFactorGraph()
         self.new_values = gtsam.Values()
         self.estimate = gtsam.Values()
+        # a cuboid's extent factor is replaced as its views grow: landmark → (index in history,
+        # index in iSAM2 or None until flushed); landmark → its position in _new_graph; and the
+        # iSAM2 indices of the replaced ones, removed at the next flush
+        self._extents: dict[int, tuple[int, int | None]] = {}
+        self._staged_extents: dict[int, int] = {}
+        self._removed: list[int] = []
         self.version = 0
         self._cache: dict[str, tuple[int, object]] = {}
         self.landmarks: dict[int, LandmarkRec] = {}
@@ -239,15 +245,42 @@ class SlamGraph:
 
     def flush(self, extra_iterations: int = 0) -> None:
         """One iSAM2 update with the new factors and values (a fresh graph each time)."""
-        if self._new_graph.size() == 0 and self.new_values.size() == 0:
+        if self._new_graph.size() == 0 and self.new_values.size() == 0 and not self._removed:
             return
-        self._isam.update(self._new_graph, self.new_values)
+        result = self._isam.update(self._new_graph, self.new_values, self._removed)
+        indices = result.getNewFactorsIndices()
+        for lm_id, at in self._staged_extents.items():
+            self._extents[lm_id] = (self._extents[lm_id][0], int(indices[at]))
+        self._staged_extents, self._removed = {}, []
         for _ in range(extra_iterations):
             self._isam.update()
         self._new_graph = gtsam.NonlinearFactorGraph()
         self.new_values = gtsam.Values()
         self.estimate = self._isam.calculateEstimate()
         self.version += 1
+
+    def measure_extent(self, lm_id: int) -> None:
+        """(Re)place a cuboid landmark's one dims measurement by what its views reach now
+        (:meth:`.ShapeLandmarks.extent_factor`): the previous one leaves iSAM2 at the next flush,
+        and ``history`` holds the latest in its place."""
+        est = self.shapes.estimate(lm_id, self.new_values) or self.shapes.estimate(lm_id, self.estimate)
+        factor = None if est is None else self.shapes.extent_factor(lm_id, est, self.pose)
+        if factor is None:
+            return
+        if lm_id in self._staged_extents:
+            self._new_graph.replace(self._staged_extents[lm_id], factor)
+            self.history.replace(self._extents[lm_id][0], factor)
+            return
+        if lm_id in self._extents:
+            at, in_isam = self._extents[lm_id]
+            self.history.replace(at, factor)
+            self._removed.append(in_isam)
+        else:
+            at = self.history.size()
+            self.history.add(factor)
+        self._staged_extents[lm_id] = self._new_graph.size()
+        self._new_graph.add(factor)
+        self._extents[lm_id] = (at, None)
 
     def pose(self, key: int) -> np.ndarray:
         if self.new_values.exists(key):
@@ -452,6 +485,7 @@ class SlamGraph:
             self.add_factor(sh.factor(k, k, lm.id, s, self.pose(k), est, self.noise.robust))
         rec.measured += [(lm.id, k, s) for k, s in rec.pending]
         rec.pending = []
+        self.measure_extent(lm.id)
 
     # ---------------------------------------------------------------- fusion
 
@@ -492,6 +526,7 @@ class SlamGraph:
             for k, s in sh.take_measurements(target.id, dup.id, skip):
                 self.add_factor(sh.factor(k, k, target.id, s, self.pose(k), est, self.noise.robust))
                 sh.recs[target.id].measured.append((target.id, k, s))
+            self.measure_extent(target.id)
         else:
             for o in dup.observations:
                 if o.pose_key not in skip:
@@ -586,6 +621,7 @@ class SlamGraph:
             old, new = order
             self.shapes.absorb(old.id, new.id)
             self.fuse(old, new)
+            self.measure_extent(old.id)
             emit("slam_shape_twins_fused", kept=old.id, fused=new.id, cls=old.class_name)
             fused += 1
         return fused

@@ -436,6 +436,12 @@ class _Merger:
                     sh.initial_values(lm.id, shapes.transform_shape(shape_body, T_world_body), start)
                 est = sh.estimate(lm.id, start)
                 out.add(sh.factor(k, k, owner, shape_body, T_world_body, est, g.noise.robust, on=lm.id))
+            est = sh.estimate(lm.id, start)
+            extent = (
+                None if est is None else sh.extent_factor(lm.id, est, lambda k: start.atPose3(k).matrix())
+            )
+            if extent is not None:
+                out.add(extent)
         return out, start
 
     def landmark_estimates(

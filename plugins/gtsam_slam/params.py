@@ -145,6 +145,15 @@ class ShapeParams(BaseModel):
     completion_tolerance: float = Field(
         0.15, ge=0, le=100, description="shortfall of an extent that is noise, m"
     )
+    extent: bool = Field(
+        True,
+        description="measure a cuboid's dims once per landmark, by the extent its views reach (the"
+        " extent_percentile-th percentile of its measurements' fitted dims: partial views bound the"
+        " object from below), in place of each eq. 1 measurement's dims (their mean makes cars short)",
+    )
+    extent_percentile: float = Field(
+        90.0, gt=0, le=100, description="percentile of a landmark's measured dims that is its extent"
+    )
     decorrelate: bool = Field(
         True,
         description="measurements of a landmark fitted to overlapping windows share their points: each"

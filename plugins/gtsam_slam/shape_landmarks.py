@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -109,6 +110,7 @@ class _ShapeRec:
     # twins' (a tentative twin's held-back ones included): (landmark whose noise it has, key pose,
     # body-frame shape), for the base merge
     measured: list[tuple[int, int, dict]] = field(default_factory=list)
+    raw: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → fitted dims before completion
 
 
 class ShapeLandmarks:
@@ -380,6 +382,7 @@ class ShapeLandmarks:
         d = np.asarray(shape["dims"], float)
         comp = rec.completion
         raw = comp.measured if comp is not None else d
+        rec.raw[kp] = np.asarray(raw, float)
         raw_sorted = np.array([max(raw[0], raw[1]), min(raw[0], raw[1]), raw[2]])  # length ≥ width
         rec.ref_dims = raw_sorted if rec.ref_dims is None else np.maximum(rec.ref_dims, raw_sorted)
         # objects of one class are alike: the first, partial views of a new car are measured
@@ -521,6 +524,8 @@ class ShapeLandmarks:
             keep.loose.setdefault(kp, lv)
         for kp, sc in gone.scale.items():
             keep.scale.setdefault(kp, sc)
+        for kp, r in gone.raw.items():
+            keep.raw.setdefault(kp, r)
 
     def take_measurements(self, keep_id: int, gone_id: int, skip: set[int]) -> list[tuple[int, dict]]:
         """The measurements (key pose, body-frame shape) twin ``gone_id`` holds back while it is
@@ -612,6 +617,54 @@ class ShapeLandmarks:
             s = [translation] * 3 + [p.sigma_axis] * 3 + [p.sigma_radius]
         return gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(s))
 
+    def extent(self, lm_id: int, estimate: dict, pose: Callable[[int], np.ndarray]) -> np.ndarray | None:
+        """The box a cuboid landmark's views reach, along its estimate's axes (``shapes.extent``).
+
+        A view sees part of a car as often as all of it (one end, one side, cut by the image) and
+        never more than all of it: each measurement's fitted dims (before completion with the
+        class prior) bound the object's from below. Averaging them, as eq. 1's dims residual
+        does over hundreds of partial views, makes every car short (measured on PAMS flights,
+        ``docs/pams.md``); the ``extent_percentile``-th percentile over the landmark's
+        measurements (its own and its fused twins', each counted once) is the extent its whole
+        views agree on, and a few long outliers (a mask bleeding onto the next car) do not move
+        it. Each measurement's box axes are matched to the estimate's horizontal axes by
+        direction (world frame, ``pose``: key pose key → 4 × 4 world ← body), so an end-on view
+        of a car measures its width, not its length.
+
+        Returns:
+            ``dims`` in the estimate's axis order, or ``None`` (no cuboid measurement).
+        """
+        rec = self.recs[lm_id]
+        R_est = np.asarray(estimate["rotation"], float)
+        rows = []
+        for owner, k, s in rec.measured:
+            if s["model"] != "cuboid":
+                continue
+            raw = self.recs[owner].raw.get(k) if owner in self.recs else None
+            raw = np.asarray(s["dims"] if raw is None else raw, float)
+            b1 = pose(k)[:3, :3] @ np.asarray(s["rotation"], float)[:, 0]
+            along = abs(float(b1 @ R_est[:, 0])) >= abs(float(b1 @ R_est[:, 1]))
+            rows.append(raw if along else raw[[1, 0, 2]])
+        if not rows:
+            return None
+        return np.percentile(np.array(rows), self.p.extent_percentile, axis=0)
+
+    def extent_factor(
+        self, lm_id: int, estimate: dict, pose: Callable[[int], np.ndarray]
+    ) -> gtsam.NonlinearFactor | None:
+        """The one measurement of a cuboid landmark's dims (``extent``): its views' :meth:`extent`
+        with one good look's dims std (``base_sigmas``); ``None`` without ``extent`` or views."""
+        rec = self.recs[lm_id]
+        if not self.p.extent or rec.model != "cuboid":
+            return None
+        dims = self.extent(lm_id, estimate, pose)
+        if dims is None:
+            return None
+        sigma = self.base_sigmas(rec.cls, "cuboid")[1]
+        return gtsam.PriorFactorPoint3(
+            cuboid_keys(lm_id)[1], dims, gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+        )
+
     def initial_values(self, lm_id: int, shape_world: dict, values: gtsam.Values) -> None:
         """Insert the variables of a landmark entering the graph, from a world-frame shape."""
         if shape_world["model"] == "cuboid":
@@ -670,6 +723,8 @@ class ShapeLandmarks:
                 slack = np.maximum(ref - dims, 0.0) / 2.0
                 slack = np.where(loose_d > 0, np.maximum(slack, loose_c), slack)
             base = self.base_sigmas(rec.cls, "cuboid")
+            if self.p.extent:  # the dims are measured once per landmark, by its views' extent
+                loose_d = np.full(3, UNMEASURED)
             noise = self.noise("cuboid", slack, loose_d, rec.scale.get(kp_id, 1.0), base)
             return cuboid_factor(pose_key, o, d, Z, dims, robust(noise))
         base = self.base_sigmas(rec.cls, shape_body["model"])
@@ -725,6 +780,11 @@ class ShapeLandmarks:
         return shapes.cylinder_shape(
             values.atPoint3(b), values.atUnit3(n).point3(), float(values.atVector(r)[0]), rec.height
         )
+
+
+#: the dims std of an eq. 1 measurement whose dims are measured by the landmark's extent
+#: instead (``extent``): metres, nothing next to the extent's tenths
+UNMEASURED = 1e3
 
 
 @functools.lru_cache(maxsize=4)
