@@ -184,6 +184,16 @@ def test_star_cannot_be_the_ground() -> None:
         slam.configure(params, RunContext(rng=np.random.default_rng(1), run_dir=Path(".")))
 
 
+def _detect(slam: GtsamSlam, odom: Odometry, T_body_cam: np.ndarray, points: dict[str, np.ndarray]) -> None:
+    """One detection per class of its world-frame ``points``, seen from ``odom``'s pose."""
+    T_cw = np.linalg.inv(odom.T_odom_body @ T_body_cam)
+    dets = []
+    for cls, pts in points.items():
+        pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
+        dets.append(Detection(cls, 0.9, np.median(pc, axis=0), pc))
+    slam.add_detections(odom, T_body_cam, dets)
+
+
 def _two_end_passes(params: GtsamSlam.Params) -> GtsamSlam:
     """A car seen at its front end, then, after its points left the window, at its rear end.
 
@@ -209,12 +219,7 @@ def _two_end_passes(params: GtsamSlam.Params) -> GtsamSlam:
             ground = np.column_stack(
                 [rng.uniform(0, 12, 400), rng.uniform(-4, 8, 400), rng.normal(0, 0.01, 400)]
             )
-            T_cw = np.linalg.inv(T_wb @ T_body_cam)
-            dets = []
-            for cls, pts in (("car", car), ("ground", ground)):
-                pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
-                dets.append(Detection(cls, 0.9, np.median(pc, axis=0), pc))
-            slam.add_detections(odom, T_body_cam, dets)
+            _detect(slam, odom, T_body_cam, {"car": car, "ground": ground})
             t += 1.0
         t += 30.0  # the first pass's points leave the window
     return slam
@@ -422,12 +427,7 @@ def _circled_in_parts(extent: bool) -> GtsamSlam:
         ground = np.column_stack(
             [rng.uniform(-4, 14, 400), rng.uniform(-8, 10, 400), rng.normal(0, 0.01, 400)]
         )
-        T_cw = np.linalg.inv(T_wb @ T_body_cam)
-        dets = []
-        for cls, pts in (("car", car), ("ground", ground)):
-            pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
-            dets.append(Detection(cls, 0.9, np.median(pc, axis=0), pc))
-        slam.add_detections(odom, T_body_cam, dets)
+        _detect(slam, odom, T_body_cam, {"car": car, "ground": ground})
     return slam
 
 
