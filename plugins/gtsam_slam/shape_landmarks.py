@@ -111,6 +111,7 @@ class _ShapeRec:
     # body-frame shape), for the base merge
     measured: list[tuple[int, int, dict]] = field(default_factory=list)
     raw: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → fitted dims before completion
+    extended: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → box axes completed
 
 
 class ShapeLandmarks:
@@ -383,6 +384,7 @@ class ShapeLandmarks:
         comp = rec.completion
         raw = comp.measured if comp is not None else d
         rec.raw[kp] = np.asarray(raw, float)
+        rec.extended[kp] = np.asarray(comp.extended if comp is not None else np.zeros(3, bool))
         raw_sorted = np.array([max(raw[0], raw[1]), min(raw[0], raw[1]), raw[2]])  # length ≥ width
         rec.ref_dims = raw_sorted if rec.ref_dims is None else np.maximum(rec.ref_dims, raw_sorted)
         # objects of one class are alike: the first, partial views of a new car are measured
@@ -526,6 +528,8 @@ class ShapeLandmarks:
             keep.scale.setdefault(kp, sc)
         for kp, r in gone.raw.items():
             keep.raw.setdefault(kp, r)
+        for kp, e in gone.extended.items():
+            keep.extended.setdefault(kp, e)
 
     def take_measurements(self, keep_id: int, gone_id: int, skip: set[int]) -> list[tuple[int, dict]]:
         """The measurements (key pose, body-frame shape) twin ``gone_id`` holds back while it is
@@ -621,33 +625,47 @@ class ShapeLandmarks:
         """The box a cuboid landmark's views reach, along its estimate's axes (``shapes.extent``).
 
         A view sees part of a car as often as all of it (one end, one side, cut by the image) and
-        never more than all of it: each measurement's fitted dims (before completion with the
-        class prior) bound the object's from below. Averaging them, as eq. 1's dims residual
-        does over hundreds of partial views, makes every car short (measured on PAMS flights,
-        ``docs/pams.md``); the ``extent_percentile``-th percentile over the landmark's
-        measurements (its own and its fused twins', each counted once) is the extent its whole
-        views agree on, and a few long outliers (a mask bleeding onto the next car) do not move
-        it. Each measurement's box axes are matched to the estimate's horizontal axes by
-        direction (world frame, ``pose``: key pose key → 4 × 4 world ← body), so an end-on view
-        of a car measures its width, not its length.
+        never more than all of it: each measurement's fitted dims bound the object's from below.
+        Averaging them, as eq. 1's dims residual does over hundreds of partial views, makes every
+        car short (measured on PAMS flights, ``docs/pams.md``); the ``extent_percentile``-th
+        percentile over the landmark's measurements (its own and its fused twins', each counted
+        once) is the extent its whole views agree on, and a few long outliers (a mask bleeding
+        onto the next car) do not move it. Per axis, the fitted dims of the measurements that did
+        not complete it with the class prior (:func:`.shapes.complete_cuboid`: a part whose far
+        face was not seen); an axis every measurement completed is known only by the prior, so
+        the completed dims are its extent. Each measurement's box axes are matched to the
+        estimate's horizontal axes by direction (world frame, ``pose``: key pose key → 4 × 4
+        world ← body), so an end-on view of a car measures its width, not its length.
 
         Returns:
             ``dims`` in the estimate's axis order, or ``None`` (no cuboid measurement).
         """
-        rec = self.recs[lm_id]
         R_est = np.asarray(estimate["rotation"], float)
-        rows = []
-        for owner, k, s in rec.measured:
+        fitted, completed, extended = [], [], []
+        for owner, k, s in self.recs[lm_id].measured:
             if s["model"] != "cuboid":
                 continue
-            raw = self.recs[owner].raw.get(k) if owner in self.recs else None
-            raw = np.asarray(s["dims"] if raw is None else raw, float)
+            rec = self.recs.get(owner)
+            dims = np.asarray(s["dims"], float)
+            raw = rec.raw.get(k, dims) if rec is not None else dims
+            ext = rec.extended.get(k, np.zeros(3, bool)) if rec is not None else np.zeros(3, bool)
             b1 = pose(k)[:3, :3] @ np.asarray(s["rotation"], float)[:, 0]
-            along = abs(float(b1 @ R_est[:, 0])) >= abs(float(b1 @ R_est[:, 1]))
-            rows.append(raw if along else raw[[1, 0, 2]])
-        if not rows:
+            order = [0, 1, 2] if abs(float(b1 @ R_est[:, 0])) >= abs(float(b1 @ R_est[:, 1])) else [1, 0, 2]
+            fitted.append(np.asarray(raw, float)[order])
+            completed.append(dims[order])
+            extended.append(np.asarray(ext, bool)[order])
+        if not fitted:
             return None
-        return np.percentile(np.array(rows), self.p.extent_percentile, axis=0)
+        fitted, completed, extended = np.array(fitted), np.array(completed), np.array(extended)
+        q = self.p.extent_percentile
+        return np.array(
+            [
+                np.percentile(fitted[~extended[:, a], a], q)
+                if (~extended[:, a]).any()
+                else np.percentile(completed[:, a], q)
+                for a in range(3)
+            ]
+        )
 
     def extent_factor(
         self, lm_id: int, estimate: dict, pose: Callable[[int], np.ndarray]

@@ -194,7 +194,7 @@ def _detect(slam: GtsamSlam, odom: Odometry, T_body_cam: np.ndarray, points: dic
     slam.add_detections(odom, T_body_cam, dets)
 
 
-def _two_end_passes(params: GtsamSlam.Params) -> GtsamSlam:
+def _two_end_passes(params: GtsamSlam.Params, ends: tuple[float, ...] = (1.0, -1.0)) -> GtsamSlam:
     """A car seen at its front end, then, after its points left the window, at its rear end.
 
     Each pass is a sideways flight 4 m beyond one end, 3.5 m up, looking at the car; only the
@@ -206,7 +206,7 @@ def _two_end_passes(params: GtsamSlam.Params) -> GtsamSlam:
     T_body_cam = CameraModel.forward_mount(35.0)
     R = rz(CAR_YAW)
     t = 0.0
-    for end in (1.0, -1.0):
+    for end in ends:
         for k in range(12):
             lateral = -1.5 + 3.0 * k / 11
             p = CAR_C + R @ np.array([end * 6.3, lateral, 2.75])
@@ -454,3 +454,14 @@ def test_a_car_seen_mostly_in_parts_is_mapped_at_the_extent_its_whole_views_reac
     # eq. 1's own dims residual averages the partial views: the car comes out short
     averaged = _length_width(_circled_in_parts(extent=False))
     assert averaged[0] < CAR_DIMS[0] - 0.25
+
+
+def test_a_car_seen_at_one_end_only_has_the_class_prior_s_length() -> None:
+    # no view saw the far end: every measurement completed the length with the size prior, so the
+    # extent along it is the prior's, not the 2 m in view
+    shape = {"window": 5.0, "size_prior": {"car": {"dims": [4.6, 1.85, 1.5]}}}
+    params = GtsamSlam.Params(
+        landmark_models={"car": "cuboid", "ground": "plane"}, association={"max_range": 12.0}, shapes=shape
+    )
+    (car,) = [lm for lm in _two_end_passes(params, ends=(1.0,)).landmarks() if lm.class_name == "car"]
+    assert max(car.shape["dims"][:2]) == pytest.approx(4.6, abs=0.15)
