@@ -31,6 +31,7 @@ __all__ = [
 
 #: a size or its spread, m: above zero and at most 100 m (no object is larger)
 _Size = Annotated[float, Field(gt=0, le=100)]
+_Percentile = Annotated[float, Field(gt=0, le=100)]
 
 # The reported object map's rules (:mod:`.object_boxes`), one definition for the onboard backend's
 # ``object_*`` parameters and the base merge's (``MergeParams``): both report objects alike.
@@ -148,11 +149,13 @@ class ShapeParams(BaseModel):
     extent: bool = Field(
         True,
         description="measure a cuboid's dims once per landmark, by the extent its views reach (the"
-        " extent_percentile-th percentile of its measurements' fitted dims: partial views bound the"
+        " extent_percentiles of its measurements' fitted dims: partial views bound the"
         " object from below), in place of each eq. 1 measurement's dims (their mean makes cars short)",
     )
-    extent_percentile: float = Field(
-        90.0, gt=0, le=100, description="percentile of a landmark's measured dims that is its extent"
+    extent_percentiles: tuple[_Percentile, _Percentile] = Field(
+        (95.0, 65.0),
+        description="percentiles of a landmark's measured dims that are its extent: along its length,"
+        " and along its width and height (calibrated on 4 PAMS flights: docs/pams.md)",
     )
     decorrelate: bool = Field(
         True,

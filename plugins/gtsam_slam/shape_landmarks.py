@@ -627,15 +627,17 @@ class ShapeLandmarks:
         A view sees part of a car as often as all of it (one end, one side, cut by the image) and
         never more than all of it: each measurement's fitted dims bound the object's from below.
         Averaging them, as eq. 1's dims residual does over hundreds of partial views, makes every
-        car short (measured on PAMS flights, ``docs/pams.md``); the ``extent_percentile``-th
-        percentile over the landmark's measurements (its own and its fused twins', each counted
-        once) is the extent its whole views agree on, and a few long outliers (a mask bleeding
-        onto the next car) do not move it. Per axis, the fitted dims of the measurements that did
-        not complete it with the class prior (:func:`.shapes.complete_cuboid`: a part whose far
-        face was not seen); an axis every measurement completed is known only by the prior, so
-        the completed dims are its extent. Each measurement's box axes are matched to the
-        estimate's horizontal axes by direction (world frame, ``pose``: key pose key → 4 × 4
-        world ← body), so an end-on view of a car measures its width, not its length.
+        car short (measured on PAMS flights, ``docs/pams.md``); an upper percentile over the
+        landmark's measurements (its own and its fused twins', each counted once) is the extent
+        its whole views agree on, and a few long outliers (a mask bleeding onto the next car) do
+        not move it: ``extent_percentiles`` — the length's high (few views see a whole van),
+        the width's and height's lower (most views see them whole, and the masks bleed). Per
+        axis, the fitted dims of the measurements that did not complete it with the class prior
+        (:func:`.shapes.complete_cuboid`: a part whose far face was not seen); an axis every
+        measurement completed is known only by the prior, so the completed dims are its extent.
+        Each measurement's box axes are matched to the estimate's horizontal axes by direction
+        (world frame, ``pose``: key pose key → 4 × 4 world ← body), so an end-on view of a car
+        measures its width, not its length.
 
         Returns:
             ``dims`` in the estimate's axis order, or ``None`` (no cuboid measurement).
@@ -657,12 +659,15 @@ class ShapeLandmarks:
         if not fitted:
             return None
         fitted, completed, extended = np.array(fitted), np.array(completed), np.array(extended)
-        q = self.p.extent_percentile
+        d_est = np.asarray(estimate["dims"], float)
+        length_axis = 0 if d_est[0] >= d_est[1] else 1
+        q_length, q_other = self.p.extent_percentiles
+        q = [q_length if a == length_axis else q_other for a in range(3)]
         return np.array(
             [
-                np.percentile(fitted[~extended[:, a], a], q)
+                np.percentile(fitted[~extended[:, a], a], q[a])
                 if (~extended[:, a]).any()
-                else np.percentile(completed[:, a], q)
+                else np.percentile(completed[:, a], q[a])
                 for a in range(3)
             ]
         )
