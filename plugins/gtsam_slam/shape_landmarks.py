@@ -110,8 +110,8 @@ class _ShapeRec:
     # twins' (a tentative twin's held-back ones included): (landmark whose noise it has, key pose,
     # body-frame shape), for the base merge
     measured: list[tuple[int, int, dict]] = field(default_factory=list)
-    raw: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → fitted dims before completion
-    extended: dict[int, np.ndarray] = field(default_factory=dict)  # key pose → box axes completed
+    # key pose → (fitted dims before completion, which box axes the completion extended)
+    fitted: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 class ShapeLandmarks:
@@ -383,8 +383,7 @@ class ShapeLandmarks:
         d = np.asarray(shape["dims"], float)
         comp = rec.completion
         raw = comp.measured if comp is not None else d
-        rec.raw[kp] = np.asarray(raw, float)
-        rec.extended[kp] = np.asarray(comp.extended if comp is not None else np.zeros(3, bool))
+        rec.fitted[kp] = (np.asarray(raw, float), comp.extended if comp is not None else np.zeros(3, bool))
         raw_sorted = np.array([max(raw[0], raw[1]), min(raw[0], raw[1]), raw[2]])  # length ≥ width
         rec.ref_dims = raw_sorted if rec.ref_dims is None else np.maximum(rec.ref_dims, raw_sorted)
         # objects of one class are alike: the first, partial views of a new car are measured
@@ -526,10 +525,8 @@ class ShapeLandmarks:
             keep.loose.setdefault(kp, lv)
         for kp, sc in gone.scale.items():
             keep.scale.setdefault(kp, sc)
-        for kp, r in gone.raw.items():
-            keep.raw.setdefault(kp, r)
-        for kp, e in gone.extended.items():
-            keep.extended.setdefault(kp, e)
+        for kp, fe in gone.fitted.items():
+            keep.fitted.setdefault(kp, fe)
 
     def take_measurements(self, keep_id: int, gone_id: int, skip: set[int]) -> list[tuple[int, dict]]:
         """The measurements (key pose, body-frame shape) twin ``gone_id`` holds back while it is
@@ -649,8 +646,9 @@ class ShapeLandmarks:
                 continue
             rec = self.recs.get(owner)
             dims = np.asarray(s["dims"], float)
-            raw = rec.raw.get(k, dims) if rec is not None else dims
-            ext = rec.extended.get(k, np.zeros(3, bool)) if rec is not None else np.zeros(3, bool)
+            raw, ext = (
+                rec.fitted.get(k, (dims, np.zeros(3, bool))) if rec is not None else (dims, np.zeros(3, bool))
+            )
             b1 = pose(k)[:3, :3] @ np.asarray(s["rotation"], float)[:, 0]
             order = [0, 1, 2] if abs(float(b1 @ R_est[:, 0])) >= abs(float(b1 @ R_est[:, 1])) else [1, 0, 2]
             fitted.append(np.asarray(raw, float)[order])
