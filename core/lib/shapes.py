@@ -64,6 +64,7 @@ __all__ = [
     "fit_plane",
     "fit_shapes",
     "local_ground",
+    "seat_seen_faces",
     "shape_center",
     "shape_errors",
     "transform_shape",
@@ -364,6 +365,74 @@ def fit_cuboid(
     centre = foot + n * (0.5 * (bottom + top))
     R = np.column_stack([b1, b2, n])
     return cuboid_shape(R, centre, [hi1 - lo1, hi2 - lo2, top - bottom])
+
+
+def seat_seen_faces(
+    shape: dict,
+    points: np.ndarray,
+    cameras: np.ndarray,
+    *,
+    band: float = 0.6,
+    bin_width: float = 0.05,
+    prominence: float = 1.2,
+) -> dict:
+    """Move each vertical face of a fitted box that every camera saw head-on onto its points.
+
+    A depth camera's noise lies along its rays (σ ∝ depth² for a stereo camera). A face seen
+    head-on stacks its points on one line of the footprint, and the noise spreads them on
+    both sides of it: the ones pushed toward the camera fall outside the box, the others
+    inside among the roof's. :func:`fit_cuboid`'s low percentile is therefore the noise's
+    outer tail, and every box lies on its cameras' side — by 0.1 m at 3 m and 0.6 m at 9 m
+    on the simulated D435i's PAMS flights (``docs/pams.md``), a bias of every measurement
+    toward the robot that drags the key poses along its path. The face itself is where the
+    points crowd: per horizontal box axis whose one face all ``cameras`` are beyond, the
+    densest ``bin_width`` slice (smoothed) within ``band`` inside that face's fitted position
+    (its points' mean with the slices on either side) becomes the face if it stands out (at
+    least ``prominence`` × the band's median density), so a roof seen from above, evenly
+    spread, keeps its percentile edge. The far face and the height are kept
+    (:func:`complete_cuboid` places the far face behind a seen one).
+
+    Args:
+        shape: a cuboid fitted to ``points`` (:func:`fit_cuboid`).
+        points: the N×3 points it was fitted to (same frame).
+        cameras: K×3 positions of the cameras the points were seen from (same frame).
+
+    Returns:
+        The box with its seen faces moved (the same dict when none moved).
+    """
+    R = np.asarray(shape["rotation"], float)
+    c = np.asarray(shape["center"], float)
+    d = np.asarray(shape["dims"], float)
+    u = (np.asarray(points, float).reshape(-1, 3) - c) @ R
+    local = (np.asarray(cameras, float).reshape(-1, 3) - c) @ R
+    lo, hi = -d / 2, d / 2
+    moved = False
+    for a in (0, 1):
+        for sign in (1.0, -1.0):
+            face = hi[a] if sign > 0 else lo[a]
+            if not np.all(sign * local[:, a] > sign * face):
+                continue
+            depth_in = sign * (face - u[:, a])  # how far inside the face each point lies
+            x = depth_in[(depth_in >= 0) & (depth_in < band)]
+            if len(x) < 20:
+                continue
+            counts, edges = np.histogram(x, bins=int(round(band / bin_width)), range=(0.0, band))
+            smooth = np.convolve(counts, [1.0, 2.0, 1.0], "same") / 4.0
+            k = int(np.argmax(smooth))
+            if smooth[k] < prominence * max(float(np.median(smooth)), 1e-9):
+                continue
+            near_peak = x[(x >= edges[max(k - 1, 0)]) & (x < edges[min(k + 2, len(edges) - 1)])]
+            shift = float(np.mean(near_peak))  # within the peak: finer than the bins
+            if sign > 0:
+                hi[a] -= shift
+            else:
+                lo[a] += shift
+            moved = True
+    if not moved:
+        return shape
+    mid = 0.5 * (lo + hi)
+    mid[2] = 0.0
+    return cuboid_shape(R, c + R @ mid, [hi[0] - lo[0], hi[1] - lo[1], d[2]])
 
 
 @dataclass(frozen=True)

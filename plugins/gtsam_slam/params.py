@@ -146,6 +146,12 @@ class ShapeParams(BaseModel):
     completion_tolerance: float = Field(
         0.15, ge=0, le=100, description="shortfall of an extent that is noise, m"
     )
+    seat_faces: bool = Field(
+        True,
+        description="move a box face every camera of the window saw head-on to where its points crowd"
+        " (shapes.seat_seen_faces): the fit's percentile edge is the depth noise's tail on the"
+        " cameras' side, which put every measurement 0.1-0.6 m toward the robot (docs/pams.md)",
+    )
     extent: bool = Field(
         True,
         description="measure a cuboid's dims once per landmark, by the extent its views reach (the"

@@ -242,6 +242,8 @@ class ShapeLandmarks:
             s = shapes.fit_cuboid(pts, ground, percentile=self.p.percentile, extrapolate=self.p.extrapolate)
         else:
             s = shapes.fit_cylinder(pts, ground, axis=self.p.cylinder_axis)
+        if s is not None and rec.model == "cuboid" and self.p.seat_faces and rec.cameras:
+            s = shapes.seat_seen_faces(s, pts, np.array([q for _, q in rec.cameras]))
         if s is None or not self._plausible(s):
             return None
         rec.fits = [t for t in rec.fits if stamp - t < self.p.window] + [stamp]

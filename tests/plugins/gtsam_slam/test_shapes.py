@@ -310,3 +310,49 @@ def test_shape_errors_give_a_vehicles_length_and_width_errors_whatever_its_headi
     est = S.cuboid_shape(rz(0.2 + np.pi / 2), np.array([0.0, 0.0, 0.75]), np.array([1.9, 4.2, 1.5]))
     err = S.shape_errors(est, truth)
     assert err["length"] == pytest.approx(0.3) and err["width"] == pytest.approx(0.1)
+
+
+def _ray_noise(p: np.ndarray, camera: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
+    """Depth-camera noise: along each point's ray, σ = k · range² (a stereo camera's)."""
+    ray = p - camera
+    r = np.linalg.norm(ray, axis=1, keepdims=True)
+    return p + ray / r * rng.normal(0.0, 1.0, (len(p), 1)) * k * r**2
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.4, 1.2])
+def test_faces_seen_head_on_are_seated_where_their_points_crowd_not_at_the_noise_s_tail(yaw: float) -> None:
+    rng = np.random.default_rng(3)
+    R, centre, dims = rz(yaw), np.array([1.0, -2.0, 0.775]), np.array([4.5, 1.85, 1.55])
+    camera = centre + R @ np.array([-5.0, -4.0, 0.0]) + [0, 0, 2.7]  # beyond the rear and the right side
+    pts = _ray_noise(box_points(R, centre, dims, camera, rng, n=6000, noise=0.0), camera, 0.005, rng)
+    ground = S.GroundPlane.horizontal(0.0)
+    fitted = S.fit_cuboid(pts, ground, percentile=2.5, extrapolate=False)
+    seated = S.seat_seen_faces(fitted, pts, camera[None])
+    los = (centre - camera)[:2] / np.linalg.norm((centre - camera)[:2])
+
+    def toward_camera(shape: dict) -> float:  # the centre's error along the line of sight, + toward it
+        return -float((np.asarray(shape["center"])[:2] - centre[:2]) @ los)
+
+    assert toward_camera(fitted) > 0.07  # the percentile edge is the noise's tail on the camera's side
+    assert abs(toward_camera(seated)) < 0.05
+    # the two seen faces, each within 5 cm of the box's
+    Rf = np.asarray(seated["rotation"])
+    local = R.T @ Rf  # the seated box's axes in the true box's frame (a quarter or half turn)
+    d = np.abs(local[:2, :2]) @ np.asarray(seated["dims"][:2])
+    c = R.T @ (np.asarray(seated["center"]) - centre)
+    assert abs((c[0] - d[0] / 2) - (-dims[0] / 2)) < 0.05  # the rear face
+    assert abs((c[1] - d[1] / 2) - (-dims[1] / 2)) < 0.05  # the right side
+
+
+def test_a_face_without_a_crowd_of_points_keeps_its_edge() -> None:
+    # only a roof, evenly spread, seen from beyond one end: no face stacks its points
+    rng = np.random.default_rng(4)
+    roof = np.column_stack([rng.uniform(-2.25, 2.25, 4000), rng.uniform(-0.9, 0.9, 4000), np.full(4000, 1.5)])
+    roof += rng.normal(0, 0.01, roof.shape)
+    fitted = S.fit_cuboid(roof, S.GroundPlane.horizontal(0.0), percentile=2.5, extrapolate=False)
+    assert S.seat_seen_faces(fitted, roof, np.array([[-7.0, 0.0, 4.0]])) is fitted
+    # cameras on both sides of every face (a survey above it): nothing is moved either
+    car = box_points(np.eye(3), np.array([0.0, 0, 0.775]), np.array([4.5, 1.85, 1.55]), [0, 0, 6.0], rng)
+    fitted = S.fit_cuboid(car, S.GroundPlane.horizontal(0.0), percentile=2.5, extrapolate=False)
+    cams = np.array([[-6.0, -3.0, 6.0], [6.0, 3.0, 6.0]])
+    assert S.seat_seen_faces(fitted, car, cams) is fitted
