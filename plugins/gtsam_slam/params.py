@@ -147,10 +147,11 @@ class ShapeParams(BaseModel):
         0.15, ge=0, le=100, description="shortfall of an extent that is noise, m"
     )
     seat_faces: bool = Field(
-        True,
+        False,
         description="move a box face every camera of the window saw head-on to where its points crowd"
         " (shapes.seat_seen_faces): the fit's percentile edge is the depth noise's tail on the"
-        " cameras' side, which put every measurement 0.1-0.6 m toward the robot (docs/pams.md)",
+        " cameras' side, 0.1-0.6 m toward the robot; halves that bias on PAMS flights but did not"
+        " make their SLAM better (docs/pams.md), so off",
     )
     extent: bool = Field(
         True,

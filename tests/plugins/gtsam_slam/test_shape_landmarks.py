@@ -465,3 +465,24 @@ def test_a_car_seen_at_one_end_only_has_the_class_prior_s_length() -> None:
     )
     (car,) = [lm for lm in _two_end_passes(params, ends=(1.0,)).landmarks() if lm.class_name == "car"]
     assert max(car.shape["dims"][:2]) == pytest.approx(4.6, abs=0.15)
+
+
+def test_seat_faces_puts_a_car_seen_from_one_corner_where_it_is_not_toward_the_camera() -> None:
+    """``shapes.seat_faces``: the window's fit with the seen faces seated (depth noise along the rays)."""
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    from .test_shapes import _ray_noise
+
+    centre, dims = np.array([0.0, 0.0, 0.775]), np.array([4.5, 1.85, 1.55])
+    camera = np.array([-6.0, -4.0, 3.5])  # beyond the rear and the right side
+    los = -camera[:2] / np.linalg.norm(camera[:2])
+    toward = {}
+    for seat in (False, True):
+        rng = np.random.default_rng(5)
+        sh = ShapeLandmarks({"car": "cuboid"}, ShapeParams(seat_faces=seat, complete=False), rng)
+        faces = box_points(np.eye(3), centre, dims, camera, rng, n=5000, noise=0.0)
+        pts = _ray_noise(faces, camera, 0.005, rng)
+        s = sh.measure(0, "car", 0.0, pts, np.eye(4), camera_odom=camera)
+        toward[seat] = -float((np.asarray(s["center"])[:2] - centre[:2]) @ los)
+    assert toward[False] > 0.08  # (0.08-0.13 m over seeds 5-9)
+    assert abs(toward[True]) < 0.05  # (0.00-0.03 m)
