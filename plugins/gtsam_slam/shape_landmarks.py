@@ -201,6 +201,42 @@ class ShapeLandmarks:
                 best, best_share = lm_id, share
         return best
 
+    def returning(self, lm_id: int, stamp: float) -> bool:
+        """Whether cuboid landmark ``lm_id`` is seen again after its window emptied (no points
+        within ``window`` of ``stamp``): only its world-frame boxes associated the detection."""
+        rec = self.recs.get(lm_id)
+        return (
+            rec is not None
+            and rec.model == "cuboid"
+            and not any(stamp - t <= self.p.window for t, _ in rec.points)
+        )
+
+    def agrees(self, lm_id: int, shape_world: dict) -> bool:
+        """Whether a returning view's box (world frame) and the landmark's are one object: one of
+        them holds the other's centre (within ``association_margin``).
+
+        The association of a returning view goes by the detection's points against the
+        landmark's box in the world, placed with the drifted key poses. In a row of cars parked
+        end to end, the near end of the next car lies against the landmark's box, and a metre of
+        drift puts it inside: on a PAMS lot flight one landmark took car_9's views, then (400 key
+        poses later) car_3's, the next car down the row 5 m away, and pulled the key poses by
+        the row's spacing (``docs/pams.md``). The view's own box, completed behind its seen
+        faces, is centred on the car it saw: 4 m from the landmark's there.
+        """
+        rec = self.recs[lm_id]
+        ref = rec.est_world or rec.last_world
+        if ref is None:
+            return True
+        c_new = shapes.shape_center(shape_world)[None]
+        c_ref = shapes.shape_center(ref)[None]
+        return bool(self._inside(ref, c_new)[0] or self._inside(shape_world, c_ref)[0])
+
+    def forget_latest(self, lm_id: int) -> None:
+        """Take back what :meth:`measure` kept of a returning landmark's view (its window held
+        nothing else): the view goes to a new landmark."""
+        rec = self.recs[lm_id]
+        rec.points, rec.cameras, rec.fits, rec.completion = [], [], rec.fits[:-1], None
+
     def _inside(self, shape: dict, pts: np.ndarray, margin: float | None = None) -> np.ndarray:
         return shapes.points_inside(shape, pts, self.p.association_margin if margin is None else margin)
 

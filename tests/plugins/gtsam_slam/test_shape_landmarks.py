@@ -486,3 +486,26 @@ def test_seat_faces_puts_a_car_seen_from_one_corner_where_it_is_not_toward_the_c
         toward[seat] = -float((np.asarray(s["center"])[:2] - centre[:2]) @ los)
     assert toward[False] > 0.08  # (0.08-0.13 m over seeds 5-9)
     assert abs(toward[True]) < 0.05  # (0.00-0.03 m)
+
+
+def test_a_car_seen_again_takes_its_own_view_not_the_next_car_s_down_the_row() -> None:
+    """``shapes.return_gate``: a returning view's box must hold the landmark's centre or lie in it."""
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    rng = np.random.default_rng(2)
+    sh = ShapeLandmarks({"car": "cuboid"}, ShapeParams(), rng)
+    car_a = S.cuboid_shape(rz(np.pi / 2), [0.0, 0.0, 0.775], [4.5, 1.85, 1.55])  # length along y
+    camera = np.array([0.0, 9.0, 3.5])
+    own = box_points(rz(np.pi / 2), np.array([0.0, 0.0, 0.775]), np.array([4.5, 1.85, 1.55]), camera, rng)
+    assert sh.measure(0, "car", 0.0, own, np.eye(4), camera_odom=camera) is not None
+    sh.set_world(0, car_a)
+    assert not sh.returning(0, 5.0)  # its window still holds its points
+    assert sh.returning(0, 100.0)
+    # seen again 1 m off (drift): one object
+    assert sh.agrees(0, S.cuboid_shape(rz(np.pi / 2), [0.6, 0.8, 0.775], [4.5, 1.85, 1.55]))
+    # the next car down the row, 5.1 m on and placed 1 m back by the drift: its near end lies
+    # against car A's box, its box centred 4.1 m away, holding neither centre
+    car_b = S.cuboid_shape(rz(np.pi / 2), [0.0, 4.1, 0.775], [4.5, 1.85, 1.55])
+    assert not sh.agrees(0, car_b)
+    sh.forget_latest(0)
+    assert sh.recs[0].points == [] and sh.recs[0].fits == []
