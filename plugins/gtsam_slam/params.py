@@ -122,10 +122,10 @@ class ShapeParams(BaseModel):
     )
     association_overlap: float = Field(0.4, gt=0, le=1, description="share of points inside to associate")
     return_gate: bool = Field(
-        True,
+        False,
         description="a cuboid landmark seen again after its window emptied takes the view only if the"
         " view's box and the landmark's hold one another's centre (ShapeLandmarks.agrees): the next car"
-        " of a row lies against a drifted landmark's box",
+        " of a row lies against a drifted landmark's box; off: 2 of 4 PAMS lot flights better (docs/pams.md)",
     )
     max_radius: float = Field(
         1.0, gt=0, le=100, description="cylinder fits with a larger radius are rejected, m"
