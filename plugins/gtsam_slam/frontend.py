@@ -402,24 +402,13 @@ class FrontEnd:
             # two detections of one frame are two objects: a landmark this frame measured is taken
             taken = set(self._shape_assoc.values())
             free = {j: c for j, c in live.items() if j not in taken}
-            lm_id = sh.associate(d.class_name, pts, pts_world, free, stamp)
-            new = lm_id < 0
-            if new:
-                lm_id = g.new_landmark_id()
-            returning = not new and sh.p.return_gate and sh.returning(lm_id, stamp)
-            shape_body = sh.measure(
-                lm_id, d.class_name, stamp, pts, T_odom_kp, T_odom_cam[:3, 3], T_world_odom
-            )
-            if (
-                returning
-                and shape_body is not None
-                and not sh.agrees(lm_id, shapes.transform_shape(shape_body, T_world_kp))
-            ):
-                sh.forget_latest(lm_id)  # another object's view: a landmark of its own
-                lm_id, new = g.new_landmark_id(), True
-                shape_body = sh.measure(
-                    lm_id, d.class_name, stamp, pts, T_odom_kp, T_odom_cam[:3, 3], T_world_odom
-                )
+            associated = sh.associate(d.class_name, pts, pts_world, free, stamp)
+            first = associated if associated >= 0 else g.new_landmark_id()
+            lm_id, shape_body = sh.measure_view(
+                first, associated >= 0, g.new_landmark_id,
+                d.class_name, stamp, pts, T_odom_kp, T_odom_cam[:3, 3], T_world_odom,
+            )  # fmt: skip
+            new = associated < 0 or lm_id != first
             if shape_body is None:
                 if new:
                     sh.recs.pop(lm_id, None)

@@ -201,6 +201,40 @@ class ShapeLandmarks:
                 best, best_share = lm_id, share
         return best
 
+    def measure_view(
+        self,
+        lm_id: int,
+        associated: bool,
+        new_id: Callable[[], int],
+        class_name: str,
+        stamp: float,
+        points_odom: np.ndarray,
+        T_odom_kp: np.ndarray,
+        camera_odom: np.ndarray | None = None,
+        T_world_odom: np.ndarray | None = None,
+    ) -> tuple[int, dict | None]:
+        """:meth:`measure` of a detection for landmark ``lm_id`` (``associated``: an existing one),
+        unless ``return_gate`` finds it another object's: a cuboid landmark seen again after its
+        window emptied whose box the view's does not agree with (:meth:`agrees`) keeps nothing of
+        the view, which goes to a new landmark (``new_id()``).
+
+        Returns:
+            (the landmark measured, the measured shape in the key pose's body frame or ``None``).
+        """
+        args = (class_name, stamp, points_odom, T_odom_kp, camera_odom, T_world_odom)
+        returning = associated and self.p.return_gate and self.returning(lm_id, stamp)
+        shape_body = self.measure(lm_id, *args)
+        if (
+            returning
+            and shape_body is not None
+            and T_world_odom is not None
+            and not self.agrees(lm_id, shapes.transform_shape(shape_body, T_world_odom @ T_odom_kp))
+        ):
+            self.forget_latest(lm_id)
+            lm_id = new_id()
+            shape_body = self.measure(lm_id, *args)
+        return lm_id, shape_body
+
     def returning(self, lm_id: int, stamp: float) -> bool:
         """Whether cuboid landmark ``lm_id`` is seen again after its window emptied (no points
         within ``window`` of ``stamp``): only its world-frame boxes associated the detection."""
@@ -684,9 +718,8 @@ class ShapeLandmarks:
                 continue
             rec = self.recs.get(owner)
             dims = np.asarray(s["dims"], float)
-            raw, ext = (
-                rec.fitted.get(k, (dims, np.zeros(3, bool))) if rec is not None else (dims, np.zeros(3, bool))
-            )
+            as_measured = (dims, np.zeros(3, bool))  # no fit kept: its dims as measured
+            raw, ext = rec.fitted.get(k, as_measured) if rec is not None else as_measured
             b1 = pose(k)[:3, :3] @ np.asarray(s["rotation"], float)[:, 0]
             order = [0, 1, 2] if abs(float(b1 @ R_est[:, 0])) >= abs(float(b1 @ R_est[:, 1])) else [1, 0, 2]
             fitted.append(np.asarray(raw, float)[order])

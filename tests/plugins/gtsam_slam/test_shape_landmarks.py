@@ -509,3 +509,26 @@ def test_a_car_seen_again_takes_its_own_view_not_the_next_car_s_down_the_row() -
     assert not sh.agrees(0, car_b)
     sh.forget_latest(0)
     assert sh.recs[0].points == [] and sh.recs[0].fits == []
+
+
+def test_a_returning_view_of_the_next_car_goes_to_a_new_landmark_with_the_gate_only() -> None:
+    """``ShapeLandmarks.measure_view``: the gate's wiring (``return_gate``)."""
+    from amslam.plugins.gtsam_slam.shape_landmarks import ShapeLandmarks, ShapeParams
+
+    R, dims = rz(np.pi / 2), np.array([4.5, 1.85, 1.55])
+    drift = np.eye(4)
+    drift[1, 3] = -1.0  # world ← odometry: the key poses placed 1 m back along the row
+    for gate, expected in ((False, 0), (True, 7)):
+        rng = np.random.default_rng(2)
+        sh = ShapeLandmarks({"car": "cuboid"}, ShapeParams(return_gate=gate), rng)
+        camera = np.array([0.0, 9.0, 3.5])
+        own = box_points(R, np.array([0.0, 0.0, 0.775]), dims, camera, rng)
+        sh.measure(0, "car", 0.0, own, np.eye(4), camera_odom=camera)
+        sh.set_world(0, S.cuboid_shape(R, [0.0, 0.0, 0.775], dims))
+        camera = np.array([0.0, 12.0, 3.5])  # 100 s later, the next car down the row, 5.1 m on
+        next_car = box_points(R, np.array([0.0, 5.1, 0.775]), dims, camera, rng)
+        lm, shape = sh.measure_view(
+            0, True, lambda: 7, "car", 100.0, next_car, np.eye(4), camera, drift
+        )  # fmt: skip
+        assert lm == expected and shape is not None
+    assert sh.recs[0].points == []  # the first car's landmark kept nothing of the view
