@@ -405,7 +405,7 @@ class FrontEnd:
             associated = sh.associate(d.class_name, pts, pts_world, free, stamp)
             first = associated if associated >= 0 else g.new_landmark_id()
             lm_id, shape_body = sh.measure_view(
-                first, associated >= 0, g.new_landmark_id,
+                first, associated >= 0, g.new_landmark_id, T_world_kp,
                 d.class_name, stamp, pts, T_odom_kp, T_odom_cam[:3, 3], T_world_odom,
             )  # fmt: skip
             new = associated < 0 or lm_id != first

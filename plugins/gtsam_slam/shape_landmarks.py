@@ -202,37 +202,28 @@ class ShapeLandmarks:
         return best
 
     def measure_view(
-        self,
-        lm_id: int,
-        associated: bool,
-        new_id: Callable[[], int],
-        class_name: str,
-        stamp: float,
-        points_odom: np.ndarray,
-        T_odom_kp: np.ndarray,
-        camera_odom: np.ndarray | None = None,
-        T_world_odom: np.ndarray | None = None,
+        self, lm_id: int, associated: bool, new_id: Callable[[], int], T_world_kp: np.ndarray, *view: object
     ) -> tuple[int, dict | None]:
-        """:meth:`measure` of a detection for landmark ``lm_id`` (``associated``: an existing one),
-        unless ``return_gate`` finds it another object's: a cuboid landmark seen again after its
-        window emptied whose box the view's does not agree with (:meth:`agrees`) keeps nothing of
-        the view, which goes to a new landmark (``new_id()``).
+        """:meth:`measure` (``view``: its arguments after ``lm_id``) of a detection for landmark
+        ``lm_id`` (``associated``: an existing one), unless ``return_gate`` finds it another
+        object's: a cuboid landmark seen again after its window emptied whose box the view's does
+        not agree with (:meth:`agrees`; ``T_world_kp`` places the view) keeps nothing of the view,
+        which goes to a new landmark (``new_id()``).
 
         Returns:
             (the landmark measured, the measured shape in the key pose's body frame or ``None``).
         """
-        args = (class_name, stamp, points_odom, T_odom_kp, camera_odom, T_world_odom)
+        stamp = float(view[1])
         returning = associated and self.p.return_gate and self.returning(lm_id, stamp)
-        shape_body = self.measure(lm_id, *args)
+        shape_body = self.measure(lm_id, *view)
         if (
             returning
             and shape_body is not None
-            and T_world_odom is not None
-            and not self.agrees(lm_id, shapes.transform_shape(shape_body, T_world_odom @ T_odom_kp))
+            and not self.agrees(lm_id, shapes.transform_shape(shape_body, T_world_kp))
         ):
             self.forget_latest(lm_id)
             lm_id = new_id()
-            shape_body = self.measure(lm_id, *args)
+            shape_body = self.measure(lm_id, *view)
         return lm_id, shape_body
 
     def returning(self, lm_id: int, stamp: float) -> bool:

@@ -528,7 +528,7 @@ def test_a_returning_view_of_the_next_car_goes_to_a_new_landmark_with_the_gate_o
         camera = np.array([0.0, 12.0, 3.5])  # 100 s later, the next car down the row, 5.1 m on
         next_car = box_points(R, np.array([0.0, 5.1, 0.775]), dims, camera, rng)
         lm, shape = sh.measure_view(
-            0, True, lambda: 7, "car", 100.0, next_car, np.eye(4), camera, drift
+            0, True, lambda: 7, drift, "car", 100.0, next_car, np.eye(4), camera, drift
         )  # fmt: skip
         assert lm == expected and shape is not None
     assert sh.recs[0].points == []  # the first car's landmark kept nothing of the view
