@@ -211,7 +211,43 @@ def _prior_objects_file(value: str | None, info: ValidationInfo) -> str | None:
     return check_mission_file(value, info)
 
 
-class PamsParams(BackendParams):
+class _VisitParams(BackendParams):
+    """What both object-visiting planners (``pams`` and its ``prior_visit`` baseline) share: the
+    prior map, where the robot may look from and when a stop is done."""
+
+    prior_objects: str | None = Field(
+        None,
+        description="landmarks.json of an earlier run, e.g. an overhead survey (relative to the mission"
+        " file); None = the objects SLAM has mapped so far",
+    )
+    height: Coordinate | None = Field(
+        None, description="flight height of the stops (world z); None = the robot's"
+    )
+    clearance: float = Field(
+        1.0, ge=0.0, le=100, description="stops keep this far from every object's footprint, m"
+    )
+    overfly: float | None = Field(
+        None,
+        ge=0.0,
+        le=1000,
+        description="objects whose top is this far (m) below the stops' height do not block them; "
+        "None = every object's footprint (plus clearance) blocks",
+    )
+    reach_tolerance: float = Field(
+        1.0, gt=0.0, le=1000, description="a stop counts as reached within this, m"
+    )
+    max_attempts: int = Field(
+        3,
+        ge=1,
+        le=1000,
+        description="times a stop may be given up (the robot's first open stop) before it is dropped",
+    )
+    default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
+
+    _prior_file = field_validator("prior_objects")(_prior_objects_file)
+
+
+class PamsParams(_VisitParams):
     """Parameters of the ``pams`` planner."""
 
     @field_validator("models")
@@ -230,11 +266,6 @@ class PamsParams(BackendParams):
 
     models: MissionFile | None = Field(
         None, description="uncertainty models (.npz from `amslam characterise`); None = the packaged ones"
-    )
-    prior_objects: str | None = Field(
-        None,
-        description="landmarks.json of an earlier run, e.g. an overhead survey (relative to the mission"
-        " file); None = the objects SLAM has mapped so far",
     )
     target_classes: list[str] | None = Field(None, description="classes to map; None = every modelled class")
     horizon: int = Field(3, ge=1, le=5, description="planning horizon T (viewpoints per path)")
@@ -275,12 +306,6 @@ class PamsParams(BackendParams):
         description="grid step of the bearing, degrees (from 0.5: the grid of candidates stays small)",
     )
     max_distance: float = Field(12.0, gt=0.0, le=200, description="farthest candidate from a target, m")
-    height: Coordinate | None = Field(
-        None, description="flight height of the viewpoints (world z); None = the robot's"
-    )
-    clearance: float = Field(
-        1.0, ge=0.0, le=100, description="viewpoints keep this far from every object's footprint, m"
-    )
     prior_std: float = Field(0.5, gt=0.0, le=1000, description="std of every component before any look, m")
     target_std: float = Field(
         0.05, gt=0.0, le=1000, description="stop when the entropy is that of this std per component"
@@ -291,23 +316,6 @@ class PamsParams(BackendParams):
     cost_weight: float = Field(
         0.01, ge=0.0, le=1000, description="nats per metre of path: breaks ties between orders"
     )
-    overfly: float | None = Field(
-        None,
-        ge=0.0,
-        le=1000,
-        description="objects whose top is this far (m) below the viewpoints' height do not block them; "
-        "None = every object's footprint (plus clearance) blocks",
-    )
-    reach_tolerance: float = Field(
-        1.0, gt=0.0, le=1000, description="a viewpoint counts as taken within this, m"
-    )
-    max_attempts: int = Field(
-        3,
-        ge=1,
-        le=1000,
-        description="times a viewpoint may be given up (the robot's first open stop) before it is dropped",
-    )
-    default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
     max_position_std: float | None = Field(
         1.0,
         gt=0.0,
@@ -318,8 +326,6 @@ class PamsParams(BackendParams):
     relocalise_range: float = Field(
         3.0, gt=0.0, le=100, description="distance from which a landmark is looked at to relocalise, m"
     )
-
-    _prior_file = field_validator("prior_objects")(_prior_objects_file)
 
 
 def region_std_limits(params: PamsParams, components: list[str]) -> np.ndarray:
@@ -335,39 +341,13 @@ def region_std_limits(params: PamsParams, components: list[str]) -> np.ndarray:
     return np.array(errors) / z
 
 
-class PriorVisitParams(BackendParams):
+class PriorVisitParams(_VisitParams):
     """Parameters of the ``prior_visit`` baseline."""
 
-    prior_objects: str | None = Field(
-        None, description="landmarks.json of an earlier run (relative to the mission file); None = SLAM's map"
-    )
     target_classes: list[str] | None = Field(None, description="classes to visit; None = every class")
     standoff: float = Field(
         3.0, gt=0.0, le=1000, description="horizontal distance from an object's edge to look from, m"
     )
-    height: Coordinate | None = Field(None, description="flight height (world z); None = the robot's")
-    clearance: float = Field(
-        1.0, ge=0.0, le=100, description="the look-from place keeps this far from other objects, m"
-    )
-    overfly: float | None = Field(
-        None,
-        ge=0.0,
-        le=1000,
-        description="objects whose top is this far (m) below the viewpoints' height do not block them; "
-        "None = every object's footprint (plus clearance) blocks",
-    )
-    reach_tolerance: float = Field(
-        1.0, gt=0.0, le=1000, description="a stop counts as visited within this, m"
-    )
-    max_attempts: int = Field(
-        3,
-        ge=1,
-        le=1000,
-        description="times a stop may be given up (the robot's first open stop) before it is dropped",
-    )
-    default_radius: float = Field(0.5, gt=0.0, le=100, description="half-size of objects without a shape, m")
-
-    _prior_file = field_validator("prior_objects")(_prior_objects_file)
 
 
 # -- shared bookkeeping ---------------------------------------------------------------------------
