@@ -125,7 +125,8 @@ class ShapeParams(BaseModel):
         False,
         description="a cuboid landmark seen again after its window emptied takes the view only if the"
         " view's box and the landmark's hold one another's centre (ShapeLandmarks.agrees): the next car"
-        " of a row lies against a drifted landmark's box; off: 2 of 4 PAMS lot flights better (docs/pams.md)",
+        " of a row lies against a drifted landmark's box; off: 4 of 9 PAMS flights where it acted"
+        " better (docs/pams.md)",
     )
     max_radius: float = Field(
         1.0, gt=0, le=100, description="cylinder fits with a larger radius are rejected, m"
