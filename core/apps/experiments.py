@@ -572,8 +572,50 @@ def pams_comparison(
     (folder / "results.json").write_text(json.dumps(rows, indent=2, default=str))
     surveys_md = survey_table([(Path(m).stem, s) for m, s in worlds], surveyed)
     flown_all = [*surveyed, *flown.values()]
-    (folder / "table.md").write_text(pams_table(rows, planners) + "\n" + surveys_md + code_note(flown_all))
+    text = pams_table(rows, planners) + "\n" + pams_flights_table(rows) + "\n" + surveys_md
+    (folder / "table.md").write_text(text + code_note(flown_all))
     return folder
+
+
+def pams_flights_table(rows: list[dict]) -> str:
+    """Per planner flight: its verdict, Fig. 9 error and vehicles mapped, its length, and the
+    trajectory's error, SLAM's against VIO's (RMS at the key poses and at the end), with how
+    often SLAM stayed below VIO per planner (the summary table pools the objects and hides a
+    flight whose SLAM drifted)."""
+    lines = [
+        "Per flight: vehicles' Fig. 9 error, vehicles mapped (discovered) of those in the world,"
+        " path length, trajectory error SLAM / VIO (RMS at the key poses; at the end)",
+        "",
+        "| world | seed | planner | verdict | Fig. 9 err. (m) | vehicles mapped | path (m)"
+        " | RMS SLAM / VIO (m) | end SLAM / VIO (m) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    below: dict[str, tuple[list[bool], list[bool]]] = {}
+
+    def pair(slam: Any, vio: Any, counted: list[bool]) -> str:
+        if slam is None or vio is None:
+            return f"{_fmt(slam)} / {_fmt(vio)}"
+        counted.append(slam < vio)
+        return f"{_fmt(slam)} / {_fmt(vio)}{'' if slam < vio else ' (above)'}"
+
+    for r in rows:
+        m = r["metrics"]
+        o = (m.get("objects") or {}).get("overall") or {}
+        found = f" ({o['fig9_discovered']})" if "fig9_discovered" in o else ""
+        mapped = f"{o['fig9_mapped']}{found} of {o['fig9_objects']}" if "fig9_mapped" in o else "—"
+        t, e = m.get("trajectory_error") or {}, m.get("final_error") or {}
+        rms, end = below.setdefault(r["planner"], ([], []))
+        lines.append(
+            f"| {r['world']} | {r['seed']} | {r['planner']} | {m.get('verdict', '?')} | "
+            f"{_fmt(o.get('fig9_error_mean_m'))} | {mapped} | {_fmt(m.get('distance_m'), 1)} | "
+            f"{pair(t.get('slam_rms_m'), t.get('vio_rms_m'), rms)} | "
+            f"{pair(e.get('slam_position_m'), e.get('vio_position_m'), end)} |"
+        )
+    counts = ", ".join(
+        f"{p} {sum(rms)} of {len(rms)} by RMS, {sum(end)} of {len(end)} at the end"
+        for p, (rms, end) in below.items()
+    )
+    return "\n".join([*lines, "", f"SLAM below VIO: {counts or '—'}", ""])
 
 
 def survey_table(worlds: list[tuple[str, int]], surveyed: list[dict[str, Any]]) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amslam.apps.experiments import pams_table, pool_errors
+from amslam.apps.experiments import pams_flights_table, pams_table, pool_errors
 
 
 def test_pooled_errors_equal_the_errors_of_all_objects_together():
@@ -98,6 +98,32 @@ def test_table_scores_vehicles_by_the_fig9_error_and_cylinders_by_their_diameter
     assert "| Obj. mapped | 100 % / 100 % |" in text  # of the vehicles
     assert "| Err. mean — car | 0.10 m / 0.30 m |" in text
     assert "| Err. mean — pole | 0.02 m / 0.04 m |" in text
+
+
+def test_the_flights_table_shows_each_flight_and_where_slam_drifted_above_vio():
+    def run(seed, planner, slam, vio, verdict="completed"):
+        overall = {"fig9_objects": 20, "fig9_mapped": 18, "fig9_discovered": 19, "fig9_error_mean_m": 0.125}
+        metrics = {
+            "verdict": verdict,
+            "objects": {"overall": overall},
+            "distance_m": 412.34,
+            "trajectory_error": {"slam_rms_m": slam, "vio_rms_m": vio},
+            "final_error": {"slam_position_m": 0.2, "vio_position_m": 0.4},
+        }
+        return {"world": "lot", "seed": seed, "planner": planner, "metrics": metrics}
+
+    failed = {"world": "lot", "seed": 2, "planner": "pams", "metrics": {"verdict": "failed", "error": "x"}}
+    text = pams_flights_table([run(1, "pams", 0.5, 1.0), run(1, "prior_visit", 1.2, 0.9), failed])
+    assert (
+        "| lot | 1 | pams | completed | 0.125 | 18 (19) of 20 | 412.3 | 0.500 / 1.000 | 0.200 / 0.400 |"
+        in text
+    )
+    assert "| prior_visit | completed | 0.125 | 18 (19) of 20 | 412.3 | 1.200 / 0.900 (above) |" in text
+    assert "| lot | 2 | pams | failed | — | — | — | — / — | — / — |" in text
+    below = (
+        "SLAM below VIO: pams 1 of 1 by RMS, 1 of 1 at the end, prior_visit 0 of 1 by RMS, 1 of 1 at the end"
+    )
+    assert below in text
 
 
 def test_the_planners_visit_the_map_of_an_overhead_survey_flown_first(tmp_path, monkeypatch):
