@@ -7,7 +7,8 @@ happens (a crash loses nothing already written):
 
 * ``header`` (first line): ``robot`` name, ``T_world_odom`` (4×4, the robot's odometry frame in
   the shared world frame: its *known base*; the simulator's odometry frame is the world frame at
-  the start, so identity there) and ``T_body_cam``.
+  the start, so identity there), ``T_body_cam`` and the camera's ``depth_noise``
+  (:attr:`amslam.types.CameraModel.depth_noise`; 0 when absent, logs before it).
 * ``keypose``: ``id``, ``t``, the VIO pose ``T_odom_body`` and the VIO motion since the previous
   key pose ``rel`` (both ``[x, y, z, qx, qy, qz, qw]``), the VIO ``distance`` of that step, and —
   in simulation only, for evaluation, never used by the merge — the true pose ``truth``.
@@ -67,6 +68,7 @@ class MeasurementLog:
         robot: the robot's name.
         T_body_cam: camera mount, to move detections into the body frame.
         T_world_odom: the robot's base: its odometry frame in the shared world frame.
+        depth_noise: the camera's depth noise coefficient (:attr:`.CameraModel.depth_noise`).
         max_points: points kept per detection (evenly subsampled); 0 keeps none. 128 so that a
             landmark's window at the base (12 s at 5 Hz, up to 60 views) holds as many points as
             the onboard window keeps (``ShapeParams.max_points``, 6000): with 24 a car's window fit
@@ -80,6 +82,7 @@ class MeasurementLog:
         T_body_cam: np.ndarray,
         T_world_odom: np.ndarray | None = None,
         max_points: int = 128,
+        depth_noise: float = 0.0,
     ) -> None:
         # scipy's rotations, which every record needs, imported before the flight: the first key
         # pose on a real vehicle's control loop paid 0.15 s for it (a SITL flight's late_ticks)
@@ -100,6 +103,7 @@ class MeasurementLog:
                 "robot": robot,
                 "T_world_odom": np.round(T_wo, 9).tolist(),
                 "T_body_cam": np.round(self.T_body_cam, 9).tolist(),
+                "depth_noise": float(depth_noise),
             }
         )
 
@@ -211,6 +215,7 @@ class RobotMeasurements:
         robot: the robot's name.
         T_world_odom: its known base (odometry frame in the world frame).
         T_body_cam: its camera mount.
+        depth_noise: its camera's depth noise coefficient (0: not logged).
         stamps: K key-pose times.
         T_odom_body: K×4×4 VIO key poses.
         rel: K×4×4 VIO motion from the previous key pose (identity for the first).
@@ -226,6 +231,7 @@ class RobotMeasurements:
     rel: np.ndarray
     truth: np.ndarray | None
     detections: list[LoggedDetection] = field(default_factory=list)
+    depth_noise: float = 0.0
 
     @property
     def duration(self) -> float:
@@ -323,4 +329,5 @@ def read_measurements(path: Path) -> RobotMeasurements:
         rel=np.asarray(rels, float).reshape(-1, 4, 4),
         truth=np.asarray(truths, float) if has_truth else None,
         detections=[d for d in dets if d.keypose < len(stamps)],
+        depth_noise=float(header.get("depth_noise") or 0.0),
     )

@@ -362,6 +362,7 @@ class Runner:
             self.mission.name,
             platform.camera.T_body_cam,
             T_world_odom=T_world_odom,
+            depth_noise=platform.camera.depth_noise,
         )
         ex = model.exploration
         perception = Perception(

@@ -53,6 +53,9 @@ class CameraModel:
         min_range: closest valid depth in metres.
         max_range: farthest valid depth in metres.
         rate_hz: frame rate the platform delivers.
+        depth_noise: the std of a depth reading is ``depth_noise·z²`` (m; a stereo camera's
+            noise, 0.005 for the simulated D435i-like camera; 0: not modelled). Box fits take
+            their extents past it (:func:`amslam.lib.shapes.depth_noise`).
     """
 
     width: int
@@ -62,6 +65,7 @@ class CameraModel:
     min_range: float = 0.3
     max_range: float = 5.0
     rate_hz: float = 10.0
+    depth_noise: float = 0.0
 
     @staticmethod
     def from_fov(
@@ -74,6 +78,7 @@ class CameraModel:
         max_range: float = 5.0,
         rate_hz: float = 10.0,
         T_body_cam: np.ndarray | None = None,
+        depth_noise: float = 0.0,
     ) -> CameraModel:
         """Build a camera from its resolution and fields of view (degrees)."""
         fx = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
@@ -81,7 +86,7 @@ class CameraModel:
         K = np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
         if T_body_cam is None:
             T_body_cam = CameraModel.forward_mount()
-        return CameraModel(width, height, K, T_body_cam, min_range, max_range, rate_hz)
+        return CameraModel(width, height, K, T_body_cam, min_range, max_range, rate_hz, depth_noise)
 
     @staticmethod
     def forward_mount(

@@ -86,23 +86,6 @@ def class_models(mission: Mission) -> dict[str, str]:
     return {cls: model for cls, model in models.items() if model in ("cuboid", "cylinder")}
 
 
-def shape_fitter(models: dict[str, str]) -> Callable[[str, np.ndarray], dict | None] | None:
-    """Fit each landmark's points with its class's model (paper 2 §IV-A), or None if no shapes."""
-    if not models:
-        return None
-    from amslam.lib.shapes import fit_cuboid, fit_cylinder
-
-    def fit(class_name: str, points: np.ndarray) -> dict | None:
-        model = models.get(class_name)
-        if model == "cuboid":
-            return fit_cuboid(points)
-        if model == "cylinder":
-            return fit_cylinder(points)
-        return None
-
-    return fit
-
-
 def score(landmarks: Sequence[Any], world: WorldSummary, gate: float = 1.0) -> dict[str, Any]:
     """Objects mapped, spurious landmarks, position and dimension errors against the truth."""
     from amslam.lib.shapes import shape_center
@@ -299,7 +282,6 @@ def fly_team(
     flown = [_fly(spec, registry, flags, runs, log, reuse) for flags in teams]
     world = _one_world(flown)
     models = class_models(flown[0]["mission"])
-    fit = shape_fitter(models)
     params = MergeParams(landmark_models=models)  # shape classes merge by their shapes
     times = [float(f["metrics"].get("sim_duration_s") or 0.0) for f in flown]
     names = [
@@ -310,7 +292,7 @@ def fly_team(
     def merge(dirs: list[Path]) -> Any:
         key = tuple(str(d) for d in dirs)
         if key not in cache:
-            cache[key] = merge_runs(dirs, params, shape_fitter=fit, odometry=odometry)
+            cache[key] = merge_runs(dirs, params, odometry=odometry)
         return cache[key]
 
     rows = []

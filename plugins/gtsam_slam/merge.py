@@ -265,21 +265,31 @@ class _Merger:
 
     def world_points(self, lm: LandmarkRec, values: gtsam.Values) -> np.ndarray:
         """All the object points of a landmark's detections, moved with the optimised key poses."""
-        pts = [
-            transform_points(values.atPose3(o.pose_key).matrix(), o.points)
-            for o in lm.observations
-            if o.points is not None and len(o.points)
-        ]
-        return np.vstack(pts) if pts else np.zeros((0, 3))
+        return self.world_points_and_noise(lm, values)[0]
 
-    def fit_all(self, class_name: str, cloud: np.ndarray) -> dict | None:
+    def world_points_and_noise(self, lm: LandmarkRec, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`world_points` and each point's depth noise vector (world frame,
+        :func:`amslam.lib.shapes.depth_noise` with its robot's camera; zero for a log without)."""
+        pts, noise = [], []
+        for o in lm.observations:
+            if o.points is None or not len(o.points):
+                continue
+            log, T_world_body = self.logs[o.robot], values.atPose3(o.pose_key).matrix()
+            T_world_cam = T_world_body @ log.T_body_cam
+            world = transform_points(T_world_body, o.points)
+            pts.append(world)
+            noise.append(shapes.depth_noise(world, T_world_cam[:3, 3], T_world_cam[:3, 2], log.depth_noise))
+        return (np.vstack(pts), np.vstack(noise)) if pts else (np.zeros((0, 3)), np.zeros((0, 3)))
+
+    def fit_all(self, class_name: str, cloud: np.ndarray, noise: np.ndarray | None = None) -> dict | None:
         """The class's shape fitted to all of a landmark's points: the library's fits for whole
-        clouds (extents extrapolated from the 1st percentiles), as the experiment's fitter; a
-        window fit (:meth:`fit`) trims 2.5 % of a few points per side, a few decimetres of a car."""
+        clouds (extents extrapolated from the 1st percentiles, past each point's depth ``noise``
+        when given), as the experiment's fitter; a window fit (:meth:`fit`) trims 2.5 % of a few
+        points per side, a few decimetres of a car."""
         if len(cloud) < 20:
             return None
         if self.graph.shapes.model(class_name) == "cuboid":
-            s = shapes.fit_cuboid(cloud)
+            s = shapes.fit_cuboid(cloud, noise=noise)
             return s if s is not None and max(s["dims"]) <= self.p.shapes.max_dim else None
         s = shapes.fit_cylinder(cloud, axis=self.p.shapes.cylinder_axis)
         return s if s is not None and 0.01 <= s["radius"] <= self.p.shapes.max_radius else None
@@ -549,9 +559,12 @@ class _Merger:
             # The base has every detection's points: a shape fitted to all of them, moved with the
             # optimised key poses, beats the graph's, whose measurements saw a window of a log's
             # few points each (a box a few decimetres short); the graph's is the fallback.
-            pts = self.world_points(lm, values)
-            fitter = shape_fitter or (self.fit_all if self.is_shape(lm.class_name) else None)
-            shape = fitter(lm.class_name, pts) if fitter is not None and len(pts) else None
+            pts, noise = self.world_points_and_noise(lm, values)
+            shape = None
+            if shape_fitter is not None and len(pts):
+                shape = shape_fitter(lm.class_name, pts)
+            elif self.is_shape(lm.class_name) and len(pts):
+                shape = self.fit_all(lm.class_name, pts, noise)
             if shape and shape.get("model") == "cuboid" == g.shapes.model(lm.class_name):
                 shape = self.complete(lm, shape, values)
             shape = shape or g.shapes.estimate(lm.id, values)

@@ -67,6 +67,7 @@ class CameraParams(BackendParams):
             max_range=self.max_range,
             rate_hz=self.rate_hz,
             T_body_cam=T,
+            depth_noise=self.depth_noise,
         )
 
 

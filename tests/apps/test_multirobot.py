@@ -215,6 +215,8 @@ def test_a_run_logs_its_measurements(registry, tmp_path: Path) -> None:  # noqa:
     np.testing.assert_allclose(log.T_odom_body[0][:3, 3], log.truth[0][:3, 3], atol=1e-6)
     header = yaml.safe_load((result.run_dir / "measurements.jsonl").read_text().splitlines()[0])
     assert header["type"] == "header"
+    # the camera's depth noise, for the base's box fits: the simulated camera's own
+    assert log.depth_noise == mission.backends["platform"].params.camera.depth_noise > 0
 
 
 @pytest.mark.slow

@@ -25,3 +25,16 @@ def test_a_detection_keeps_128_evenly_spread_points_and_a_small_one_keeps_all(tm
     # evenly subsampled: the ends of the cloud are kept
     assert big[:, 0].min() == -1.0 and big[:, 0].max() == 1.0
     assert read_measurements(tmp_path) is not None
+
+
+def test_the_camera_s_depth_noise_reaches_the_base_and_a_log_without_it_reads_as_unmodelled(tmp_path):
+    log = MeasurementLog(tmp_path / "measurements.jsonl", "r1", np.eye(4), depth_noise=0.005)
+    log.detections(Odometry(stamp=1.0, T_odom_body=np.eye(4)), [_detection(30)])
+    log.close()
+    assert read_measurements(tmp_path).depth_noise == 0.005
+    # a log written before the header carried it: the base fits boxes as before
+    lines = (tmp_path / "measurements.jsonl").read_text().splitlines()
+    header = json.loads(lines[0])
+    del header["depth_noise"]
+    (tmp_path / "measurements.jsonl").write_text("\n".join([json.dumps(header), *lines[1:]]) + "\n")
+    assert read_measurements(tmp_path).depth_noise == 0.0

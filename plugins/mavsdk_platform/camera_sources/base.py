@@ -61,6 +61,13 @@ class CameraSourceParams(BaseModel):
     rate_hz: float = Field(15.0, gt=0, le=1000, description="frame rate")
     min_range: float = Field(0.3, ge=0, le=100, description="closest valid depth, m")
     max_range: float = Field(5.0, gt=0, le=100, description="farthest depth used, m")
+    depth_noise: float = Field(
+        0.005,
+        ge=0,
+        le=1,
+        description="σ of a depth reading = depth_noise·z², m (a D435's is of this order; measure "
+        "yours on a flat wall at a few ranges; 0: not modelled). Box fits take their extents past it",
+    )
     mount_xyz: tuple[_Mount, _Mount, _Mount] = Field(
         (0.1, 0.0, 0.0), description="camera position in the body frame (FLU), m (within 10 m)"
     )
@@ -110,6 +117,7 @@ class CameraSourceParams(BaseModel):
             max_range=self.max_range,
             rate_hz=self.rate_hz,
             T_body_cam=self.T_body_cam(),
+            depth_noise=self.depth_noise,
         )
 
 
@@ -154,7 +162,7 @@ class ReplaySource(CameraSource):
             K = first.get("K", self.model.K)
         self.model = CameraModel(
             depth.shape[1], depth.shape[0], np.asarray(K, float), self.model.T_body_cam,
-            self.model.min_range, self.model.max_range, self.model.rate_hz,
+            self.model.min_range, self.model.max_range, self.model.rate_hz, self.model.depth_noise,
         )  # fmt: skip
         self.next_time = time.monotonic()
         return self.model

@@ -50,7 +50,7 @@ class RealSenseSource(CameraSource):
         intr = profile.get_stream(rs.stream.color).as_video_stream_profile().get_intrinsics()
         K = np.array([[intr.fx, 0.0, intr.ppx], [0.0, intr.fy, intr.ppy], [0.0, 0.0, 1.0]])
         self.model = CameraModel(
-            intr.width, intr.height, K, p.T_body_cam(), p.min_range, p.max_range, p.rate_hz
+            intr.width, intr.height, K, p.T_body_cam(), p.min_range, p.max_range, p.rate_hz, p.depth_noise
         )
         return self.model
 

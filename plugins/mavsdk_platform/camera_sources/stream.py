@@ -180,7 +180,7 @@ class StreamSource(CameraSource):
             raise PlatformError(f"camera.source stream: {where} closed the stream before its first frame")
         height, width = first.depth.shape
         self.model = CameraModel(
-            width, height, first.K.copy(), p.T_body_cam(), p.min_range, p.max_range, p.rate_hz
+            width, height, first.K.copy(), p.T_body_cam(), p.min_range, p.max_range, p.rate_hz, p.depth_noise
         )
         self._keep(first)
         self._sock.settimeout(None)  # the reader blocks; close() shuts the socket down to end it

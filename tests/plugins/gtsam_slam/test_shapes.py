@@ -356,3 +356,40 @@ def test_a_face_without_a_crowd_of_points_keeps_its_edge() -> None:
     fitted = S.fit_cuboid(car, S.GroundPlane.horizontal(0.0), percentile=2.5, extrapolate=False)
     cams = np.array([[-6.0, -3.0, 6.0], [6.0, 3.0, 6.0]])
     assert S.seat_seen_faces(fitted, car, cams) is fitted
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7])
+def test_a_box_fitted_past_each_point_s_depth_noise_is_the_object_not_the_noise_s_tails(yaw: float) -> None:
+    # a car seen from 5 m up and 5-6 m off on both sides (the overhead robot's lawnmower): at
+    # those depths the camera's noise (0.005·z²) is 0.15-0.25 m along each ray
+    rng = np.random.default_rng(11)
+    R, centre, dims = rz(yaw), np.array([3.0, -1.0, 0.775]), np.array([4.6, 1.85, 1.55])
+    pts, noise = [], []
+    for offset in ([-3.0, -5.0, 5.0], [3.0, 5.0, 5.0], [-5.0, 1.0, 5.0]):
+        camera = centre + R @ np.array(offset)
+        clean = box_points(R, centre, dims, camera, rng, n=3000, noise=0.0)
+        axis = (centre - camera) / np.linalg.norm(centre - camera)  # looking at the car
+        n = S.depth_noise(clean, camera, axis, 0.005)
+        pts.append(clean + n * rng.normal(0.0, 1.0, (len(clean), 1)))
+        noise.append(n)
+    pts, noise = np.vstack(pts), np.vstack(noise)
+    assert np.median(np.linalg.norm(noise, axis=1)) > 0.12
+
+    def length_width_errors(shape: dict) -> np.ndarray:
+        return np.sort(shape["dims"][:2])[::-1] - dims[:2]
+
+    ground = S.GroundPlane.horizontal(0.0)
+    assert np.all(length_width_errors(S.fit_cuboid(pts, ground)) > 0.2)  # the tails: too big
+    fitted = S.fit_cuboid(pts, ground, noise=noise)
+    assert np.all(np.abs(length_width_errors(fitted)) < 0.08)
+    assert np.linalg.norm(np.asarray(fitted["center"])[:2] - centre[:2]) < 0.05
+
+
+def test_depth_noise_lies_along_each_ray_and_grows_with_the_square_of_the_depth() -> None:
+    camera, axis = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    pts = np.array([[2.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 3.0, 0.0]])
+    n = S.depth_noise(pts, camera, axis, 0.005)
+    assert np.allclose(n[0], [0.02, 0, 0]) and np.allclose(n[1], [0.08, 0, 0])
+    # off the optical axis: the depth error is along z, the point moves along its ray by z/range more
+    assert np.allclose(n[2], 0.005 * 4.0 * np.array([4.0, 3.0, 0.0]))
+    assert np.allclose(S.depth_noise(pts, camera, axis, 0.0), 0.0)

@@ -123,3 +123,10 @@ def test_a_look_recolours_and_relights_but_moves_no_pixel(room_with_chair):
     # the checker's dark squares: a two-level image where the plain one is a smooth shading
     wall = looked.rgb[~chair & (looked.depth > 0)][:, 2].astype(float)
     assert np.percentile(wall, 90) > 2.0 * np.percentile(wall, 10)
+
+
+def test_the_camera_model_carries_the_depth_noise_the_renderer_adds() -> None:
+    # the backends read the sensor's noise from the camera model (a real camera's from its
+    # parameters), never from the simulator
+    assert CameraParams(depth_noise=0.003).model().depth_noise == 0.003
+    assert CameraParams().model().depth_noise == CameraParams().depth_noise
