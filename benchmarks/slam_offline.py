@@ -10,6 +10,8 @@ parameters (its ``mission.yaml``), in seconds instead of a flight's minutes, and
   trajectory: the map's error that is the landmark model's alone);
 * ``--points true-surface``: every detection's points moved onto the surface of its true object's
   box, from the same views (a perfect depth sensor and mask: the landmark model's best case);
+* ``--depth-noise K``: the camera's depth noise coefficient the boxes are fitted past
+  (``CameraModel.depth_noise``; ``logged``: the log's own, 0 in logs written before it had one);
 * ``--set KEY=VALUE``: the flight's parameters overridden, as missions spell them
   (``slam.shapes.window=6``, ``slam.graph.robust=cauchy``);
 * ``--drop-unknown-keys``: a flight of an older version, whose ``mission.yaml`` names parameters
@@ -172,6 +174,7 @@ def resolve(
     sets: list[str],
     registry: Any,
     drop_unknown_keys: bool = False,
+    depth_noise: str = "logged",
 ) -> dict[str, Any]:
     """One flight re-solved in one variant: its trajectory's and its landmarks' errors."""
     from amslam.apps.multirobot import run_world
@@ -194,6 +197,8 @@ def resolve(
     except ValueError as exc:
         raise OfflineError(f"--models {models!r}: {exc}") from exc
     log = read_measurements(run_dir)
+    if depth_noise != "logged":
+        log = dataclasses.replace(log, depth_noise=float(depth_noise))
     if log.truth is None:
         raise OfflineError(f"{run_dir}: its log has no true key poses (a real flight): nothing to score")
     world = run_world(run_dir, registry, mission)
@@ -206,7 +211,13 @@ def resolve(
     acc = landmark_accuracy(result.landmarks, world)
     return {
         "run_dir": str(run_dir),
-        "variant": {"models": models, "odometry": odometry, "points": points, "set": sets},
+        "variant": {
+            "models": models,
+            "odometry": odometry,
+            "points": points,
+            "depth_noise": depth_noise,
+            "set": sets,
+        },
         "vio": vio,
         "slam": trajectory_errors(result.trajectories[0], log.truth),
         "objects": acc.get("objects", 0),
@@ -226,6 +237,8 @@ def variant_name(v: dict[str, Any]) -> str:
         parts.append(f"odometry {v['odometry']}")
     if v["points"] != "logged":
         parts.append(f"points {v['points']}")
+    if v.get("depth_noise", "logged") != "logged":
+        parts.append(f"depth noise {v['depth_noise']}")
     return ", ".join(parts + list(v["set"]))
 
 
@@ -285,6 +298,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--odometry", default="logged", help=f"comma-separated of {', '.join(ODOMETRY)}")
     parser.add_argument("--points", default="logged", help=f"comma-separated of {', '.join(POINTS)}")
     parser.add_argument(
+        "--depth-noise",
+        default="logged",
+        help="comma-separated: 'logged' (the log's camera depth noise) or coefficients K (σ = K·z², m)",
+    )
+    parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="mission override (repeatable)"
     )
     parser.add_argument(
@@ -303,11 +321,12 @@ def main(argv: list[str] | None = None) -> int:
             parse_models(m)
         odometry = _choices(args.odometry, ODOMETRY, "--odometry")
         points = _choices(args.points, POINTS, "--points")
+        noises = _depth_noises(args.depth_noise)
         runs = flight_dirs(args.runs)
         registry = build_plugin_manager()
         rows = []
-        for run, m, o, p in itertools.product(runs, models, odometry, points):
-            rows.append(resolve(run, m, o, p, args.set, registry, args.drop_unknown_keys))
+        for run, m, o, p, k in itertools.product(runs, models, odometry, points, noises):
+            rows.append(resolve(run, m, o, p, args.set, registry, args.drop_unknown_keys, k))
             done = rows[-1]
             print(
                 f"{run.name} [{variant_name(done['variant'])}]: SLAM RMS {done['slam']['rms_m']:.3f} m",
@@ -320,6 +339,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0
+
+
+def _depth_noises(value: str) -> list[str]:
+    out = [v.strip() for v in value.split(",") if v.strip()]
+    for v in out:
+        try:
+            ok = v == "logged" or 0.0 <= float(v) <= 1.0
+        except ValueError:
+            ok = False
+        if not ok:
+            raise OfflineError(f"--depth-noise {value!r}: {v!r} is neither 'logged' nor a number in [0, 1]")
+    return out or ["logged"]
 
 
 def _choices(value: str, allowed: tuple[str, ...], option: str) -> list[str]:

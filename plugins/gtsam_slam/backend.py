@@ -278,7 +278,14 @@ class GtsamSlam(Slam):
             return out
         from amslam.plugins.gtsam_slam.object_boxes import placed, reported_boxes
 
-        reported = reported_boxes(self._graph, self._graph.estimate, self._T_body_cam, self.params)
+        camera = self._context.camera if self._context is not None else None
+        reported = reported_boxes(
+            self._graph,
+            self._graph.estimate,
+            self._T_body_cam,
+            self.params,
+            depth_noise=camera.depth_noise if camera is not None else 0.0,
+        )
         return placed(out, reported)
 
     def uncertainty(self) -> tuple[float, float]:

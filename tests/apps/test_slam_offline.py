@@ -43,14 +43,19 @@ def test_true_odometry_leaves_the_landmarks_little_to_correct(flight, registry) 
 
 def test_a_cuboid_variant_and_a_setting_reach_the_solve(flight, registry) -> None:  # noqa: ANN001
     b = load_benchmark("slam_offline")
-    row = b.resolve(flight, "cuboid", "logged", "true-surface", ["slam.shapes.window=6"], registry)
+    row = b.resolve(
+        flight, "cuboid", "logged", "true-surface", ["slam.shapes.window=6"], registry, depth_noise="0.004"
+    )
     assert row["variant"] == {
         "models": "cuboid",
         "odometry": "logged",
         "points": "true-surface",
+        "depth_noise": "0.004",
         "set": ["slam.shapes.window=6"],
     }
-    assert "cuboid, points true-surface, slam.shapes.window=6" in b.table([row])
+    assert "cuboid, points true-surface, depth noise 0.004, slam.shapes.window=6" in b.table([row])
+    with pytest.raises(b.OfflineError, match="--depth-noise 'loud'"):
+        b._depth_noises("loud")
     with pytest.raises(b.OfflineError, match="no_such_key"):
         b.resolve(flight, "cuboid", "logged", "logged", ["slam.shapes.no_such_key=1"], registry)
     with pytest.raises(b.OfflineError, match="--models 'cuboid=box'"):
