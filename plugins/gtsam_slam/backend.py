@@ -278,14 +278,7 @@ class GtsamSlam(Slam):
             return out
         from amslam.plugins.gtsam_slam.object_boxes import placed, reported_boxes
 
-        camera = self._context.camera if self._context is not None else None
-        reported = reported_boxes(
-            self._graph,
-            self._graph.estimate,
-            self._T_body_cam,
-            self.params,
-            depth_noise=camera.depth_noise if camera is not None else 0.0,
-        )
+        reported = reported_boxes(self._graph, self._graph.estimate, self._T_body_cam, self.params)
         return placed(out, reported)
 
     def uncertainty(self) -> tuple[float, float]:

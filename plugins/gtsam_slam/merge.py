@@ -602,8 +602,7 @@ class _Merger:
         if self.p.object_map != "boxes":
             return out, contributors
         mounts = {r: log.T_body_cam for r, log in enumerate(self.logs)}
-        noise = {r: log.depth_noise for r, log in enumerate(self.logs)}
-        reported = reported_boxes(self.graph, values, mounts, self.p, noise)
+        reported = reported_boxes(self.graph, values, mounts, self.p)
         new_id = {lm.id: i for i, lm in enumerate(lms)}  # out's ids
         reported = ObjectBoxes(
             {new_id[j]: box for j, box in reported.boxes.items()},

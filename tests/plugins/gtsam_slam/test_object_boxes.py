@@ -214,39 +214,3 @@ def test_a_neighbours_detection_given_to_a_chair_is_left_out_of_its_box() -> Non
         ).boxes[0]
         errors[trim] = abs(box["center"][0] - centre[0])
     assert errors[2.5] < 0.05 < errors[None]  # the neighbour's points widened the box towards it
-
-
-def test_boxes_seen_from_afar_are_fitted_past_the_depth_noise_the_camera_reports() -> None:
-    # chairs seen from the front and the back at 4.5 m: a stereo camera's noise (0.005·z², 0.1 m
-    # there) spreads each face along the rays, and the percentile edges are its tails
-    from amslam.lib.shapes import depth_noise
-
-    rng = np.random.default_rng(5)
-    mount, K = camera_mount(), 0.005
-    values = gtsam.Values()
-    landmarks, observations = [], {}
-    key = 0
-    for j in range(4):
-        lo = np.array([2.0 * j, 0.0, 0.0])
-        obs = []
-        for y, yaw in ((-4.5, np.pi / 2), (5.0, -np.pi / 2)):
-            T = pose_from(lo + np.array([0.25, y, 1.2]), yaw)
-            values.insert(key, gtsam.Pose3(T))
-            pts = face(lo, lo[1] if y < 0 else lo[1] + CHAIR[1], rng, n=300)
-            cam = T @ mount
-            pts = pts + depth_noise(pts, cam[:3, 3], cam[:3, 2], K) * rng.normal(0.0, 1.0, (len(pts), 1))
-            body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
-            obs.append(SimpleNamespace(pose_key=key, points=body))
-            key += 1
-        landmarks.append(SimpleNamespace(id=j, class_name="chair"))
-        observations[j] = obs
-    lms = report(landmarks, observations)
-    plain = fitted_boxes(lms, values, mount, twin_margin=0.2).boxes
-    past = fitted_boxes(lms, values, mount, twin_margin=0.2, depth_noise=K).boxes
-
-    def depths(boxes: dict) -> list[float]:  # each box's extent along y, the cameras' line of sight
-        return [b["dims"][0 if abs(b["rotation"][1][0]) > 0.7 else 1] for b in boxes.values()]
-
-    depth = [depths(plain), depths(past)]
-    assert min(depth[0]) > CHAIR[1] + 0.15  # the noise's tails on both faces
-    assert np.allclose(depth[1], CHAIR[1], atol=0.06)
