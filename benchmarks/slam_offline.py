@@ -10,8 +10,9 @@ parameters (its ``mission.yaml``), in seconds instead of a flight's minutes, and
   trajectory: the map's error that is the landmark model's alone);
 * ``--points true-surface``: every detection's points moved onto the surface of its true object's
   box, from the same views (a perfect depth sensor and mask: the landmark model's best case);
-* ``--depth-noise K``: the camera's depth noise coefficient the boxes are fitted past
-  (``CameraModel.depth_noise``; ``logged``: the log's own, 0 in logs written before it had one);
+* ``--depth-noise K``: the camera's depth noise coefficient the cuboid classes' boxes (cars) are
+  fitted past (``CameraModel.depth_noise``; ``logged``: the log's own, 0 in logs written before
+  it had one);
 * ``--set KEY=VALUE``: the flight's parameters overridden, as missions spell them
   (``slam.shapes.window=6``, ``slam.graph.robust=cauchy``);
 * ``--drop-unknown-keys``: a flight of an older version, whose ``mission.yaml`` names parameters
