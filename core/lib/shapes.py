@@ -378,7 +378,7 @@ def fit_cuboid(
             extents are taken past each point's noise along the box's axes (:func:`_extent`):
             a depth camera's noise grows as z², and at 6 m its tails put the percentile edges of
             a car 0.3–0.4 m beyond the faces (a merged map's cars 0.6 m too wide, the overhead
-            robot's seen from 5 m; with the true poses and the noise: 0.69 → 0.13 m length and
+            robot's seen from 5 m; with the true poses and the noise: 0.69 → 0.10 m length and
             width error, docs/multirobot.md).
 
     Returns:
