@@ -284,12 +284,12 @@ class _Merger:
     def fit_all(self, class_name: str, cloud: np.ndarray, noise: np.ndarray | None = None) -> dict | None:
         """The class's shape fitted to all of a landmark's points: the library's fits for whole
         clouds (extents extrapolated from the 1st percentiles, past each point's depth ``noise``
-        when given), as the experiment's fitter; a window fit (:meth:`fit`) trims 2.5 % of a few
-        points per side, a few decimetres of a car."""
+        when a log gave its camera's; logs without one fit as before); a window fit
+        (:meth:`fit`) trims 2.5 % of a few points per side, a few decimetres of a car."""
         if len(cloud) < 20:
             return None
         if self.graph.shapes.model(class_name) == "cuboid":
-            s = shapes.fit_cuboid(cloud, noise=noise)
+            s = shapes.fit_cuboid(cloud, noise=noise if noise is not None and np.any(noise) else None)
             return s if s is not None and max(s["dims"]) <= self.p.shapes.max_dim else None
         s = shapes.fit_cylinder(cloud, axis=self.p.shapes.cylinder_axis)
         return s if s is not None and 0.01 <= s["radius"] <= self.p.shapes.max_radius else None

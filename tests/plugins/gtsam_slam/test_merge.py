@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -214,12 +215,13 @@ def fly_past_cars(
     path: Path,
     seen_length: float = CAR[1],
     seen_from: float = 0.0,
+    depth_noise: float = 0.0,
 ) -> Path:
     """A robot flying along x at height 3.5 m, ``y`` m off the row, detecting cars within 6 m
     (only the part of each car from ``seen_from`` to ``seen_length`` m of its y = lo end: the rest
-    hidden)."""
+    hidden), its camera's depth σ ``depth_noise``·z² (logged in the header)."""
     rng = np.random.default_rng(seed)
-    log = MeasurementLog(path, f"robot-{seed}", camera_mount())
+    log = MeasurementLog(path, f"robot-{seed}", camera_mount(), depth_noise=depth_noise)
     xs = np.arange(-6.0, cars[:, 0].max() + 8.0, 0.25)[::direction]
     for k, x in enumerate(xs):
         T = pose_from(np.array([x, y, 3.5]), 0.0 if direction > 0 else np.pi)
@@ -235,6 +237,8 @@ def fly_past_cars(
             pw = car_points(lo, T[:3, 3], rng)
             pw = pw[(pw[:, 1] <= lo[1] + seen_length) & (pw[:, 1] >= lo[1] + seen_from)]
             pc = (pw - T_wc[:3, 3]) @ T_wc[:3, :3]
+            # along each ray, σ = k·z²: the point moves by (p / z) per metre of depth
+            pc = pc + depth_noise * pc[:, 2:3] * pc * rng.normal(0.0, 1.0, (len(pc), 1))
             dets.append(Detection("car", 0.9, np.median(pc, axis=0), rng.permutation(pc)))
         log.detections(odom, dets, T)
     log.close()
@@ -496,3 +500,25 @@ def test_shapes_reported_not_optimised_are_measured_once_by_range_bearing_factor
     assert range_bearing == sum(lm.observations for lm in merged.landmarks) > 0
     assert len(cuboid_centres(merged)) == len(merged.landmarks) == 2
     assert all(lm.shape["model"] == "cuboid" for lm in merged.landmarks)
+
+
+def test_cars_are_fitted_past_the_depth_noise_their_robots_logged(tmp_path: Path) -> None:
+    # a noisy stereo camera (σ = 0.04·z², 0.1 m at the points' median depth) on both robots: the
+    # 1st percentiles of every car's points are the noise's tails, a box too long, unless the
+    # merge fits past the noise each log's header gives
+    cars = np.array([[2.6 * i, 0.0, 0.0] for i in range(3)])
+    a = fly_past_cars(cars, -3.0, 1, 1, tmp_path / "a.jsonl", depth_noise=0.04)
+    b = fly_past_cars(cars, CAR[1] + 3.0, -1, 2, tmp_path / "b.jsonl", depth_noise=0.04)
+    logs = [read_measurements(a), read_measurements(b)]
+    assert [log.depth_noise for log in logs] == [0.04, 0.04]
+    unlogged = [dataclasses.replace(log, depth_noise=0.0) for log in logs]
+    params = MergeParams(landmark_models={"car": "cuboid"})
+
+    def dims_errors(result: MergeResult) -> np.ndarray:  # per car: length, width, height
+        assert len(result.landmarks) == len(cars)
+        return np.array(
+            [np.r_[np.sort(lm.shape["dims"][:2])[::-1], lm.shape["dims"][2]] for lm in result.landmarks]
+        ) - [CAR[1], CAR[0], CAR[2]]
+
+    assert dims_errors(merge_measurements(unlogged, params))[:, 0].min() > 0.25
+    assert np.abs(dims_errors(merge_measurements(logs, params))).max() < 0.15
