@@ -282,6 +282,7 @@ def read_measurements(path: Path) -> RobotMeasurements:
         path = path / FILENAME
     header: dict[str, Any] | None = None
     stamps, poses, rels, truths, dets = [], [], [], [], []
+    depth_noise = 0.0
     for n, rec in read_jsonl(path):  # a partial last line (a run killed mid-write) is dropped
         try:
             kind = rec.get("type")
@@ -291,6 +292,9 @@ def read_measurements(path: Path) -> RobotMeasurements:
                         f"{path}:1: not an amslam measurement log (first line is not its header)"
                     )
                 header = rec
+                depth_noise = float(rec.get("depth_noise") or 0.0)
+                if not 0.0 <= depth_noise <= 1.0:  # NaN too
+                    raise RunFileError(f"{path}:1: depth_noise {depth_noise!r} is not in [0, 1]")
             elif kind == "keypose":
                 if rec["id"] != len(stamps):
                     raise RunFileError(f"{path}:{n}: key pose {rec['id']} out of order")
@@ -329,5 +333,5 @@ def read_measurements(path: Path) -> RobotMeasurements:
         rel=np.asarray(rels, float).reshape(-1, 4, 4),
         truth=np.asarray(truths, float) if has_truth else None,
         detections=[d for d in dets if d.keypose < len(stamps)],
-        depth_noise=float(header.get("depth_noise") or 0.0),
+        depth_noise=depth_noise,
     )

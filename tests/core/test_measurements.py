@@ -1,6 +1,7 @@
 """The measurement log keeps enough of a detection's points for the base's window fits."""
 
 import json
+import re
 
 import numpy as np
 
@@ -38,3 +39,16 @@ def test_the_camera_s_depth_noise_reaches_the_base_and_a_log_without_it_reads_as
     del header["depth_noise"]
     (tmp_path / "measurements.jsonl").write_text("\n".join([json.dumps(header), *lines[1:]]) + "\n")
     assert read_measurements(tmp_path).depth_noise == 0.0
+
+
+def test_a_header_with_a_depth_noise_that_is_no_coefficient_is_one_error_naming_the_line(tmp_path):
+    import pytest
+
+    from amslam.errors import RunFileError
+
+    MeasurementLog(tmp_path / "measurements.jsonl", "r1", np.eye(4)).close()
+    header = json.loads((tmp_path / "measurements.jsonl").read_text().splitlines()[0])
+    for bad, says in (("loud", "malformed header record"), (-0.1, "depth_noise -0.1 is not in [0, 1]")):
+        (tmp_path / "measurements.jsonl").write_text(json.dumps({**header, "depth_noise": bad}) + "\n")
+        with pytest.raises(RunFileError, match=re.escape(f"measurements.jsonl:1: {says}")):
+            read_measurements(tmp_path)
