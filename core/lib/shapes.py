@@ -348,6 +348,47 @@ def _lshape_axes(xy: np.ndarray, percentile: float, d0: float = 0.05) -> np.ndar
 # -------------------------------------------------------------------------------------------
 # cuboids
 # -------------------------------------------------------------------------------------------
+def _footprint_axis(xy: np.ndarray, axis: str, percentile: float, extrapolate: bool) -> np.ndarray | None:
+    """The footprint's longitudinal direction (2-D unit vector) by ``axis`` (:func:`fit_cuboid`);
+    None when the points span no area (no convex hull)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if axis not in ("pca", "lshape"):
+        raise ValueError(f"axis must be 'pca' or 'lshape', not {axis!r}")
+    try:
+        hull = ConvexHull(xy)
+    except (QhullError, ValueError):
+        return None
+    if axis == "pca":
+        return _polygon_axes(xy[hull.vertices])[0]
+    # orientation (mod 90°) by L-shape fitting; longitudinal = the larger robust span
+    rect = _lshape_axes(xy[:: -(-len(xy) // ORIENTATION_POINTS)], percentile)
+    u = xy @ rect.T
+    spans = [np.subtract(*_extent(u[:, k], percentile, extrapolate)[::-1]) for k in range(2)]
+    return rect[int(np.argmax(spans))]
+
+
+def _footprint_extents(
+    xy: np.ndarray,
+    a1: np.ndarray,
+    percentile: float,
+    extrapolate: bool,
+    spread: Callable[[np.ndarray], np.ndarray | None],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float, float]]:
+    """The footprint's axes ``a1`` (the longer side), ``a2``, the projections on ``a1`` and the
+    extents ``(lo1, hi1, lo2, hi2)`` along them (past each point's ``spread`` when given)."""
+    a2 = np.array([-a1[1], a1[0]])
+    u1, u2 = xy @ a1, xy @ a2
+    lo1, hi1 = _extent(u1, percentile, extrapolate, spread(a1))
+    lo2, hi2 = _extent(u2, percentile, extrapolate, spread(a2))
+    if hi2 - lo2 > hi1 - lo1:  # keep b1 the longer side
+        a1, a2 = a2, -a1
+        u1, u2 = xy @ a1, xy @ a2
+        lo1, hi1 = _extent(u1, percentile, extrapolate, spread(a1))
+        lo2, hi2 = _extent(u2, percentile, extrapolate, spread(a2))
+    return a1, a2, u1, (lo1, hi1, lo2, hi2)
+
+
 def fit_cuboid(
     points: np.ndarray,
     ground: GroundPlane | None = None,
@@ -384,8 +425,6 @@ def fit_cuboid(
     Returns:
         A cuboid shape dict (module docstring) or ``None``.
     """
-    from scipy.spatial import ConvexHull, QhullError
-
     p = np.asarray(points, float).reshape(-1, 3)
     if len(p) < min_points:
         return None
@@ -399,33 +438,12 @@ def fit_cuboid(
         return None if noise_xy is None else np.abs(noise_xy @ axis)
 
     h = ground.height(p) if ground is not None else p[:, 2]
-    try:
-        hull = ConvexHull(xy)
-        hull_xy = xy[hull.vertices]
-    except (QhullError, ValueError):
+    a1 = _footprint_axis(xy, axis, percentile, extrapolate)
+    if a1 is None:
         return None
-    pca = _polygon_axes(hull_xy)
-    if axis == "pca":
-        a1 = pca[0]
-    elif axis == "lshape":
-        # orientation (mod 90°) by L-shape fitting; longitudinal = the larger robust span
-        rect = _lshape_axes(xy[:: -(-len(xy) // ORIENTATION_POINTS)], percentile)
-        u = xy @ rect.T
-        spans = [np.subtract(*_extent(u[:, k], percentile, extrapolate)[::-1]) for k in range(2)]
-        a1 = rect[int(np.argmax(spans))]
-    else:
-        raise ValueError(f"axis must be 'pca' or 'lshape', not {axis!r}")
     if noise_xy is not None:
         a1 = _least_area_axis(xy, a1, percentile, extrapolate, spread)
-    a2 = np.array([-a1[1], a1[0]])
-    u1, u2 = xy @ a1, xy @ a2
-    lo1, hi1 = _extent(u1, percentile, extrapolate, spread(a1))
-    lo2, hi2 = _extent(u2, percentile, extrapolate, spread(a2))
-    if hi2 - lo2 > hi1 - lo1:  # keep b1 the longer side
-        a1, a2 = a2, -a1
-        u1, u2 = xy @ a1, xy @ a2
-        lo1, hi1 = _extent(u1, percentile, extrapolate, spread(a1))
-        lo2, hi2 = _extent(u2, percentile, extrapolate, spread(a2))
+    a1, a2, u1, (lo1, hi1, lo2, hi2) = _footprint_extents(xy, a1, percentile, extrapolate, spread)
     if facing == "lower_front":
         mid = 0.5 * (lo1 + hi1)
         front, rear = h[u1 > mid], h[u1 <= mid]
