@@ -4,7 +4,9 @@ import json
 import re
 
 import numpy as np
+import pytest
 
+from amslam.errors import RunFileError
 from amslam.measurements import MeasurementLog, read_measurements
 from amslam.types import Detection, Odometry
 
@@ -42,10 +44,6 @@ def test_the_camera_s_depth_noise_reaches_the_base_and_a_log_without_it_reads_as
 
 
 def test_a_header_with_a_depth_noise_that_is_no_coefficient_is_one_error_naming_the_line(tmp_path):
-    import pytest
-
-    from amslam.errors import RunFileError
-
     MeasurementLog(tmp_path / "measurements.jsonl", "r1", np.eye(4)).close()
     header = json.loads((tmp_path / "measurements.jsonl").read_text().splitlines()[0])
     for bad, says in (("loud", "malformed header record"), (-0.1, "depth_noise -0.1 is not in [0, 1]")):
