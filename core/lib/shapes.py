@@ -381,11 +381,9 @@ def _footprint_extents(
     u1, u2 = xy @ a1, xy @ a2
     lo1, hi1 = _extent(u1, percentile, extrapolate, spread(a1))
     lo2, hi2 = _extent(u2, percentile, extrapolate, spread(a2))
-    if hi2 - lo2 > hi1 - lo1:  # keep b1 the longer side
-        a1, a2 = a2, -a1
-        u1, u2 = xy @ a1, xy @ a2
-        lo1, hi1 = _extent(u1, percentile, extrapolate, spread(a1))
-        lo2, hi2 = _extent(u2, percentile, extrapolate, spread(a2))
+    if hi2 - lo2 > hi1 - lo1:  # keep b1 the longer side: a turn by 90°, the extents with it
+        a1, a2, u1 = a2, -a1, u2
+        lo1, hi1, lo2, hi2 = lo2, hi2, -hi1, -lo1
     return a1, a2, u1, (lo1, hi1, lo2, hi2)
 
 
