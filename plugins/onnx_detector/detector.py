@@ -10,7 +10,9 @@ The 3-D step is the ``sim`` detector's: the masked depth pixels are back-project
 median of the points is the centroid; the points (subsampled) go to shape fitting. A network's
 mask, unlike the simulator's exact one, bleeds over the object's outline and through its gaps (a
 chair's legs) onto the wall behind, so before that the mask's depths are split at gaps larger
-than ``depth_gap`` and only the largest depth cluster (the nearest one on ties) is kept.
+than ``depth_gap`` and only the largest depth cluster (the nearest one on ties) is kept; then
+only the mask's largest connected surface is kept (``surface_step``): a mask spanning two chairs
+of a row, or a table's with the floor between its legs, holds two surfaces at the same depths.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from amslam.errors import AmslamError
 from amslam.interfaces import BackendParams, Detector, RunContext
@@ -96,6 +100,21 @@ class OnnxDetector(Detector):
             ge=0.0,
             le=1000,
             description="split the mask's depths at gaps larger than this (m); 0 = keep all",
+        )
+        surface_step: float = Field(
+            0.05,
+            ge=0.0,
+            le=1000,
+            description="keep the mask's largest connected surface: neighbouring pixels are on one "
+            "surface when their depths differ by less than surface_step + surface_slope·depth (m); "
+            "0 = keep every surface",
+        )
+        surface_slope: float = Field(
+            0.03,
+            ge=0.0,
+            le=10,
+            description="depth step between neighbouring pixels allowed per metre of depth (a slanted face "
+            "and the camera's depth noise grow with depth)",
         )
         centroid_height: Literal["mask", "box"] = Field(
             "box",
@@ -218,7 +237,13 @@ class OnnxDetector(Detector):
     def _lift(
         self, inst: Instance, depth: np.ndarray, K: np.ndarray
     ) -> tuple[Detection, tuple[np.ndarray, np.ndarray]] | None:
-        """:meth:`lift`, plus the image rows and columns of the depth pixels it used."""
+        """:meth:`lift`, plus the image rows and columns of the pixels the detection claims.
+
+        The claimed pixels are the mask's depth cluster before its largest surface is chosen: the
+        mask NMS compares what the network segmented. Were it to compare the surfaces, a second
+        detection of one table (its front half beside the whole table) would keep a surface the
+        first did not and survive, and the map would hold two tables seen at once.
+        """
         p = self.params
         assert p is not None
         H, W = depth.shape
@@ -232,13 +257,15 @@ class OnnxDetector(Detector):
         mask = inst.mask[win] & (d > 0) & (d <= p.max_range)
         if p.depth_gap > 0:
             mask = largest_depth_cluster(mask, d, p.depth_gap)
+        claimed = np.nonzero(mask)
+        if p.surface_step > 0:
+            mask = largest_surface(mask, d, p.surface_step, p.surface_slope)
         if np.count_nonzero(mask) < min_px:
             return None
         Kw = np.array(K, dtype=float)
         Kw[0, 2] -= u0
         Kw[1, 2] -= v0
         pts = backproject(mask, d, np.linalg.inv(Kw))
-        vv, uu = np.nonzero(mask)
         centroid = np.median(pts, axis=0)
         if p.centroid_height == "box" and inst.box[1] > 0.5 and inst.box[3] < H - 0.5:
             # The camera's y axis points down the image: the box's middle row (box edges are pixel
@@ -246,7 +273,7 @@ class OnnxDetector(Detector):
             fy, cy = float(K[1, 1]), float(K[1, 2])
             centroid[1] = (0.5 * (inst.box[1] + inst.box[3]) - 0.5 - cy) / fy * centroid[2]
         det = Detection(self.names[inst.class_id], float(inst.score), centroid, self._subsample(pts))
-        return det, (vv + v0, uu + u0)
+        return det, (claimed[0] + v0, claimed[1] + u0)
 
     def _subsample(self, pts: np.ndarray) -> np.ndarray:
         assert self.params is not None
@@ -281,4 +308,40 @@ def largest_depth_cluster(mask: np.ndarray, depth: np.ndarray, gap: float) -> np
     out = np.zeros_like(mask)
     keep = (z >= lo) & (z <= hi)
     out[v[keep], u[keep]] = True
+    return out
+
+
+def largest_surface(mask: np.ndarray, depth: np.ndarray, step: float, slope: float) -> np.ndarray:
+    """The pixels of ``mask`` on its largest connected surface.
+
+    Two pixels of the mask that touch (8-neighbours) are on one surface when their depths differ by
+    less than ``step + slope·z`` (z the nearer one's depth). A depth gap alone does not split a mask
+    that spans two chairs of a row, or a table's mask over the floor between its legs: the second
+    surface sits at the same depths, but no chain of touching pixels with small steps joins them.
+    OpenCV's and scipy.ndimage's component labelling take a binary image and cannot weigh the
+    depth step between neighbours, so the neighbour graph is built here and scipy's graph
+    routine labels it.
+    """
+    v, u = np.nonzero(mask)
+    n = len(v)
+    if n == 0:
+        return mask
+    H, W = mask.shape
+    index = np.full((H, W), -1, dtype=np.int64)
+    index[v, u] = np.arange(n)
+    z = depth.astype(np.float64)
+    rows, cols = [], []
+    for dv, du in ((0, 1), (1, 0), (1, 1), (1, -1)):  # each neighbour pair once
+        a = (slice(0, H - dv), slice(max(0, -du), W - max(0, du)))
+        b = (slice(dv, H), slice(max(0, du), W - max(0, -du)))
+        za, zb = z[a], z[b]
+        joined = mask[a] & mask[b] & (np.abs(za - zb) < step + slope * np.minimum(za, zb))
+        rows.append(index[a][joined])
+        cols.append(index[b][joined])
+    i, j = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(i), dtype=np.int8), (i, j)), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    largest = label == np.argmax(np.bincount(label))
+    out = np.zeros_like(mask)
+    out[v[largest], u[largest]] = True
     return out

@@ -14,7 +14,12 @@ from amslam.errors import AmslamError, MissionError
 from amslam.interfaces import RunContext
 from amslam.mission import load_mission
 from amslam.plugins.onnx_detector.decoder import Instance
-from amslam.plugins.onnx_detector.detector import OnnxDetector, largest_depth_cluster, shipped_model
+from amslam.plugins.onnx_detector.detector import (
+    OnnxDetector,
+    largest_depth_cluster,
+    largest_surface,
+    shipped_model,
+)
 from amslam.plugins.sim.camera import viewing_pose
 from amslam.plugins.sim.platform import SimPlatform
 from amslam.testing.detector import DetectorContract
@@ -149,6 +154,38 @@ def test_largest_depth_cluster_drops_the_wall_behind() -> None:
     np.testing.assert_array_equal(largest_depth_cluster(mask, depth, gap=5.0), mask)
 
 
+def _two_chairs_in_a_row() -> tuple[np.ndarray, np.ndarray]:
+    """Depth of two chair faces at 2.0–2.1 m before a wall at 2.35 m, and a mask over both and the gap."""
+    depth = np.full((40, 60), 2.35, np.float32)  # the wall 0.25 m behind: within the depth gap
+    depth[5:35, 5:25] = 2.0 + np.linspace(0, 0.1, 20)[None]  # the larger chair, 600 pixels
+    depth[10:35, 35:55] = 2.1  # its neighbour, 500 pixels
+    mask = np.zeros((40, 60), bool)
+    mask[5:35, 5:55] = True  # one mask over both chairs and the wall between them
+    return depth, mask
+
+
+def test_largest_surface_keeps_one_of_two_chairs_the_depth_gap_cannot_split() -> None:
+    depth, mask = _two_chairs_in_a_row()
+    by_depth = largest_depth_cluster(mask, depth, gap=0.3)
+    np.testing.assert_array_equal(by_depth, mask)  # chairs and wall: one depth cluster
+    kept = largest_surface(by_depth, depth, step=0.05, slope=0.03)
+    expected = np.zeros_like(mask)
+    expected[5:35, 5:25] = True
+    np.testing.assert_array_equal(kept, expected)
+
+
+def test_largest_surface_keeps_a_slanted_face_and_a_noisy_one_whole() -> None:
+    # a floor-like face seen at a grazing angle: 0.06 m deeper every row, from 1.5 to 5.0 m
+    slanted = np.repeat((1.5 + 0.06 * np.arange(60))[:, None], 30, axis=1).astype(np.float32)
+    mask = np.ones_like(slanted, dtype=bool)
+    np.testing.assert_array_equal(largest_surface(mask, slanted, step=0.05, slope=0.03), mask)
+    # a face at 4 m with the simulated camera's depth noise (σ = 0.005·z², 8 cm)
+    rng = np.random.default_rng(3)
+    noisy = (4.0 + rng.normal(0.0, 0.005 * 16, (40, 30))).astype(np.float32)
+    mask = np.ones_like(noisy, dtype=bool)
+    assert largest_surface(mask, noisy, step=0.05, slope=0.03).mean() > 0.9
+
+
 class _StubModel:
     """Stands in for the network: returns fixed instances (the 3-D step and mask NMS are under test)."""
 
@@ -195,6 +232,38 @@ def test_mask_nms_drops_parts_and_merges_of_stronger_detections(tmp_path: Path) 
     assert [(d.class_name, d.confidence) for d in found] == [("chair", 0.9), ("chair", 0.8), ("table", 0.6)]
     det, frame = _stub_detector(tmp_path, instances, duplicate_overlap=1.0)
     assert len(det.detect(frame)) == 5
+
+
+def test_a_mask_over_two_chairs_lifts_the_larger_one_only(tmp_path: Path) -> None:
+    both = _instance(0, 0.9, (100, 60, 150, 90))
+    det, frame = _stub_detector(tmp_path, [both])
+    depth, mask = _two_chairs_in_a_row()
+    frame.depth[55:95, 95:155] = depth  # the instance's box is the mask's rows 5–35, columns 5–55
+    both.mask[:] = False
+    both.mask[55:95, 95:155] = mask
+    (d,) = det.detect(frame)
+    assert d.points_cam[:, 2].max() < 2.11  # the larger chair's face: no wall, no neighbour
+    assert d.points_cam[:, 0].max() < (120 - 159.5) / 160.0 * 2.1  # nothing right of its columns
+    det, frame2 = _stub_detector(tmp_path, [both], surface_step=0.0)
+    frame2.depth[55:95, 95:155] = depth
+    (d,) = det.detect(frame2)
+    assert d.points_cam[:, 2].max() == pytest.approx(2.35)  # without: the wall between them too
+
+
+def test_a_weaker_detection_on_the_surface_a_stronger_one_left_out_is_still_its_duplicate(
+    tmp_path: Path,
+) -> None:
+    whole = _instance(0, 0.9, (100, 60, 150, 90))  # one object whose mask holds two surfaces
+    right_part = _instance(0, 0.6, (130, 60, 150, 90))  # a second box on the smaller surface
+    det, frame = _stub_detector(tmp_path, [whole, right_part])
+    depth, mask = _two_chairs_in_a_row()
+    frame.depth[55:95, 95:155] = depth
+    whole.mask[:] = False
+    whole.mask[55:95, 95:155] = mask
+    right_part.mask[:] = False
+    right_part.mask[60:90, 130:150] = True
+    (d,) = det.detect(frame)  # the second lies within the first's mask: one object, seen once
+    assert d.confidence == 0.9
 
 
 def test_centroid_height_from_the_box_when_the_mask_misses_the_legs(tmp_path: Path) -> None:

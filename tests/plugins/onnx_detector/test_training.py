@@ -21,7 +21,7 @@ from amslam.apps.detector_training.dataset import (
     render_dataset,
     sample_poses,
 )
-from amslam.apps.detector_training.evaluate import choose_threshold, evaluate, predict
+from amslam.apps.detector_training.evaluate import choose_threshold, evaluate, points_on_instance, predict
 from amslam.apps.detector_training.evaluate import main as evaluate_main
 from amslam.apps.detector_training.train import (
     P2_STRIDES,
@@ -142,6 +142,17 @@ def test_evaluation_counts_on_a_known_model(tmp_path: Path) -> None:
     # the false table scores 0.8: a threshold above it keeps only the chair (F1 1 instead of 2/3)
     best, rows = choose_threshold([predict(model, data, conf=0.25)], [data], (0.5, 0.85))
     assert best == 0.85 and [c.fp for _, c in rows] == [1, 0]
+
+
+def test_points_are_counted_on_the_instance_their_pixels_show() -> None:
+    K = np.array([[100.0, 0.0, 19.5], [0.0, 100.0, 14.5], [0.0, 0.0, 1.0]])
+    instance = np.zeros((30, 40), np.int32)
+    instance[:, :20] = 7  # the object fills the image's left half, the wall (0) the right
+    v, u = np.mgrid[0:30, 10:30]  # a mask over ten columns of each
+    z = np.full(v.size, 3.0)
+    pts = np.column_stack([(u.ravel() - 19.5) / 100.0 * z, (v.ravel() - 14.5) / 100.0 * z, z])
+    assert points_on_instance(pts, K, instance, 7) == pytest.approx(0.5)
+    assert points_on_instance(pts[:0], K, instance, 7) == 0.0
 
 
 def test_a_cached_training_set_of_other_buildings_is_refused(tiny_set: Dataset, tmp_path: Path) -> None:
