@@ -23,8 +23,6 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from amslam.errors import AmslamError
 from amslam.interfaces import BackendParams, Detector, RunContext
@@ -322,6 +320,11 @@ def largest_surface(mask: np.ndarray, depth: np.ndarray, step: float, slope: flo
     depth step between neighbours, so the neighbour graph is built here and scipy's graph
     routine labels it.
     """
+    # scipy here, not at the top: reading commands (`amslam dump-config detector onnx`) load this
+    # module and must not import the heavy libraries (tests/e2e/test_cli_imports.py)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     v, u = np.nonzero(mask)
     n = len(v)
     if n == 0:
