@@ -13,6 +13,9 @@ chair's legs) onto the wall behind, so before that the mask's depths are split a
 than ``depth_gap`` and only the largest depth cluster (the nearest one on ties) is kept; then
 only the mask's largest connected surface is kept (``surface_step``): a mask spanning two chairs
 of a row, or a table's with the floor between its legs, holds two surfaces at the same depths.
+Last, a surface that does not stand out of what surrounds it (``min_relief``: its outline is
+flush with its surroundings all round, like a picture on a wall or a door in it) is no piece of
+furniture and is dropped.
 """
 
 from __future__ import annotations
@@ -113,6 +116,15 @@ class OnnxDetector(Detector):
             le=10,
             description="depth step between neighbouring pixels allowed per metre of depth (a slanted face "
             "and the camera's depth noise grow with depth)",
+        )
+        min_relief: float = Field(
+            0.1,
+            ge=0.0,
+            le=1.0,
+            description="drop a detection whose surface stands out of its surroundings on less than this"
+            " share of its outline (a picture on a wall, a door in it: flush all round; a piece of"
+            " furniture has the room behind it on a side: docs/detector.md); 0 = keep all, for models"
+            " of flat, wall-mounted classes",
         )
         centroid_height: Literal["mask", "box"] = Field(
             "box",
@@ -260,6 +272,16 @@ class OnnxDetector(Detector):
             mask = largest_surface(mask, d, p.surface_step, p.surface_slope)
         if np.count_nonzero(mask) < min_px:
             return None
+        if p.min_relief > 0:
+            # the outline lies just outside the box as well: look at a margin around it
+            width = max(1, round(2 * W / 320))  # about one cell of the network's mask prototypes
+            m = width + 2
+            a0, b0, a1, b1 = max(0, u0 - m), max(0, v0 - m), min(W, u1 + m), min(H, v1 + m)
+            around = np.zeros((b1 - b0, a1 - a0), dtype=bool)
+            around[v0 - b0 : v0 - b0 + mask.shape[0], u0 - a0 : u0 - a0 + mask.shape[1]] = mask
+            share = relief(around, depth[b0:b1, a0:a1], p.surface_step, p.surface_slope, width)
+            if share is not None and share < p.min_relief:
+                return None
         Kw = np.array(K, dtype=float)
         Kw[0, 2] -= u0
         Kw[1, 2] -= v0
@@ -348,3 +370,49 @@ def largest_surface(mask: np.ndarray, depth: np.ndarray, step: float, slope: flo
     out = np.zeros_like(mask)
     out[v[largest], u[largest]] = True
     return out
+
+
+#: Fewest outline pixels with a depth behind or level with the surface for :func:`relief` to judge.
+MIN_OUTLINE = 8
+
+
+def relief(surface: np.ndarray, depth: np.ndarray, step: float, slope: float, width: int) -> float | None:
+    """The share of ``surface``'s outline behind which the scene lies farther than the surface.
+
+    The outline is the pixels within ``width`` of the surface, outside it. Each is compared with
+    the surface's mean depth around it (within ``width`` + 1): farther by more than
+    ``step + slope·z`` (the step that splits surfaces, :func:`largest_surface`), it lies
+    *behind*, as it does in a patch without depth (nothing within the camera's range); within
+    that step it is *level* (the surface goes on: a wall around a picture, the floor under a
+    leg); nearer, it hides the outline (an occluder); a lone pixel without a depth (a dropped
+    return) says nothing. Neither of the last two is counted.
+    Furniture stands in the room: some of its outline has the room behind it. A picture
+    on a wall, a door or a window in it, is level all round. None when fewer than
+    :data:`MIN_OUTLINE` pixels are behind or level (an outline hidden or off the image).
+    """
+    import cv2  # here, not at the top: reading commands load this module (see largest_surface)
+
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * width + 1, 2 * width + 1))
+    outline = cv2.dilate(surface.astype(np.uint8), kernel).astype(bool) & ~surface
+
+    # the surface's mean depth around each pixel: sums of depth and of pixels over a box
+    def box_sum(image: np.ndarray) -> np.ndarray:
+        size = (2 * width + 3, 2 * width + 3)
+        return cv2.boxFilter(image, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+    z_sum = box_sum(np.where(surface, depth, 0).astype(np.float32))
+    n_sum = box_sum(surface.astype(np.float32))
+    v, u = np.nonzero(outline & (n_sum > 0))
+    near = z_sum[v, u] / n_sum[v, u]
+    z = depth[v, u]
+    tolerance = step + slope * near
+    seen = z > 0
+    # No depth over a patch: nothing within the camera's range, the room goes on behind. A lone
+    # pixel without one is a dropped return (random, or at grazing incidence) and says nothing.
+    far = cv2.erode((depth <= 0).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)[v, u]
+    behind = far | (seen & (z - near > tolerance))
+    level = seen & (np.abs(z - near) <= tolerance)
+    judged = int(np.count_nonzero(behind) + np.count_nonzero(level))
+    if judged < MIN_OUTLINE:
+        return None
+    return float(np.count_nonzero(behind)) / judged

@@ -18,6 +18,7 @@ from amslam.plugins.onnx_detector.detector import (
     OnnxDetector,
     largest_depth_cluster,
     largest_surface,
+    relief,
     shipped_model,
 )
 from amslam.plugins.sim.camera import viewing_pose
@@ -215,7 +216,9 @@ def _stub_detector(tmp_path: Path, instances: list[Instance], **params) -> tuple
     det.configure(OnnxDetector.Params(**params), RunContext(rng=np.random.default_rng(0), run_dir=tmp_path))
     det._model = _StubModel(instances)
     K = np.array([[160.0, 0.0, 159.5], [0.0, 160.0, 119.5], [0.0, 0.0, 1.0]])
-    depth = np.full((240, 320), 3.0, np.float32)
+    depth = np.full((240, 320), 4.5, np.float32)  # the room behind
+    for inst in instances:
+        depth[inst.mask] = 3.0  # each object 1.5 m before it
     frame = Frame(0.0, depth, K, np.eye(4), np.zeros((240, 320, 3), np.uint8))
     return det, frame
 
@@ -281,3 +284,38 @@ def test_centroid_height_from_the_box_when_the_mask_misses_the_legs(tmp_path: Pa
     det, frame = _stub_detector(tmp_path, [cut])
     (d,) = det.detect(frame)
     assert d.centroid_cam[1] == pytest.approx((179.5 - cy) / fy * 3.0)
+
+
+def test_relief_tells_furniture_from_a_picture_on_the_wall() -> None:
+    wall = np.full((60, 80), 4.0, np.float32)
+    picture = np.zeros_like(wall, dtype=bool)
+    picture[20:40, 30:50] = True
+    assert relief(picture, wall, step=0.05, slope=0.03, width=2) == 0.0  # level all round
+    chair = wall.copy()
+    chair[20:40, 30:50] = 3.0  # a metre before the wall
+    chair[40:, :] = 3.0  # standing on the floor, level with its bottom row (and lower rows)
+    share = relief(picture, chair, step=0.05, slope=0.03, width=2)
+    assert share is not None and 0.6 < share < 0.9  # behind on three sides, level on the fourth
+    dropped = wall.copy()
+    dropped[np.random.default_rng(0).random(wall.shape) < 0.1] = 0.0  # lone pixels without a depth
+    dropped[picture] = 4.0
+    assert relief(picture, dropped, step=0.05, slope=0.03, width=2) < 0.02  # they say nothing
+    no_return = np.zeros_like(wall)  # nothing within the camera's range around it: room behind
+    no_return[20:40, 30:50] = 3.0
+    assert relief(picture, no_return, step=0.05, slope=0.03, width=2) == 1.0
+    hidden = wall.copy()
+    hidden[picture] = 3.0
+    hidden[15:45, 25:55] = np.where(picture[15:45, 25:55], 3.0, 1.0)  # something nearer all round
+    assert relief(picture, hidden, step=0.05, slope=0.03, width=2) is None  # cannot tell
+
+
+def test_a_detection_flush_with_the_wall_is_dropped(tmp_path: Path) -> None:
+    picture = _instance(3, 0.9, (100, 60, 160, 110))
+    det, frame = _stub_detector(tmp_path, [picture])
+    frame.depth[:] = 3.0  # the picture is level with the wall around it
+    assert det.detect(frame) == []
+    det, frame = _stub_detector(tmp_path, [picture], min_relief=0.0)
+    frame.depth[:] = 3.0
+    assert len(det.detect(frame)) == 1
+    det, frame = _stub_detector(tmp_path, [picture])  # a sofa before the wall
+    assert len(det.detect(frame)) == 1
