@@ -33,6 +33,12 @@ MIN_POINTS = 20
 MAX_POINTS = 1000
 #: Boxes of a class before its median box completes partial views (``size_prior_min_boxes``).
 MIN_CLASS_BOXES = 3
+#: How far down a box is stretched to where its detections' middle says the object reaches, m
+#: (:func:`_fit`): a chair's legs below its seat; more is a wrong middle, not a missed part.
+MAX_REACH = 0.6
+#: How far below its points' median a landmark's detections must put their centroids (median
+#: over them, m) to say that the object reaches below its points (:func:`_fit`).
+MIN_BELOW = 0.05
 
 
 @dataclass
@@ -52,6 +58,9 @@ class _Seen:
     points: np.ndarray
     cameras: np.ndarray
     keys: set[int]
+    #: the height of each kept detection's centroid (world z) when the detector put them below
+    #: the points' middle (:data:`MIN_BELOW`), else empty
+    heights: np.ndarray
 
 
 def fitted_boxes(
@@ -102,7 +111,7 @@ def fitted_boxes(
         tolerance: a shortfall of the class's box up to this is noise, not a missing part (m).
     """
     seen = {lm.id: v for lm in landmarks if (v := _seen(lm, values, T_body_cam, trim_spreads)) is not None}
-    fits = {j: box for j, v in seen.items() if (box := _fit(v.points)) is not None}
+    fits = {j: box for j, v in seen.items() if (box := _fit(v.points, v.heights)) is not None}
     typical: dict[str, np.ndarray] = {}
     for cls in {seen[j].class_name for j in fits}:
         dims = [
@@ -122,7 +131,8 @@ def fitted_boxes(
     folded = _twins(out, seen, twin_margin, twin_share)
     for j in set(folded.values()):  # a survivor's box from its twins' points as well
         group = [j, *(k for k, into in folded.items() if into == j)]
-        box = _fit(np.vstack([seen[k].points for k in group]))
+        heights = np.concatenate([seen[k].heights for k in group])
+        box = _fit(np.vstack([seen[k].points for k in group]), heights)
         if box is not None:
             out[j] = completed(box, seen[j].class_name, np.vstack([seen[k].cameras for k in group]))
     for k in folded:
@@ -170,11 +180,14 @@ def _seen(
     poses = [values.atPose3(o.pose_key).matrix() for o in obs]
     points = [transform_points(T, o.points) for T, o in zip(poses, obs, strict=True)]
     kept = _consistent(points, obs, trim_spreads)
+    heights = np.array([(poses[i][:3, :3] @ obs[i].p_body + poses[i][:3, 3])[2] for i in kept])
+    below = np.array([np.median(points[i][:, 2]) for i in kept]) - heights
     return _Seen(
         lm.class_name,
         np.vstack([points[i] for i in kept]),
         np.array([(poses[i] @ _mount(T_body_cam, obs[i]))[:3, 3] for i in kept]),
         {o.pose_key for o in obs},  # every view of it, for the twins' test
+        heights if np.median(below) > MIN_BELOW else np.zeros(0),
     )
 
 
@@ -196,14 +209,38 @@ def _consistent(points: list[np.ndarray], observations: list, trim_spreads: floa
     return kept or everything
 
 
-def _fit(points: np.ndarray) -> dict | None:
+def _fit(points: np.ndarray, heights: np.ndarray | None = None) -> dict | None:
+    """The box of a landmark's points, reaching down as far as its detections' middle says.
+
+    ``heights``: the world height of each detection's centroid, given when the detector put
+    them below their points' middle (by :data:`MIN_BELOW` over the landmark's detections). A
+    detector whose masks miss an object's thin lower parts (the ``onnx`` network's do not reach
+    a chair's legs) leaves the points' bottom at the seat, while its centroid's height is the
+    middle of the object's image box, which reaches the feet (``centroid_height: box``): the
+    object then reaches down to twice their median less the points' top, and the box is
+    stretched to there — by at most :data:`MAX_REACH`, and never raised. A detector whose
+    centroid is its points' median (the ``sim`` detector) says nothing more than its points:
+    taken as the middle, the median of a bed's or a cabinet's points, low under a tall
+    headboard or top, would put the floor too low (the house's objects 0.162 → 0.178 m when
+    every landmark was stretched so).
+    """
     # Not past the camera's depth noise (fit_cuboid's ``noise``, which the base merge's cars
     # use): indoors at 2-5 m it is a few centimetres, and on the 15 SLC-ablation flights of
     # 8829d9f re-solved (benchmarks/slam_offline.py --depth-noise logged,0.005) the objects'
     # mean error went 0.265 -> 0.268 m (0.180 -> 0.190 on the true key poses): no gain.
     if len(points) < MIN_POINTS:
         return None
-    return shapes.fit_cuboid(points[:: -(-len(points) // MAX_POINTS)])
+    box = shapes.fit_cuboid(points[:: -(-len(points) // MAX_POINTS)])
+    if box is None or heights is None or len(heights) == 0:
+        return box
+    centre, dims = np.asarray(box["center"], float), np.asarray(box["dims"], float)
+    top, bottom = centre[2] + dims[2] / 2, centre[2] - dims[2] / 2
+    reach = 2.0 * float(np.median(heights)) - top
+    if reach >= bottom:
+        return box
+    bottom = max(reach, bottom - MAX_REACH)
+    centre[2], dims[2] = (top + bottom) / 2, top - bottom
+    return shapes.cuboid_shape(np.asarray(box["rotation"], float), centre, dims)
 
 
 def _twins(

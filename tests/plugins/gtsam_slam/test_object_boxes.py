@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import gtsam
 import numpy as np
+import pytest
 
 from amslam.geometry import invert, pose_from
 from amslam.plugins.gtsam_slam.object_boxes import fitted_boxes
@@ -19,6 +20,12 @@ def face(lo: np.ndarray, y: float, rng: np.random.Generator, n: int = 80) -> np.
     pts = lo + rng.uniform(0, 1, (n, 3)) * CHAIR
     pts[:, 1] = y + rng.normal(0.0, 0.01, n)  # a depth camera's noise
     return pts
+
+
+def view(key: int, body: np.ndarray, **more) -> SimpleNamespace:  # noqa: ANN003
+    """One detection of a landmark from key pose ``key``: its body-frame points, and its centroid
+    at their median (the ``sim`` detector's)."""
+    return SimpleNamespace(pose_key=key, points=body, p_body=np.median(body, axis=0), **more)
 
 
 def report(landmarks: list, observations: dict[int, list]) -> list:
@@ -38,7 +45,7 @@ def test_chairs_all_seen_from_the_front_stay_as_deep_as_they_look() -> None:
             T = pose_from(lo + np.array([0.25 + dx, -2.5, 1.2]), np.pi / 2)
             values.insert(key, gtsam.Pose3(T))
             body = (invert(T) @ np.c_[face(lo, lo[1], rng), np.ones(80)].T).T[:, :3]
-            obs.append(SimpleNamespace(pose_key=key, points=body))
+            obs.append(view(key, body))
             key += 1
         landmarks.append(SimpleNamespace(id=j, class_name="chair"))
         observations[j] = obs
@@ -70,7 +77,7 @@ def test_a_class_seen_whole_completes_its_partial_views() -> None:
             values.insert(key, gtsam.Pose3(T))
             pts = face(lo, lo[1] if y < 0 else lo[1] + CHAIR[1], rng)
             body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
-            obs.append(SimpleNamespace(pose_key=key, points=body))
+            obs.append(view(key, body))
             key += 1
         landmarks.append(SimpleNamespace(id=j, class_name="chair"))
         observations[j] = obs
@@ -126,7 +133,7 @@ def test_one_chair_mapped_twice_is_reported_once_and_neighbours_stay_apart() -> 
         T = values.atPose3(k).matrix()
         pts = face(lo, lo[1] if y < 0 else lo[1] + CHAIR[1], rng)
         body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
-        observations.setdefault(j, []).append(SimpleNamespace(pose_key=k, points=body))
+        observations.setdefault(j, []).append(view(k, body))
         return k
 
     row = [np.array([0.75 * i, 0.0, 0.0]) for i in range(3)]  # a row of chairs 0.75 m apart
@@ -166,7 +173,7 @@ def test_a_part_of_a_table_mapped_again_alone_joins_the_table() -> None:
         values.insert(key, gtsam.Pose3(T))
         key += 1
         body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
-        observations.setdefault(j, []).append(SimpleNamespace(pose_key=key - 1, points=body))
+        observations.setdefault(j, []).append(view(key - 1, body))
 
     def side(y: float) -> np.ndarray:
         pts = rng.uniform(0, 1, (150, 3)) * table
@@ -204,7 +211,7 @@ def test_a_neighbours_detection_given_to_a_chair_is_left_out_of_its_box() -> Non
         body = (invert(T) @ np.c_[pts, np.ones(len(pts))].T).T[:, :3]
         xy = pts[:, :2] - pts[:, :2].mean(axis=0)
         spread = float(np.sqrt(np.mean(np.sum(xy**2, axis=1))))
-        observations.setdefault(0, []).append(SimpleNamespace(pose_key=key, points=body, spread=spread))
+        observations.setdefault(0, []).append(view(key, body, spread=spread))
     landmarks = [SimpleNamespace(id=0, class_name="chair")]
     centre = row[0] + CHAIR / 2
     errors = {}
@@ -214,3 +221,28 @@ def test_a_neighbours_detection_given_to_a_chair_is_left_out_of_its_box() -> Non
         ).boxes[0]
         errors[trim] = abs(box["center"][0] - centre[0])
     assert errors[2.5] < 0.05 < errors[None]  # the neighbour's points widened the box towards it
+
+
+def test_a_chair_whose_masks_miss_its_legs_reaches_down_to_where_its_detections_say() -> None:
+    rng = np.random.default_rng(5)
+    lo = np.array([0.0, 0.0, 0.0])
+    values = gtsam.Values()
+    observations: dict[int, list] = {0: [], 1: [], 2: []}
+    for key, dx in enumerate((-1.0, 0.0, 1.0)):
+        T = pose_from(lo + np.array([0.25 + dx, -2.5, 1.2]), np.pi / 2)
+        values.insert(key, gtsam.Pose3(T))
+        pts = face(lo, lo[1], rng)
+        seat_and_back = pts[pts[:, 2] > 0.45]  # a network's mask: no legs
+        body = (invert(T) @ np.c_[seat_and_back, np.ones(len(seat_and_back))].T).T[:, :3]
+        # the detector's centroid at the middle of the object's image box: the chair's middle
+        box_middle = invert(T) @ np.r_[np.median(seat_and_back, axis=0)[:2], 0.45, 1.0]
+        observations[0].append(SimpleNamespace(pose_key=key, points=body, p_body=box_middle[:3]))
+        observations[1].append(view(key, body))  # the points' median: says nothing lower
+        far_below = invert(T) @ np.r_[np.median(seat_and_back, axis=0)[:2], -1.0, 1.0]
+        observations[2].append(SimpleNamespace(pose_key=key, points=body, p_body=far_below[:3]))
+    chairs = [SimpleNamespace(id=j, class_name="chair") for j in (0, 1, 2)]
+    boxes = fitted_boxes(report(chairs, observations), values, camera_mount(), twin_margin=0.0).boxes
+    assert boxes[0]["center"][2] == pytest.approx(0.45, abs=0.03)  # down to the floor
+    assert boxes[0]["dims"][2] == pytest.approx(0.9, abs=0.05)
+    assert boxes[1]["center"][2] == pytest.approx(0.675, abs=0.03)  # seat to top, as the points are
+    assert boxes[2]["dims"][2] == pytest.approx(0.45 + 0.6, abs=0.05)  # stretched by 0.6 m at most
