@@ -10,7 +10,9 @@ building and detector, mean ± std over the seeds of:
 * the map's shift (the length of the mean landmark − object offset: a frame error the trajectory
   left, common to all landmarks) and the landmarks' error about it (their own), which tell a
   trajectory's error from a landmark model's;
-* whether SLAM ended below VIO on every flight (issue #23: "with SLAM still ending below VIO");
+* whether SLAM ended below VIO on every flight (issue #23: "with SLAM still ending below VIO"), and
+  the semantic loop closures accepted of those tried, summed over the seeds ("SLC acceptance no
+  worse");
 * per class, pooled over the seeds: objects, mapped, duplicates, spurious, mean error.
 
 The house is scored in amslam's classes (``metrics.json``'s ``accuracy_amslam_classes``: the
@@ -94,6 +96,9 @@ def flight_figures(metrics: dict[str, Any]) -> dict[str, Any] | None:
         ),
         "by_class": acc.get("by_class", {}),
         "completed": metrics.get("verdict") == "completed",  # as `amslam run`'s exit status reads it
+        # semantic loop closures accepted of those tried (issue #23: "SLC acceptance no worse")
+        "slc_accepted": (metrics.get("slc") or {}).get("accepted"),
+        "slc_attempts": (metrics.get("slc") or {}).get("attempts"),
     }
 
 
@@ -105,12 +110,15 @@ def tables(rows: list[dict[str, Any]]) -> str:
     out = [
         "| building | detector | flights | mapped % | duplicates % of objects | spurious % of landmarks | "
         "mean error (m) | median error (m) | > 0.5 m off | map shift (m) | error about the shift (m) | "
-        "SLAM < VIO |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "SLAM < VIO | SLC accepted |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (building, detector), group in groups.items():
         figs = [g["figures"] for g in group if g["figures"] is not None]
         below = [f["slam_below_vio"] for f in figs if f["slam_below_vio"] is not None]
+        tried = [f for f in figs if f.get("slc_attempts") is not None]
+        accepted, attempts = sum(f["slc_accepted"] for f in tried), sum(f["slc_attempts"] for f in tried)
+        slc = f"{accepted} of {attempts}" if tried else "—"
         # a flight that ended early still has a map to score, but not the whole building's
         failed = sum(not f["completed"] for f in figs)
         ended = f" ({failed} not completed)" if failed else ""
@@ -129,7 +137,7 @@ def tables(rows: list[dict[str, Any]]) -> str:
                     "about_shift_m",
                 )
             )
-            + f" | {sum(below)} of {len(below)} |"
+            + f" | {sum(below)} of {len(below)} | {slc} |"
         )
     out += [
         "",

@@ -18,6 +18,7 @@ def _metrics(matched, objects, duplicates, spurious, err, vio, slam):
         "verdict": "completed",
         "landmarks": {"accuracy": accuracy},
         "final_error": {"vio_position_m": vio, "slam_position_m": slam},
+        "slc": {"attempts": 3, "accepted": 2, "events": []},
     }
 
 
@@ -36,7 +37,10 @@ def test_figures_and_tables_of_two_seeds():
     assert "| demo | sim | 2 of 3 | 90.00 ± 10.00 | 5.00 ± 5.00 | 5.00 ± 5.00 | 0.15 ± 0.05 |" in text
     # the shifts 1.0 and 0.5 m (offsets (0.6, 0.8) and (0.3, 0.4)), errors about them 0.1 and 0.05 m
     assert "| 0.00 ± 0.00 | 0.75 ± 0.25 | 0.08 ± 0.03 | 1 of 2 |" in text
-    assert text.split("\n")[2].endswith("| 1 of 2 |")  # SLAM ended below VIO on one flight of two
+    # SLAM ended below VIO on one flight of two; loop closures accepted, summed over the flights
+    assert text.split("\n")[2].endswith("| 1 of 2 | 4 of 6 |")
+    no_slc = b.flight_figures({k: v for k, v in _metrics(8, 10, 1, 1, 0.2, 0.5, 0.1).items() if k != "slc"})
+    assert b.tables([{**rows[0], "figures": no_slc}]).split("\n")[2].endswith("| 1 of 1 | — |")
     # per class, pooled: 20 objects, 18 mapped, mean error weighted by the mapped objects
     assert "| demo | sim | chair | 20 | 18 | 1 | 1 | 0.144 |" in text
     assert b.flight_figures({"verdict": "failed"}) is None
