@@ -274,7 +274,7 @@ class OnnxDetector(Detector):
             return None
         if p.min_relief > 0:
             # the outline lies just outside the box as well: look at a margin around it
-            width = max(1, round(2 * W / 320))  # about one cell of the network's mask prototypes
+            width = max(1, round(2 * W / 320))  # 2 px at 320×240, scaled with the image
             m = width + 2
             a0, b0, a1, b1 = max(0, u0 - m), max(0, v0 - m), min(W, u1 + m), min(H, v1 + m)
             around = np.zeros((b1 - b0, a1 - a0), dtype=bool)
