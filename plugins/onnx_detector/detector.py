@@ -123,8 +123,12 @@ class OnnxDetector(Detector):
             le=1.0,
             description="drop a detection whose surface stands out of its surroundings on less than this"
             " share of its outline (a picture on a wall, a door in it: flush all round; a piece of"
-            " furniture has the room behind it on a side: docs/detector.md); 0 = keep all, for models"
-            " of flat, wall-mounted classes",
+            " furniture has the room behind it on a side: docs/detector.md); 0 = keep all",
+        )
+        flush_classes: list[str] = Field(
+            default_factory=list,
+            description="classes that may lie flush with a wall, not held to min_relief (a model's tv,"
+            " picture or window)",
         )
         centroid_height: Literal["mask", "box"] = Field(
             "box",
@@ -190,6 +194,10 @@ class OnnxDetector(Detector):
         if len(names) != n:
             raise AmslamError(f"detector.class_names: {len(names)} names for a model with {n} classes")
         self.names = names
+        if unknown := sorted(set(params.flush_classes) - set(names)):
+            raise AmslamError(
+                f"detector.flush_classes: {unknown} not among the model's classes {list(names)}"
+            )
         context.emit(
             "onnx_detector_model", path=str(path), input=list(self._model.info.input_hw), names=list(names)
         )
@@ -272,7 +280,7 @@ class OnnxDetector(Detector):
             mask = largest_surface(mask, d, p.surface_step, p.surface_slope)
         if np.count_nonzero(mask) < min_px:
             return None
-        if p.min_relief > 0:
+        if p.min_relief > 0 and self.names[inst.class_id] not in p.flush_classes:
             # the outline lies just outside the box as well: look at a margin around it
             width = max(1, round(2 * W / 320))  # 2 px at 320×240, scaled with the image
             m = width + 2

@@ -317,5 +317,13 @@ def test_a_detection_flush_with_the_wall_is_dropped(tmp_path: Path) -> None:
     det, frame = _stub_detector(tmp_path, [picture], min_relief=0.0)
     frame.depth[:] = 3.0
     assert len(det.detect(frame)) == 1
+    det, frame = _stub_detector(tmp_path, [picture], flush_classes=["sofa"])  # a class that may be flush
+    frame.depth[:] = 3.0
+    assert len(det.detect(frame)) == 1
     det, frame = _stub_detector(tmp_path, [picture])  # a sofa before the wall
     assert len(det.detect(frame)) == 1
+
+
+def test_a_flush_class_the_model_has_not_is_named(tmp_path: Path) -> None:
+    with pytest.raises(AmslamError, match=r"detector.flush_classes: \['tv'\] not among the model's classes"):
+        _stub_detector(tmp_path, [], flush_classes=["tv"])
