@@ -180,7 +180,7 @@ def _seen(
     poses = [values.atPose3(o.pose_key).matrix() for o in obs]
     points = [transform_points(T, o.points) for T, o in zip(poses, obs, strict=True)]
     kept = _consistent(points, obs, trim_spreads)
-    heights = np.array([(poses[i][:3, :3] @ obs[i].p_body + poses[i][:3, 3])[2] for i in kept])
+    heights = np.array([transform_points(poses[i], obs[i].p_body[None])[0, 2] for i in kept])
     below = np.array([np.median(points[i][:, 2]) for i in kept]) - heights
     return _Seen(
         lm.class_name,

@@ -266,10 +266,13 @@ class OnnxDetector(Detector):
         assert p is not None
         H, W = depth.shape
         min_px = max(1, int(round(p.min_pixels * (H * W) / (640 * 480))))
-        # work inside the box: the mask is empty outside it; the window's intrinsics are K
-        # with the principal point shifted by the window's corner
-        u0, v0 = int(np.floor(inst.box[0])), int(np.floor(inst.box[1]))
-        u1, v1 = int(np.ceil(inst.box[2])), int(np.ceil(inst.box[3]))
+        # work inside the box (the mask is empty outside it) and a margin around it, where the
+        # outline the relief test reads lies; the window's intrinsics are K with the principal
+        # point shifted by the window's corner
+        width = max(1, round(2 * W / 320))  # the relief outline: 2 px at 320×240, scaled with the image
+        margin = width + 2
+        u0, v0 = max(0, int(np.floor(inst.box[0])) - margin), max(0, int(np.floor(inst.box[1])) - margin)
+        u1, v1 = min(W, int(np.ceil(inst.box[2])) + margin), min(H, int(np.ceil(inst.box[3])) + margin)
         win = (slice(v0, v1), slice(u0, u1))
         d = depth[win]
         mask = inst.mask[win] & (d > 0) & (d <= p.max_range)
@@ -281,13 +284,7 @@ class OnnxDetector(Detector):
         if np.count_nonzero(mask) < min_px:
             return None
         if p.min_relief > 0 and self.names[inst.class_id] not in p.flush_classes:
-            # the outline lies just outside the box as well: look at a margin around it
-            width = max(1, round(2 * W / 320))  # 2 px at 320×240, scaled with the image
-            m = width + 2
-            a0, b0, a1, b1 = max(0, u0 - m), max(0, v0 - m), min(W, u1 + m), min(H, v1 + m)
-            around = np.zeros((b1 - b0, a1 - a0), dtype=bool)
-            around[v0 - b0 : v0 - b0 + mask.shape[0], u0 - a0 : u0 - a0 + mask.shape[1]] = mask
-            share = relief(around, depth[b0:b1, a0:a1], p.surface_step, p.surface_slope, width)
+            share = relief(mask, d, p.surface_step, p.surface_slope, width)
             if share is not None and share < p.min_relief:
                 return None
         Kw = np.array(K, dtype=float)
